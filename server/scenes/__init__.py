@@ -1,0 +1,43 @@
+"""HDR scenes in absolute units (cd/m^2): built-in procedural ones and OpenEXR files.
+
+A scene is anything with `render(t, width, height)`: the radiance at time `t` seconds as an
+H×W×3 float32 array of linear Rec.709 cd/m^2. Procedural scenes draw at the size asked for;
+a file scene returns its pixels and lets the simulator fit them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+
+class Scene(Protocol):
+    name: str
+    #: True when `render` depends on `t` (the caller must re-render every frame).
+    animated: bool
+
+    def render(self, t: float, width: int, height: int) -> np.ndarray: ...
+
+
+def builtin_names() -> list[str]:
+    from server.scenes.procedural import BUILTIN
+
+    return sorted(BUILTIN)
+
+
+def open_scene(spec: str, scale: float | None = None) -> Scene:
+    """A built-in scene by name, or an EXR file by path (`scale` overrides whiteLuminance)."""
+    from server.scenes.procedural import BUILTIN
+
+    if spec in BUILTIN:
+        return BUILTIN[spec]()
+    path = Path(spec)
+    if path.suffix.lower() == ".exr" or path.exists():
+        from server.scenes.exr import ExrScene
+
+        return ExrScene.open(path, scale=scale)
+    raise ValueError(
+        f"unknown scene {spec!r}: not a built-in ({', '.join(builtin_names())}) nor an EXR file"
+    )

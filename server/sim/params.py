@@ -1,0 +1,142 @@
+"""Every number the model uses, in one typed place.
+
+The defaults are the paper's Appendix A (Jacobs et al. 2015), under the paper's symbol names.
+Values the paper does not give are marked *ours* in their comment, with the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Viewing geometry: pixel sizes in the paper refer to this screen (about 64 px per degree)."""
+
+    screen_diagonal_m: float = 0.6
+    screen_width_px: int = 1920
+    screen_height_px: int = 1080
+    viewing_distance_m: float = 1.0
+
+    def pixels_per_degree(self, width_px: int | None = None) -> float:
+        """Pixels per degree for a frame of `width_px` showing the whole screen."""
+        pitch = self.screen_diagonal_m / math.hypot(self.screen_width_px, self.screen_height_px)
+        ppd = 2.0 * self.viewing_distance_m * math.tan(math.radians(0.5)) / pitch
+        return ppd * (width_px or self.screen_width_px) / self.screen_width_px
+
+
+@dataclass(frozen=True)
+class Params:
+    """Model parameters. Paper symbols first (Appendix A), then ours."""
+
+    # --- Appendix A -------------------------------------------------------------------------
+    gamma: float = 0.455  # display gamma compensation, v = J^gamma
+    n: float = 0.7  # Naka-Rushton exponent (Eq. 1)
+    a1: float = 0.75  # adaptation rate to brighter stimuli, log10 units / s (Eq. 3)
+    a2: float = 0.2  # adaptation rate to darker stimuli, log10 units / s (Eq. 3)
+    b1: Vec3 = (1.2e-3, 1.4e-4, 5.5e-7)  # L, M, S photopigment bleaching rate (Eq. 4-6)
+    b2: Vec3 = (6.9e-1, 1.4e0, 5.5e0)  # L, M, S photopigment regeneration rate, 1/s
+    c1: float = 1.0  # calcium influx rate (Eq. 8-10)
+    c2: float = 1.0  # calcium efflux rate, 1/s
+    j1: float = 0.03  # bleaching afterimage strength (Eq. 7, 12)
+    j2: float = 0.15  # adaptation afterimage strength (Eq. 12)
+    m1: float = 0.0  # maximum mesopic log10 luminance (Eq. 13)
+    m2: float = -2.0  # minimum mesopic log10 luminance
+    w_P: Vec3 = (0.2126, 0.7152, 0.0722)  # RGB photopic luminance weights
+    w_S: Vec3 = (0.0, 0.8451, 0.1459)  # RGB scotopic luminance weights
+    sigma_0: float = 0.75  # sigma_i = sigma_0 * 2^(i/4) px at the reference geometry, i = 0..7
+    rho_step: float = 0.286  # acuity thresholds rho_i = rho_step * i in log10 luminance
+    g: float = 0.25  # stochastic acuity variance (Eq. 15)
+    H: Mat3 = (  # LMS bleaching levels -> RGB afterimage colour matrix
+        (1.14, -1.18, 0.36),
+        (0.08, 1.02, 0.18),
+        (0.30, -0.11, 1.25),
+    )
+    A_min: float = 2.0  # adaptation floor, log10(100 cd/m^2) (Sec. 2.4)
+
+    # --- ours ---------------------------------------------------------------------------------
+    # Plateau M(I) = I^m / (I^m + K^m) of Eq. 2, not given in the paper. m = n/2 gives
+    # sigma = sqrt(I*K): partial adaptation, so bright scenes still look brighter than dim ones.
+    plateau_m_over_n: float = 0.5
+    plateau_K: float = 300.0  # cd/m^2; a comfortable office white
+    bands: int = 8  # i = 0..7 in Appendix A
+    adaptation_sigma_deg: float = 1.0  # the "small patch" of Sec. 2.1: about the fovea
+    rho_sigma_deg: float = 0.5  # local average for L in Eq. 13: smooth over a few acuity cells
+    # Scotopic colour of a neutral grey (Sec. 2.3.2), a dull purple after Shin et al. 2004,
+    # normalised so that w_P . k_s = 1 (it keeps the luminance the tone curve gives).
+    k_s: Vec3 = (1.10, 0.94, 1.30)
+    noise_cell_deg: float = 0.5  # spacing of the coarse acuity noise grid (Sec. 2.3.3)
+    noise_rate_hz: float = 4.0  # key frames of the acuity noise per second: "a few Hz"
+    map_blur_deg: float = 0.1  # sigma of the B, C map blur after 1 s; scales with sqrt(dt)
+    fovea_sigma_deg: float = 10.0  # afterimage visibility fall-off (Sec. 2.4): fades by 20 deg
+    retina_cell_deg: float = 1 / 16  # retinal state resolution: afterimages are blurry anyway
+    alpha_eps: float = 1e-3  # Eq. 11 guard: alpha = (1 - c_inf + eps) / (1 - c + eps)
+    Y_min: float = 1e-6  # cd/m^2 floor inside log10; far below the scotopic range
+    radiance_max: float = 1e10  # cd/m^2 cap on input; the sun's disc is about 1.6e9
+    geometry: Geometry = field(default_factory=Geometry)
+
+    def __post_init__(self) -> None:
+        for name in ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"parameter {name} must be a finite positive number, got {value}")
+        for name in ("b1", "b2"):
+            value = getattr(self, name)
+            if len(value) != 3 or not all(math.isfinite(v) and v > 0 for v in value):
+                raise ValueError(f"parameter {name} must be three finite positive numbers")
+        if not self.m1 > self.m2:
+            raise ValueError(f"m1 ({self.m1}) must be greater than m2 ({self.m2})")
+        if not 0 < self.plateau_m_over_n < 1:
+            raise ValueError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
+        if self.bands < 1:
+            raise ValueError("bands must be at least 1")
+
+    @property
+    def C_max(self) -> float:
+        """Maximum equilibrium calcium, reached in total darkness (Eq. 11)."""
+        return self.c1 / self.c2
+
+    def sigma_i(self, ppd: float) -> list[float]:
+        """Acuity Gaussian bank in pixels of a frame with `ppd` pixels per degree."""
+        scale = ppd / self.geometry.pixels_per_degree()
+        return [self.sigma_0 * 2 ** (i / 4) * scale for i in range(self.bands)]
+
+    def rho_i(self) -> list[float]:
+        """Band thresholds in normalised units, finest band first (highest threshold)."""
+        per = self.rho_step / (self.m1 - self.m2)
+        return [per * (self.bands - 1 - i) for i in range(self.bands)]
+
+    def replace(self, **changes: Any) -> Params:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Params:
+        """Build from a (partial) dict, e.g. a JSON preset; unknown names are an error."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
+        values = dict(data)
+        if "geometry" in values and isinstance(values["geometry"], dict):
+            values["geometry"] = Geometry(**values["geometry"])
+        for name in ("b1", "b2", "w_P", "w_S", "k_s"):
+            if name in values:
+                values[name] = tuple(float(v) for v in values[name])
+        if "H" in values:
+            values["H"] = tuple(tuple(float(v) for v in row) for row in values["H"])
+        return cls(**values)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Params:
+        return cls.from_dict(json.loads(Path(path).read_text()))
