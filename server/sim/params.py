@@ -77,7 +77,7 @@ class Params:
     noise_rate_hz: float = 4.0  # key frames of the acuity noise per second: "a few Hz"
     map_blur_deg: float = 0.1  # sigma of the B, C map blur after 1 s; scales with sqrt(dt)
     fovea_sigma_deg: float = 10.0  # afterimage visibility fall-off (Sec. 2.4): fades by 20 deg
-    retina_cell_deg: float = 1 / 16  # retinal state resolution: afterimages are blurry anyway
+    retina_cell_deg: float = 0.1  # retinal state cell: afterimages are blurry, 6 arcmin is ample
     alpha_eps: float = 1e-3  # Eq. 11 guard: alpha = (1 - c_inf + eps) / (1 - c + eps)
     Y_min: float = 1e-6  # cd/m^2 floor inside log10; far below the scotopic range
     radiance_max: float = 1e10  # cd/m^2 cap on input; the sun's disc is about 1.6e9

@@ -1,0 +1,201 @@
+"""Pure helpers both backends share: colour matrices, frame layout, filter taps, noise, fitting.
+
+Everything here is host-side NumPy and deterministic; the kernels and the reference model get
+their constants from these functions so that the two cannot drift apart.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from server.sim.params import Params
+
+MIN_SIZE = 16
+MAX_SIZE = (7680, 4320)
+
+# Linear Rec.709/sRGB (D65) -> CIE XYZ.
+RGB_TO_XYZ = np.array(
+    [
+        [0.4124564, 0.3575761, 0.1804375],
+        [0.2126729, 0.7151522, 0.0721750],
+        [0.0193339, 0.1191920, 0.9503041],
+    ]
+)
+# Hunt-Pointer-Estevez XYZ -> LMS (equal-energy normalisation).
+XYZ_TO_LMS_HPE = np.array(
+    [
+        [0.38971, 0.68898, -0.07868],
+        [-0.22981, 1.18340, 0.04641],
+        [0.0, 0.0, 1.0],
+    ]
+)
+
+
+def rgb_to_lms_matrix() -> np.ndarray:
+    """RGB -> LMS through XYZ with Hunt-Pointer-Estevez, rows scaled so RGB white gives L=M=S=Y.
+
+    With this normalisation a neutral stimulus of luminance Y excites every cone by Y, so the
+    paper's per-cone bleaching rates b1 (per cd/m^2) apply to each cone directly.
+    """
+    m = XYZ_TO_LMS_HPE @ RGB_TO_XYZ
+    return m / m.sum(axis=1, keepdims=True)
+
+
+RGB_TO_LMS = rgb_to_lms_matrix()
+LMS_TO_RGB = np.linalg.inv(RGB_TO_LMS)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Sizes of every map for one frame size, in pixels, derived from the viewing geometry.
+
+    The retina grid has cells of `cell` screen pixels and spans twice the screen in each
+    direction, so it covers the whole screen for any gaze on it.
+    """
+
+    width: int
+    height: int
+    ppd: float  # pixels per degree of this frame
+    cell: int  # retina / low-resolution cell size in screen pixels
+    low_w: int
+    low_h: int
+    grid_w: int
+    grid_h: int
+
+    @classmethod
+    def for_frame(cls, width: int, height: int, params: Params) -> Layout:
+        for name, value, limit in (("width", width, MAX_SIZE[0]), ("height", height, MAX_SIZE[1])):
+            if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+                raise ValueError(f"{name} must be an integer, got {value!r}")
+            if not MIN_SIZE <= value <= limit:
+                raise ValueError(f"{name} must be in [{MIN_SIZE}, {limit}], got {value}")
+        ppd = params.geometry.pixels_per_degree(int(width))
+        cell = max(1, round(params.retina_cell_deg * ppd))
+        low_w, low_h = math.ceil(width / cell), math.ceil(height / cell)
+        return cls(int(width), int(height), ppd, cell, low_w, low_h, 2 * low_w, 2 * low_h)
+
+    def px(self, degrees: float) -> float:
+        return degrees * self.ppd
+
+
+def gaussian_taps(sigma: float) -> np.ndarray:
+    """Normalised 1-D Gaussian taps (odd length) whose variance is sigma^2, also for tiny sigma.
+
+    A sampled Gaussian narrower than about 0.7 px has the wrong variance; there the 3-tap
+    kernel [v/2, 1-v, v/2] has variance exactly v = sigma^2, so blurs compose correctly.
+    """
+    if not math.isfinite(sigma) or sigma <= 0:
+        return np.ones(1, np.float32)
+    v = sigma * sigma
+    if v <= 0.5:
+        return np.array([v / 2, 1 - v, v / 2], np.float32)
+    radius = math.ceil(3 * sigma)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    taps = np.exp(-(x * x) / (2 * v))
+    return (taps / taps.sum()).astype(np.float32)
+
+
+def acuity_increments(params: Params, ppd: float) -> list[float]:
+    """Sigmas that blur level i-1 into level i of the bank (level -1 is the input)."""
+    sig = params.sigma_i(ppd)
+    return [sig[0]] + [math.sqrt(max(b * b - a * a, 0.0)) for a, b in zip(sig, sig[1:])]
+
+
+# --- acuity noise field (Sec. 2.3.3) ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class NoiseFrame:
+    """Two key frames of the coarse N(0,1) field and where between them this frame lies."""
+
+    key0: np.ndarray  # (ny, nx) float32
+    key1: np.ndarray
+    frac: float  # time weight of key1 in [0, 1)
+    spacing: float  # grid spacing in screen pixels
+
+
+class NoiseField:
+    """Seeded key frames drawn on a coarse grid at a low rate; key k depends only on (seed, k).
+
+    Replaying with the same seed and the same simulation times gives the same field, whatever
+    the frame rate was.
+    """
+
+    def __init__(self, layout: Layout, params: Params, seed: int) -> None:
+        self.seed = int(seed)
+        self.rate = params.noise_rate_hz
+        self.spacing = max(layout.px(params.noise_cell_deg), 1.0)
+        self.shape = (
+            math.floor(layout.height / self.spacing) + 2,
+            math.floor(layout.width / self.spacing) + 2,
+        )
+        self._cache: dict[int, np.ndarray] = {}
+
+    def key(self, k: int) -> np.ndarray:
+        if k not in self._cache:
+            if len(self._cache) > 4:
+                self._cache.clear()
+            rng = np.random.default_rng([self.seed, k & 0xFFFFFFFF, k >> 32])
+            self._cache[k] = rng.standard_normal(self.shape).astype(np.float32)
+        return self._cache[k]
+
+    def at(self, t: float) -> NoiseFrame:
+        u = max(t, 0.0) * self.rate
+        k = math.floor(u)
+        return NoiseFrame(self.key(k), self.key(k + 1), float(u - k), float(self.spacing))
+
+
+# --- fitting a scene to the frame --------------------------------------------------------------
+
+
+def _resample_axis(img: np.ndarray, axis: int, n_out: int) -> np.ndarray:
+    """Area average when shrinking, linear interpolation when growing (pixel-centre grid)."""
+    n_in = img.shape[axis]
+    if n_out == n_in:
+        return img
+    img = np.moveaxis(img, axis, 0).astype(np.float64)
+    if n_out < n_in:
+        # Integral image along the axis; each output pixel averages the span it covers.
+        edges = np.linspace(0.0, n_in, n_out + 1)
+        cum = np.concatenate([np.zeros((1, *img.shape[1:])), np.cumsum(img, axis=0)])
+        idx = np.floor(edges).astype(int)
+        frac = (edges - idx)[:, None, None]
+        idx_next = np.minimum(idx + 1, n_in)
+        integral = cum[idx] + frac * (cum[idx_next] - cum[idx])
+        out = (integral[1:] - integral[:-1]) / (n_in / n_out)
+    else:
+        pos = (np.arange(n_out) + 0.5) * n_in / n_out - 0.5
+        i0 = np.clip(np.floor(pos).astype(int), 0, n_in - 1)
+        i1 = np.clip(i0 + 1, 0, n_in - 1)
+        f = np.clip(pos - i0, 0.0, 1.0)[:, None, None]
+        out = img[i0] * (1 - f) + img[i1] * f
+    return np.moveaxis(out, 0, axis)
+
+
+def fit_to_frame(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Fit an H×W×3 image inside the frame keeping its aspect; the bars are black (0 cd/m^2)."""
+    h, w = rgb.shape[:2]
+    if (w, h) == (width, height):
+        return rgb
+    scale = min(width / w, height / h)
+    new_w, new_h = max(1, round(w * scale)), max(1, round(h * scale))
+    resized = _resample_axis(_resample_axis(rgb, 0, new_h), 1, new_w)
+    out = np.zeros((height, width, 3), np.float32)
+    y0, x0 = (height - new_h) // 2, (width - new_w) // 2
+    out[y0 : y0 + new_h, x0 : x0 + new_w] = resized
+    return out
+
+
+def sanitize_radiance(rgb: np.ndarray, params: Params) -> np.ndarray:
+    """Any array-like -> finite float32 H×W×3 in [0, radiance_max]; bad shapes are an error."""
+    arr = np.asarray(rgb)
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
+        raise ValueError(f"scene must be an H×W×3 array of cd/m^2, got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"scene must be numeric, got dtype {arr.dtype}")
+    cap = params.radiance_max
+    out = np.nan_to_num(arr.astype(np.float32), nan=0.0, posinf=cap, neginf=0.0)
+    return np.clip(out, 0.0, cap, out=out)

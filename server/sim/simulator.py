@@ -1,0 +1,143 @@
+"""The public simulator: one object per viewer, pure (no clocks, no I/O).
+
+It owns the order of the stages; the backends (NumPy reference or OpenCL) own the arrays and
+the arithmetic. Time only enters through `dt`, randomness only through `seed`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from server.sim.layout import Layout, NoiseField, fit_to_frame, sanitize_radiance
+from server.sim.params import Params
+
+BACKENDS = ("opencl", "reference")
+MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no longer a frame)
+
+
+def _make_backend(name: str, layout: Layout, params: Params):
+    if name == "reference":
+        from server.sim.reference import ReferenceBackend
+
+        return ReferenceBackend(layout, params)
+    if name == "opencl":
+        from server.sim.opencl import OpenCLBackend
+
+        return OpenCLBackend(layout, params)
+    raise ValueError(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")
+
+
+class Simulator:
+    """Advances the simulated eye over an HDR scene and returns display values in [0, 1]."""
+
+    def __init__(
+        self,
+        width: int = 640,
+        height: int = 360,
+        params: Params | None = None,
+        backend: str = "opencl",
+        seed: int = 0,
+    ) -> None:
+        self.params = params or Params()
+        self.layout = Layout.for_frame(width, height, self.params)
+        self.seed = int(seed)
+        self.time = 0.0
+        self._backend = _make_backend(backend, self.layout, self.params)
+        self._noise = NoiseField(self.layout, self.params, self.seed)
+        self._gaze = (width / 2.0, height / 2.0)
+        self._eyes = 1.0
+        self._prepared_for: float | None = None
+        self.load_scene(np.zeros((height, width, 3), np.float32))
+
+    # --- properties ---------------------------------------------------------------------------
+
+    @property
+    def width(self) -> int:
+        return self.layout.width
+
+    @property
+    def height(self) -> int:
+        return self.layout.height
+
+    @property
+    def backend(self) -> str:
+        return self._backend.name
+
+    @property
+    def device(self) -> str:
+        """Which device runs the model, for logs and benchmarks."""
+        return self._backend.device_name
+
+    @property
+    def adaptation(self) -> float:
+        """Current global adaptation A, log10 cd/m^2 (never below A_min)."""
+        return self._backend.A
+
+    @property
+    def gaze(self) -> tuple[float, float]:
+        return self._gaze
+
+    # --- control ------------------------------------------------------------------------------
+
+    def load_scene(self, rgb: np.ndarray, *, reset: bool = True) -> None:
+        """Take H×W×3 radiance in cd/m^2 of any size; NaN -> 0, +Inf and excess -> the cap.
+
+        With `reset=False` only the radiance changes (animated scenes); the eye keeps its state.
+        """
+        clean = sanitize_radiance(rgb, self.params)
+        fitted = fit_to_frame(clean, self.width, self.height)
+        self._backend.set_scene(np.ascontiguousarray(fitted.transpose(2, 0, 1), np.float32))
+        self._prepared_for = None
+        if reset:
+            self.reset()
+
+    def reset(self) -> None:
+        """Back to equilibrium for the current scene and gaze: no start-up afterimages."""
+        self._prepare()
+        self._backend.adapt(self._gaze, 0.0, True)
+        self._backend.retina(self._gaze, 0.0, True)
+
+    def step(
+        self,
+        dt: float,
+        gaze: Sequence[float] | None = None,
+        eyes_open: bool = True,
+    ) -> np.ndarray:
+        """Advance by `dt` seconds with the eye at `gaze` (screen px) and return H×W×3 `v`."""
+        dt = float(dt)
+        if not (math.isfinite(dt) and 0.0 <= dt <= MAX_DT):
+            raise ValueError(f"dt must be a finite number of seconds in [0, {MAX_DT}], got {dt}")
+        if gaze is not None:
+            self._gaze = self._check_gaze(gaze)
+        self._eyes = 1.0 if eyes_open else 0.0
+        self.time += dt
+        b = self._backend
+        self._prepare()
+        b.adapt(self._gaze, dt, False)
+        b.retina(self._gaze, dt, False)
+        if self._eyes:
+            b.acuity(self._noise.at(self.time))
+        return b.compose(self._gaze, self._eyes)
+
+    # --- internals ----------------------------------------------------------------------------
+
+    def _prepare(self) -> None:
+        """Scene-only maps (cone input, local rho) change only with the scene or the eyelids."""
+        if self._prepared_for != self._eyes:
+            self._backend.prepare(self._eyes)
+            self._prepared_for = self._eyes
+
+    def _check_gaze(self, gaze: Sequence[float]) -> tuple[float, float]:
+        try:
+            x, y = (float(g) for g in gaze)
+        except (TypeError, ValueError):
+            raise ValueError(f"gaze must be (x, y) in screen pixels, got {gaze!r}") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"gaze must be finite, got ({x}, {y})")
+        # Beyond two screens away nothing of the retina grid overlaps the screen; clamping there
+        # keeps coordinates exact in float32 without changing the result.
+        w, h = self.width, self.height
+        return (min(max(x, -3.0 * w), 4.0 * w), min(max(y, -3.0 * h), 4.0 * h))
