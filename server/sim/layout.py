@@ -6,6 +6,7 @@ their constants from these functions so that the two cannot drift apart.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -101,7 +102,7 @@ def gaussian_taps(sigma: float) -> np.ndarray:
 def acuity_increments(params: Params, ppd: float) -> list[float]:
     """Sigmas that blur level i-1 into level i of the bank (level -1 is the input)."""
     sig = params.sigma_i(ppd)
-    return [sig[0]] + [math.sqrt(max(b * b - a * a, 0.0)) for a, b in zip(sig, sig[1:])]
+    return [sig[0]] + [math.sqrt(max(b * b - a * a, 0.0)) for a, b in itertools.pairwise(sig)]
 
 
 # --- acuity noise field (Sec. 2.3.3) ---------------------------------------------------------

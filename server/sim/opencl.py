@@ -267,7 +267,7 @@ class OpenCLBackend:
             self._noise_bufs = tuple(
                 cl.Buffer(self.ctx, mf.READ_ONLY, noise.key0.nbytes) for _ in range(2)
             )
-        for buf, key in zip(self._noise_bufs, (noise.key0, noise.key1)):
+        for buf, key in zip(self._noise_bufs, (noise.key0, noise.key1), strict=True):
             cl.enqueue_copy(self.queue, buf, np.ascontiguousarray(key, np.float32))
 
     def compose(self, gaze, eyes: float) -> np.ndarray:
