@@ -109,7 +109,8 @@ class OpenCLBackend:
         self.ctx, self.prg = _context_and_program()
         self.queue = cl.CommandQueue(self.ctx)
         self.device_name = self.ctx.devices[0].name.strip()
-        self.k = {name: getattr(self.prg, name) for name in self.prg.kernel_names.split(";")}
+        # Own kernel objects per backend: kernel arguments are state, simulators must not share it.
+        self.k = {n: cl.Kernel(self.prg, n) for n in self.prg.kernel_names.split(";")}
         lay = layout
         full, low, grid = lay.width * lay.height, lay.low_w * lay.low_h, lay.grid_w * lay.grid_h
         self.shapes = {

@@ -73,12 +73,15 @@ def bilinear(img: np.ndarray, xs: np.ndarray, ys: np.ndarray, border=None) -> np
 def tone(I: np.ndarray, A: float, p: Params) -> np.ndarray:
     """Naka-Rushton response, Eq. 1-2, with the plateau M(I) = I^m / (I^m + K^m) (ours).
 
-    sigma^n = I_bar^(n-m) K^m, evaluated in logs so that darkness and 1e10 cd/m^2 stay finite.
+    sigma^n = I_bar^(n-m) K^m, evaluated in logs so that 1e10 cd/m^2 stays finite; the exponent
+    is capped at 80 (R < 1e-34) and no light gives exactly R = 0, so black stays black.
     """
     m = p.n * p.plateau_m_over_n
     ln_sigma_n = (p.n - m) * A * LN10 + m * math.log(p.plateau_K)
-    lnI = np.log(np.maximum(I, p.Y_min))
-    return 1.0 / (1.0 + np.exp(ln_sigma_n - p.n * lnI))
+    I = np.asarray(I, np.float64)
+    lnI = np.log(np.where(I > 0, I, 1.0))
+    R = 1.0 / (1.0 + np.exp(np.minimum(ln_sigma_n - p.n * lnI, 80.0)))
+    return np.where(I > 0, R, 0.0)
 
 
 def rho_of(L_log: np.ndarray, p: Params) -> np.ndarray:

@@ -61,9 +61,11 @@ inline float sample_plane(__global const float *img, int w, int h, float x, floa
     return acc;
 }
 
-// Naka-Rushton response (Eq. 1-2) with sigma^n = I_bar^(n-m) K^m, in logs: finite everywhere.
+// Naka-Rushton response (Eq. 1-2) with sigma^n = I_bar^(n-m) K^m, in logs: finite everywhere;
+// no light gives exactly 0 so that black stays black.
 inline float tone(__constant const params_t *P, float ln_sigma_n, float I) {
-    return 1.0f / (1.0f + exp(ln_sigma_n - P->n * log(fmax(I, P->Y_min))));
+    if (!(I > 0.0f)) return 0.0f;
+    return 1.0f / (1.0f + exp(fmin(ln_sigma_n - P->n * log(I), 80.0f)));
 }
 
 inline float ln_sigma_n_of(__constant const params_t *P, float A) {

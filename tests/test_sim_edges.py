@@ -1,0 +1,129 @@
+"""Edges: no NaN or Inf ever leaves the simulation, and bad input gets a clear error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from server.sim import Params, Simulator
+
+W, H = 96, 54
+BACKENDS = ["reference", "opencl"]
+
+
+def check_frame(v: np.ndarray) -> None:
+    assert v.shape == (H, W, 3) and v.dtype == np.float32
+    assert np.isfinite(v).all()
+    assert v.min() >= 0.0 and v.max() <= 1.0
+
+
+def scenes() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    bad = rng.uniform(0, 100, (H, W, 3)).astype(np.float32)
+    bad[3, 4] = np.nan
+    bad[10, 10:20] = np.inf
+    bad[20, 5] = -np.inf
+    bad[30, 30] = -5.0
+    mixed = np.zeros((H, W, 3), np.float32)
+    mixed[:, W // 2 :] = 1e8
+    return {
+        "darkness": np.zeros((H, W, 3), np.float32),
+        "1e8": np.full((H, W, 3), 1e8, np.float32),
+        "dark and 1e8": mixed,
+        "nan/inf/negative": bad,
+        "float64 huge": np.full((H, W, 3), 1e300),
+    }
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("scene", list(scenes()))
+def test_no_nan_or_inf_out(backend: str, scene: str) -> None:
+    sim = Simulator(W, H, backend=backend)
+    sim.load_scene(scenes()[scene])
+    assert np.isfinite(sim.adaptation)
+    gazes = [(48.0, 27.0), (-1e6, 3e9), (W + 500.0, -20.0), (0.0, 0.0), (W, H)]
+    for dt in (0.0, 1 / 60, 1.0, 0.0):
+        for gaze in gazes:
+            check_frame(sim.step(dt, gaze=gaze))
+    check_frame(sim.step(1.0, eyes_open=False))
+    check_frame(sim.step(1 / 30, gaze=None))
+    for name in ("state", "maps", "G", "rho", "down"):
+        assert np.isfinite(sim._backend.get(name)).all(), name
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_total_darkness_is_black(backend: str) -> None:
+    sim = Simulator(W, H, backend=backend)
+    sim.load_scene(np.zeros((H, W, 3), np.float32))
+    for _ in range(3):
+        v = sim.step(1 / 30, gaze=(10.0, 10.0))
+    assert v.max() == 0.0
+    assert sim.adaptation == pytest.approx(Params().A_min)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_long_darkness_then_light_stays_bounded(backend: str) -> None:
+    """Calcium saturates in the dark (the 0/0 of Eq. 11); the guard keeps alpha finite."""
+    sim = Simulator(W, H, backend=backend)
+    sim.load_scene(np.zeros((H, W, 3), np.float32))
+    for _ in range(30):
+        sim.step(1.0, gaze=(48.0, 27.0))
+    sim.load_scene(np.full((H, W, 3), 1e8, np.float32), reset=False)
+    check_frame(sim.step(1 / 60, gaze=(48.0, 27.0)))
+
+
+def test_dt_zero_changes_nothing() -> None:
+    sim = Simulator(W, H, backend="reference")
+    sim.load_scene(scenes()["dark and 1e8"])
+    a = sim.step(0.5, gaze=(30.0, 20.0))
+    b = sim.step(0.0, gaze=(30.0, 20.0))
+    np.testing.assert_allclose(a, b, atol=1e-6)  # only float rounding of (B - B_inf) + B_inf
+
+
+def test_scene_is_fitted_keeping_its_aspect() -> None:
+    sim = Simulator(W, H, backend="reference")
+    tall = np.full((200, 50, 3), 100.0, np.float32)
+    sim.load_scene(tall)
+    scene = sim._backend.get("scene")
+    assert scene.shape == (3, H, W)
+    row = scene[0, H // 2]
+    lit = np.flatnonzero(row > 0)
+    assert lit.size == round(50 * H / 200)  # 54 rows tall -> 13.5 -> 14 columns wide
+    assert row[0] == 0.0 and row[-1] == 0.0  # black bars at the sides
+    np.testing.assert_allclose(scene[:, :, lit], 100.0, rtol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("width", "height", "message"),
+    [(8, 54, "width"), (96, 5000, "height"), (96.5, 54, "integer"), (0, 0, "width")],
+)
+def test_bad_sizes_are_refused(width, height, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        Simulator(width, height, backend="reference")
+
+
+def test_bad_inputs_are_refused_clearly() -> None:
+    sim = Simulator(W, H, backend="reference")
+    with pytest.raises(ValueError, match="H×W×3"):
+        sim.load_scene(np.zeros((H, W), np.float32))
+    with pytest.raises(ValueError, match="numeric"):
+        sim.load_scene(np.full((H, W, 3), "x"))
+    for dt in (-0.1, float("nan"), float("inf"), 3600.0):
+        with pytest.raises(ValueError, match="dt"):
+            sim.step(dt)
+    for gaze in ((float("nan"), 1.0), (1.0, float("inf")), (1.0,), "ab", None.__class__):
+        with pytest.raises(ValueError, match="gaze"):
+            sim.step(0.1, gaze=gaze)
+    with pytest.raises(ValueError, match="backend"):
+        Simulator(W, H, backend="cuda")
+    sim.step(0.1)  # still usable after the errors
+
+
+def test_bad_parameters_are_refused() -> None:
+    with pytest.raises(ValueError, match="b2"):
+        Params(b2=(0.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="m1"):
+        Params(m1=-3.0)
+    with pytest.raises(ValueError, match="unknown parameter"):
+        Params.from_dict({"a3": 1.0})
+    assert Params.from_dict(Params().to_dict()) == Params()
