@@ -6,6 +6,7 @@ the kernels.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -173,7 +174,7 @@ def test_mesopic_desaturation_and_purple_grey(backend: str) -> None:
         v = sim.step(0.0, gaze=CENTRE)
         sats.append(hsv_saturation(v[36, 20]))
         greys.append(v[36, 100])
-    assert all(a > b for a, b in zip(sats, sats[1:], strict=False)), sats
+    assert all(a > b for a, b in itertools.pairwise(sats)), sats
     assert sats[0] > 0.6 and sats[-1] < 0.3
     assert hsv_saturation(greys[0]) < 0.01  # photopic grey is neutral
     dark = greys[-1]

@@ -198,5 +198,8 @@ def sanitize_radiance(rgb: np.ndarray, params: Params) -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.number):
         raise ValueError(f"scene must be numeric, got dtype {arr.dtype}")
     cap = params.radiance_max
-    out = np.nan_to_num(arr.astype(np.float32), nan=0.0, posinf=cap, neginf=0.0)
-    return np.clip(out, 0.0, cap, out=out)
+    wide = arr.dtype.kind == "f" and arr.dtype.itemsize > 4  # clip before float32 overflows
+    out = np.nan_to_num(
+        arr.astype(np.float64 if wide else np.float32), nan=0.0, posinf=cap, neginf=0.0
+    )
+    return np.clip(out, 0.0, cap, out=out).astype(np.float32, copy=False)
