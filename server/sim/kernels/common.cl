@@ -61,6 +61,11 @@ inline float sample_plane(__global const float *img, int w, int h, float x, floa
     return acc;
 }
 
+// x^y for x >= 0 as exp(y log x): PoCL vectorises exp and log, but not pow (30x slower).
+inline float3 pow_pos(float3 x, float y) {
+    return select((float3)(0.0f), exp(y * log(x)), isgreater(x, (float3)(0.0f)));
+}
+
 // Naka-Rushton response (Eq. 1-2) with sigma^n = I_bar^(n-m) K^m, in logs: finite everywhere;
 // no light gives exactly 0 so that black stays black.
 inline float tone(__constant const params_t *P, float ln_sigma_n, float I) {

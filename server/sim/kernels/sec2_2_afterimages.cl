@@ -60,7 +60,7 @@ __kernel void afterimage_maps(__constant const params_t *P, __global const float
     float lsn = ln_sigma_n_of(P, A[0]);
     float3 B = load3(state, plane, k), c = load3(state + 3 * plane, plane, k);
     float3 alpha = (1.0f - calcium_inf(P, lsn, I) + P->alpha_eps) / (1.0f - c + P->alpha_eps);
-    float3 gain = pow(alpha, (float3)(P->j2));
+    float3 gain = pow_pos(alpha, P->j2);
     float3 bleach = P->j1 * c * fmax(B - bleach_inf(P, I), 0.0f);
     maps[k] = gain.x; maps[plane + k] = gain.y; maps[2 * plane + k] = gain.z;
     maps[3 * plane + k] = bleach.x; maps[4 * plane + k] = bleach.y; maps[5 * plane + k] = bleach.z;

@@ -44,6 +44,6 @@ __kernel void compose(__constant const params_t *P, __global const float *G,
     float3 lms = mat3_mul(P->rgb2lms, J) * (1.0f + f * (gain - 1.0f));      // Eq. 12, alpha^j2 R
     J = mat3_mul(P->lms2rgb, lms) + f * mat3_mul(P->H, bleach);             // + bleaching via H
     J = gamut_map(P, J);
-    float3 out = pow(J, (float3)(P->gamma));
+    float3 out = pow_pos(J, P->gamma);
     v[3 * k] = out.x; v[3 * k + 1] = out.y; v[3 * k + 2] = out.z;
 }

@@ -1,0 +1,119 @@
+"""Gaze tracks from files, and the one place that turns a gaze spec string into a track.
+
+A file format plugs in by adding a reader to `FILE_TRACKS` (suffix → reader); everything that
+renders only sees the `GazeTrack` protocol.
+
+CSV gaze format (`*.csv`): one sample per row, `t,x,y[,eyes_open]`.
+
+- `t`: seconds since the start, non-decreasing; `x`, `y`: normalised screen coordinates in
+  [0, 1], origin top-left; `eyes_open`: 1/0, true/false or yes/no, default 1.
+- An optional header row naming the columns (`t,x,y` or `t,x,y,eyes_open`); blank lines and
+  lines starting with `#` are ignored.
+- Each sample holds until the next (step interpolation: no invented positions between samples);
+  before the first sample the track shows the first, after the last the last.
+"""
+
+from __future__ import annotations
+
+import bisect
+import csv
+import itertools
+import math
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+from drivers.samples import GazePoint, GazeTrack
+from drivers.synthetic import FixedGaze, SyntheticScanPath
+
+_TRUE = {"1", "true", "yes"}
+_FALSE = {"0", "false", "no"}
+_HEADERS = (["t", "x", "y"], ["t", "x", "y", "eyes_open"])
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_POINT = re.compile(rf"\s*({_NUMBER})\s*,\s*({_NUMBER})\s*")
+
+
+class CsvGazeTrack:
+    """Gaze samples read from a CSV file (see the module docstring), held step-wise."""
+
+    def __init__(self, times: list[float], points: list[GazePoint]) -> None:
+        if not times or len(times) != len(points):
+            raise ValueError("a gaze track needs at least one sample and one point per time")
+        if any(b < a for a, b in itertools.pairwise(times)):
+            raise ValueError("gaze sample times must be non-decreasing")
+        self.times = times
+        self.points = points
+
+    @classmethod
+    def read(cls, path: str | Path) -> CsvGazeTrack:
+        path = Path(path)
+        times: list[float] = []
+        points: list[GazePoint] = []
+        with path.open(newline="", encoding="utf-8") as f:
+            rows = csv.reader(f)
+            try:
+                for row in rows:
+                    where = f"{path}:{rows.line_num}"
+                    fields = [field.strip() for field in row]
+                    if not any(fields) or fields[0].startswith("#"):
+                        continue
+                    if not times and [v.lower() for v in fields] in _HEADERS:
+                        continue
+                    t, point = _parse_row(fields, where)
+                    if times and t < times[-1]:
+                        raise ValueError(f"{where}: time {t} goes back from {times[-1]}")
+                    times.append(t)
+                    points.append(point)
+            except UnicodeDecodeError:
+                raise ValueError(f"{path}: not a UTF-8 text CSV file") from None
+        if not times:
+            raise ValueError(f"{path}: no gaze samples (expected rows of t,x,y[,eyes_open])")
+        return cls(times, points)
+
+    def at(self, t: float) -> GazePoint:
+        return self.points[max(bisect.bisect_right(self.times, t) - 1, 0)]
+
+
+def _parse_row(fields: list[str], where: str) -> tuple[float, GazePoint]:
+    if len(fields) not in (3, 4):
+        raise ValueError(f"{where}: expected t,x,y[,eyes_open], got {len(fields)} fields")
+    try:
+        t, x, y = (float(v) for v in fields[:3])
+    except ValueError:
+        raise ValueError(f"{where}: t, x, y must be numbers, got {','.join(fields[:3])}") from None
+    if not math.isfinite(t):
+        raise ValueError(f"{where}: time must be finite, got {fields[0]}")
+    if not all(math.isfinite(v) and 0 <= v <= 1 for v in (x, y)):
+        raise ValueError(f"{where}: x, y must be normalised coordinates in [0, 1], got {x}, {y}")
+    eyes = fields[3].lower() if len(fields) == 4 else "1"
+    if eyes not in _TRUE | _FALSE:
+        raise ValueError(f"{where}: eyes_open must be 1/0, true/false or yes/no, got {fields[3]}")
+    return t, GazePoint(x, y, eyes in _TRUE)
+
+
+#: Gaze file readers by lower-case suffix; session logs and imported recordings join here.
+FILE_TRACKS: dict[str, Callable[[Path], GazeTrack]] = {".csv": CsvGazeTrack.read}
+
+
+def open_track(spec: str, *, seed: int = 0, duration: float = 60.0) -> GazeTrack:
+    """The track a gaze spec names: `synthetic`, `fixed`, `X,Y` (normalised) or a file path.
+
+    `seed` and `duration` configure the synthetic scan path and are ignored otherwise.
+    """
+    if spec == "synthetic":
+        return SyntheticScanPath(seed=seed, duration=duration)
+    if spec == "fixed":
+        return FixedGaze()
+    point = _POINT.fullmatch(spec)
+    if point:
+        return FixedGaze(float(point[1]), float(point[2]))
+    path = Path(spec)
+    reader = FILE_TRACKS.get(path.suffix.lower())
+    if reader is None:
+        raise ValueError(
+            f"gaze {spec!r}: expected synthetic, fixed, X,Y or a file ending in "
+            f"{', '.join(sorted(FILE_TRACKS))}"
+        )
+    if not path.is_file():
+        raise ValueError(f"gaze file {spec!r} not found")
+    return reader(path)

@@ -1,0 +1,212 @@
+"""The `gazehdr` command line: one small function per subcommand, listed in `COMMANDS`.
+
+Only the standard library and `drivers` are imported up front; each subcommand imports what it
+needs when it runs, so `gazehdr --help` (and later `gazehdr daemon` on a tracker machine
+without pyopencl) works on a minimal install. Errors the user can fix print one line,
+`gazehdr: error: …`, and exit with status 2; `main` returns the status instead of exiting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import re
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import NoReturn
+
+PROG = "gazehdr"
+
+
+class UsageError(Exception):
+    """A mistake in what the user asked for; reported in one line with status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: the message and where to get help, no usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{PROG}: error: {message} (see '{self.prog} --help')\n")
+        raise SystemExit(2)
+
+
+def _size(text: str) -> tuple[int, int]:
+    match = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got {text!r}")
+    return int(match[1]), int(match[2])
+
+
+# --- render -----------------------------------------------------------------------------------
+
+
+def _configure_render(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", metavar="SCENE", help="built-in scene name or EXR file")
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
+    p.add_argument(
+        "--gaze",
+        default="synthetic",
+        metavar="SPEC",
+        help="synthetic (seeded scan path), fixed (centre), X,Y (normalised point) or a "
+        "CSV file of t,x,y[,eyes_open] rows (default: synthetic)",
+    )
+    p.add_argument("--seconds", type=float, default=6.0, help="duration (default: 6)")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
+    p.add_argument(
+        "--size",
+        type=_size,
+        default=(640, 360),
+        metavar="WxH",
+        help="frame size (default: 640x360)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="seeds noise, dither and scan path (default: 0)"
+    )
+    p.add_argument(
+        "--backend",
+        choices=("opencl", "reference"),
+        default="opencl",
+        help="PyOpenCL kernels or the NumPy reference (default: opencl)",
+    )
+    p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
+    p.add_argument(
+        "--scale",
+        type=float,
+        metavar="CD_PER_UNIT",
+        help="cd/m^2 per EXR pixel unit, overriding the file's whiteLuminance",
+    )
+    p.add_argument("--exr", action="store_true", help="also write undithered float32 EXR")
+    p.add_argument("--overwrite", action="store_true", help="replace frames already in DIR")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _render(args: argparse.Namespace, extra: list[str]) -> int:
+    from drivers.tracks import open_track
+    from server.render import render
+    from server.scenes import open_scene
+    from server.sim import Params
+
+    params = None
+    if args.params:
+        try:
+            params = Params.load(args.params)
+        except (ValueError, TypeError) as e:
+            raise UsageError(f"parameter preset {args.params}: {e}") from None
+    scene = open_scene(args.scene, scale=args.scale)
+    track = open_track(args.gaze, seed=args.seed, duration=args.seconds)
+    width, height = args.size
+    summary = render(
+        scene,
+        track,
+        seconds=args.seconds,
+        fps=args.fps,
+        width=width,
+        height=height,
+        seed=args.seed,
+        backend=args.backend,
+        out_dir=args.out,
+        exr=args.exr,
+        progress=not args.quiet,
+        params=params,
+        overwrite=args.overwrite,
+    )
+    print(f"wrote {summary.frames} frames to {summary.out_dir} in {summary.wall_seconds:.1f} s")
+    return 0
+
+
+# --- bench ------------------------------------------------------------------------------------
+
+
+def _bench(args: argparse.Namespace, extra: list[str]) -> int:
+    try:
+        bench = importlib.import_module("server.bench")
+    except ModuleNotFoundError as e:
+        if e.name == "server.bench":
+            raise UsageError("the bench command is not part of this installation") from None
+        raise UsageError(f"bench needs the module {e.name!r}: install gazehdr[bench]") from None
+    return int(bench.main(extra) or 0)
+
+
+# --- scenes -----------------------------------------------------------------------------------
+
+
+def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
+    from server.scenes import builtin_names
+
+    print("\n".join(builtin_names()))
+    return 0
+
+
+# --- dispatch ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Command:
+    help: str
+    run: Callable[[argparse.Namespace, list[str]], int]
+    configure: Callable[[argparse.ArgumentParser], None] | None = None
+    #: Unknown arguments go to `run` instead of being an error (for wrapped tools).
+    passthrough: bool = False
+    epilog: str | None = None
+
+
+COMMANDS: dict[str, Command] = {
+    "render": Command(
+        "render a scene along a gaze track to PNG/EXR frames",
+        _render,
+        _configure_render,
+        epilog="examples:\n"
+        "  gazehdr render flash --out out/flash\n"
+        "  gazehdr render night.exr --gaze 0.3,0.6 --seconds 10 --exr --out out/night\n"
+        "  gazehdr render lamp --gaze gaze.csv --backend reference --out out/lamp",
+    ),
+    "bench": Command("benchmark the simulator (arguments pass through)", _bench, passthrough=True),
+    "scenes": Command("list the built-in scenes", _scenes),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog=PROG,
+        description="Gaze-adaptive HDR display: simulates adaptation, afterimages and mesopic "
+        "vision (Jacobs et al. 2015) on an ordinary monitor.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, command in COMMANDS.items():
+        p = sub.add_parser(
+            name,
+            help=command.help,
+            description=command.help,
+            epilog=command.epilog,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+            add_help=not command.passthrough,
+        )
+        if command.configure:
+            command.configure(p)
+    return parser
+
+
+def _describe(e: Exception) -> str:
+    if isinstance(e, OSError) and e.strerror:
+        return f"{e.filename}: {e.strerror}" if e.filename else e.strerror
+    return str(e)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (0 ok, 2 usage or input error)."""
+    parser = build_parser()
+    try:
+        args, extra = parser.parse_known_args(argv)
+        command = COMMANDS[args.command]
+        if extra and not command.passthrough:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        return command.run(args, extra)
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    except (UsageError, ValueError, OSError) as e:
+        sys.stderr.write(f"{PROG}: error: {_describe(e)}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{PROG}: interrupted\n")
+        return 130
