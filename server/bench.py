@@ -1,0 +1,233 @@
+"""`gazehdr bench`: time each stage of the OpenCL pipeline beside the same operations in OpenCV.
+
+Both sides run in one process on the same scene, gaze path and sizes, alternating frame by
+frame so that drift of a shared machine hits both alike. The OpenCV side is a straight port of
+the stages to cv2 calls (area resize, separable filters, remap, exp/log/pow, per-pixel matrix
+transforms) with NumPy only for glue; it is checked against the reference model at the end so
+the comparison is of the same work. Figures are medians over the timed frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+
+import numpy as np
+
+from server.sim import Params, Simulator
+from server.sim.layout import (
+    LMS_TO_RGB,
+    RGB_TO_LMS,
+    Layout,
+    NoiseFrame,
+    acuity_increments,
+    gaussian_taps,
+)
+from server.sim.reference import adaptation_window
+
+SIZES = ((640, 360), (1280, 720), (1920, 1080))
+STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
+
+
+class OpenCVPipeline:
+    """The model's stages written with OpenCV, interleaved HxWxC float32 as OpenCV likes."""
+
+    def __init__(self, layout: Layout, params: Params) -> None:
+        import cv2
+
+        self.cv2, self.lay, self.p = cv2, layout, params
+        cv2.setNumThreads(0)  # OpenCV's default: all cores
+        lay = layout
+        self.A = params.A_min
+        self.state = np.zeros((lay.grid_h, lay.grid_w, 6), np.float32)
+        self.rho_taps = gaussian_taps(lay.px(params.rho_sigma_deg) / lay.cell)
+        self.acuity_taps = [gaussian_taps(s) for s in acuity_increments(params, lay.ppd)]
+        ys, xs = np.mgrid[: lay.height, : lay.width].astype(np.float32) + 0.5
+        self.xs, self.ys = xs, ys
+        gy, gx = np.mgrid[: lay.grid_h, : lay.grid_w].astype(np.float32) + 0.5
+        self.gx, self.gy = gx, gy
+        m = params.n * params.plateau_m_over_n
+        self.ln_K_m, self.n_minus_m = m * math.log(params.plateau_K), params.n - m
+        self.b1 = np.array(params.b1, np.float32)
+        self.b2 = np.array(params.b2, np.float32)
+        self.w_P = np.array(params.w_P, np.float32)
+        self.w_S = np.array(params.w_S, np.float32)
+
+    def _tone(self, I: np.ndarray) -> np.ndarray:
+        cv2 = self.cv2
+        lsn = self.n_minus_m * self.A * math.log(10) + self.ln_K_m
+        lnI = cv2.log(np.maximum(I, 1e-30))
+        e = cv2.exp(np.minimum(lsn - self.p.n * lnI, 80.0))
+        return np.where(I > 0, 1.0 / (1.0 + e), 0.0).astype(np.float32)
+
+    def _sep(self, img: np.ndarray, taps: np.ndarray) -> np.ndarray:
+        return self.cv2.sepFilter2D(img, -1, taps, taps, borderType=self.cv2.BORDER_REPLICATE)
+
+    def prepare(self, scene: np.ndarray) -> None:
+        cv2, lay = self.cv2, self.lay
+        rgb = cv2.resize(scene, (lay.low_w, lay.low_h), interpolation=cv2.INTER_AREA)
+        self.lms = cv2.transform(rgb, RGB_TO_LMS.astype(np.float32))
+        self.lum_p = cv2.transform(rgb, self.w_P[None])
+        self.lum_s = cv2.transform(rgb, self.w_S[None])
+        L = cv2.log(np.maximum(self._sep(self.lum_p, self.rho_taps), self.p.Y_min)) / math.log(10)
+        self.rho = (L - self.p.m2) / (self.p.m1 - self.p.m2)
+
+    def adapt(self, gaze, dt: float) -> None:
+        lay, p = self.lay, self.p
+        cx, cy, sig, x0, x1, y0, y1 = adaptation_window(gaze, lay, p)
+        ys, xs = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
+        w = np.exp(
+            -(((xs + 0.5) * lay.cell - cx) ** 2 + ((ys + 0.5) * lay.cell - cy) ** 2)
+            / (2 * sig * sig)
+        )
+        rc = np.clip(self.rho[y0 : y1 + 1, x0 : x1 + 1], 0, 1)
+        ymes = (
+            rc * self.lum_p[y0 : y1 + 1, x0 : x1 + 1]
+            + (1 - rc) * self.lum_s[y0 : y1 + 1, x0 : x1 + 1]
+        )
+        target = max(math.log10(max(float((w * ymes).sum() / w.sum()), p.Y_min)), p.A_min)
+        step = p.a1 * dt if self.A < target else -p.a2 * dt
+        self.A = min(self.A + step, target) if step > 0 else max(self.A + step, target)
+
+    def retina(self, gaze, dt: float) -> None:
+        cv2, lay, p = self.cv2, self.lay, self.p
+        mx = (gaze[0] / lay.cell + self.gx - lay.grid_w / 2) - 0.5
+        my = (gaze[1] / lay.cell + self.gy - lay.grid_h / 2) - 0.5
+        I = cv2.remap(self.lms, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        b1I = I * self.b1
+        B_inf = b1I / (b1I + self.b2)
+        c_inf = 1.0 - self._tone(I)
+        B = (self.state[..., :3] - B_inf) * cv2.exp(-(b1I + self.b2) * dt) + B_inf
+        c = (self.state[..., 3:] - c_inf) * math.exp(-p.c2 * dt) + c_inf
+        new = np.clip(np.concatenate([B, c], axis=2), 0, 1)
+        sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
+        self.state = self._sep(new, gaussian_taps(sigma)) if sigma > 0 else new
+        alpha = (1 - c_inf + p.alpha_eps) / (1 - self.state[..., 3:] + p.alpha_eps)
+        gain = cv2.pow(alpha, p.j2)
+        bleach = p.j1 * self.state[..., 3:] * np.maximum(self.state[..., :3] - B_inf, 0)
+        self.maps = np.concatenate([gain, bleach], axis=2)
+
+    def acuity(self, scene: np.ndarray, noise: NoiseFrame) -> None:
+        cv2, lay, p = self.cv2, self.lay, self.p
+        rho = cv2.resize(self.rho, (lay.width, lay.height), interpolation=cv2.INTER_LINEAR)
+        nx = (self.xs / noise.spacing).astype(np.float32)
+        ny = (self.ys / noise.spacing).astype(np.float32)
+        x0 = cv2.remap(noise.key0, nx, ny, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        x1 = cv2.remap(noise.key1, nx, ny, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        fx, fy, ft = nx - np.floor(nx), ny - np.floor(ny), noise.frac
+        norm = np.sqrt(((1 - fx) ** 2 + fx**2) * ((1 - fy) ** 2 + fy**2) * ((1 - ft) ** 2 + ft**2))
+        q = rho + p.g * ((1 - ft) * x0 + ft * x1) / norm
+        d = np.zeros(q.shape, np.uint8)
+        for t in p.rho_i():
+            d += (q <= t).astype(np.uint8)
+        out, level = scene.copy(), scene
+        for i in range(int(d.max())):
+            level = self._sep(level, self.acuity_taps[i])
+            np.copyto(out, level, where=(d == i + 1)[..., None])
+        self.G = out
+
+    def compose(self, gaze) -> np.ndarray:
+        cv2, lay, p = self.cv2, self.lay, self.p
+        rc = np.clip(cv2.resize(self.rho, (lay.width, lay.height)), 0, 1)
+        yp = cv2.transform(self.G, self.w_P[None])
+        ys = cv2.transform(self.G, self.w_S[None])
+        R = self._tone(rc * yp + (1 - rc) * ys)
+        ratio = rc[..., None] * self.G / np.maximum(yp, p.Y_min)[..., None]
+        J = R[..., None] * (ratio + (1 - rc)[..., None] * np.array(p.k_s, np.float32))
+        mx = (self.xs - gaze[0]) / lay.cell + lay.grid_w / 2 - 0.5
+        my = (self.ys - gaze[1]) / lay.cell + lay.grid_h / 2 - 0.5
+        maps = cv2.remap(self.maps, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=(1, 1, 1, 0))  # fmt: skip
+        gain, bleach = maps[..., :3], maps[..., 3:]
+        sig = lay.px(p.fovea_sigma_deg)
+        f = cv2.exp(-((self.xs - gaze[0]) ** 2 + (self.ys - gaze[1]) ** 2) / (2 * sig * sig))
+        lms = cv2.transform(J, RGB_TO_LMS.astype(np.float32)) * (1 + f[..., None] * (gain - 1))
+        J = cv2.transform(lms, LMS_TO_RGB.astype(np.float32))
+        J += f[..., None] * cv2.transform(bleach, np.array(p.H, np.float32))
+        Y = np.clip(cv2.transform(J, self.w_P[None]), 0, 1)[..., None]
+        d = J - Y
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(d > 0, (1 - Y) / d, np.where(d < 0, Y / -d, np.inf)).min(axis=2)
+        t = np.clip(t, 0, 1)[..., None]
+        J = np.clip(Y + t * d, 0, 1)
+        return cv2.pow(J, p.gamma)
+
+
+def _bench_size(width: int, height: int, frames: int, scene_name: str) -> dict:
+    from server.scenes import open_scene
+
+    sim = Simulator(width, height, backend="opencl", seed=0)
+    scene = open_scene(scene_name).render(0.0, width, height)
+    sim.load_scene(scene)
+    b, lay, p = sim._backend, sim.layout, sim.params
+    cvp = OpenCVPipeline(lay, p)
+    cvp.A, cvp.state = sim.adaptation, np.ascontiguousarray(b.get("state").transpose(1, 2, 0))
+    fitted = np.ascontiguousarray(b.get("scene").transpose(1, 2, 0))
+    times: dict[str, list[float]] = {f"cl.{s}": [] for s in (*STAGES, "step")}
+    times.update({f"cv.{s}": [] for s in (*STAGES, "step")})
+    gazes = [
+        (width * (0.3 + 0.4 * (i % 3) / 2), height * (0.4 + 0.2 * (i % 2)))
+        for i in range(frames + 2)
+    ]
+    dt = 1 / 60
+
+    def timed(key: str, fn) -> None:
+        t0 = time.perf_counter()
+        fn()
+        b.queue.finish()
+        times[key].append(time.perf_counter() - t0)
+
+    for i, gaze in enumerate(gazes):
+        noise = sim._noise.at(i * dt)
+        # OpenCL, stage by stage (each stage waited for), then the whole step as users call it.
+        timed("cl.prepare", lambda: b.prepare(1.0))
+        timed("cl.adapt", lambda g=gaze: b.adapt(g, dt, False))
+        timed("cl.retina", lambda g=gaze: b.retina(g, dt, False))
+        timed("cl.acuity", lambda n=noise: b.acuity(n))
+        timed("cl.compose", lambda g=gaze: b.compose(g, 1.0))
+        sim._prepared_for = None  # make step() redo the scene maps, as the stage loop did
+        timed("cl.step", lambda g=gaze: sim.step(dt, gaze=g))
+        t_all = time.perf_counter()
+        for stage, fn in (
+            ("prepare", lambda: cvp.prepare(fitted)),
+            ("adapt", lambda g=gaze: cvp.adapt(g, dt)),
+            ("retina", lambda g=gaze: cvp.retina(g, dt)),
+            ("acuity", lambda n=noise: cvp.acuity(fitted, n)),
+            ("compose", lambda g=gaze: cvp.compose(g)),
+        ):
+            t0 = time.perf_counter()
+            fn()
+            times[f"cv.{stage}"].append(time.perf_counter() - t0)
+        times["cv.step"].append(time.perf_counter() - t_all)
+    # The first two frames warm caches and JITs; medians of the rest.
+    return {k: statistics.median(v[2:]) * 1000 for k, v in times.items()} | {
+        "device": sim.device,
+        "check": float(np.abs(cvp.compose(gazes[-1]) - b.compose(gazes[-1], 1.0)).mean()),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="gazehdr bench", description=__doc__.split("\n")[0])
+    ap.add_argument("--frames", type=int, default=10, help="timed frames per size (default 10)")
+    ap.add_argument("--scene", default="lamp", help="built-in scene (default lamp: 1e-1..1e6)")
+    ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES))
+    args = ap.parse_args(argv)
+    if args.frames < 1:
+        ap.error("--frames must be at least 1")
+    try:
+        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
+    except ValueError:
+        ap.error(f"--sizes must look like 640x360,1280x720, got {args.sizes!r}")
+    for width, height in sizes:
+        r = _bench_size(width, height, args.frames, args.scene)
+        print(f"\n{width}x{height}  scene={args.scene}  OpenCL device: {r['device']}")
+        print(f"  {'stage':<10}{'OpenCL ms':>12}{'OpenCV ms':>12}{'CL/CV':>9}")
+        for stage in (*STAGES, "step"):
+            cl_ms, cv_ms = r[f"cl.{stage}"], r[f"cv.{stage}"]
+            name = "pipeline" if stage == "step" else stage
+            print(f"  {name:<10}{cl_ms:>12.2f}{cv_ms:>12.2f}{cl_ms / max(cv_ms, 1e-9):>9.2f}")
+        print(f"  pipeline: {1000 / r['cl.step']:.1f} fps OpenCL, {1000 / r['cv.step']:.1f} fps OpenCV;"
+              f" mean |v_cl - v_cv| = {r['check']:.2e}")  # fmt: skip
+    return 0
