@@ -33,7 +33,8 @@ KERNEL_FILES = (
     "sec2_4_display.cl",
 )
 MAX_BANDS = 8
-ROW_GROUP = 64  # work-group width of the row-wise kernels (must match BLUR_TILE)
+ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
+VEC = 8  # pixels per work-item in the blurs (VEC in kernels/common.cl)
 ADAPT_WG = 256
 
 PARAMS_DTYPE = np.dtype(
@@ -167,18 +168,14 @@ class OpenCLBackend:
             self._taps[key] = (buf, len(taps) // 2)
         return self._taps[key]
 
-    def _blur(self, src, dst, tmp, taps, w: int, h: int, channels: int, v_kernel=None, extra=()):
-        """Separable blur src -> dst through tmp; `v_kernel` may replace the vertical pass."""
+    def _blur(self, src, dst, tmp, taps, w: int, h: int, channels: int, level: int = -1):
+        """Separable blur src -> dst through tmp; level >= 0 also fills G (acuity bank)."""
         tbuf, r = taps
-        gw = _round_up(w, ROW_GROUP)
-        local = cl.LocalMemory(4 * (ROW_GROUP + 2 * r))
-        self.k["blur_h"](
-            self.queue, (gw, h, channels), (ROW_GROUP, 1, 1),
-            src, tmp, tbuf, np.int32(r), np.int32(w), np.int32(h), local,
-        )  # fmt: skip
-        kern = v_kernel or self.k["blur_v"]
-        kern(self.queue, (gw, h, channels), None, tmp, dst, tbuf, np.int32(r), np.int32(w),
-             np.int32(h), *extra)  # fmt: skip
+        size = (-(-w // VEC), h, channels)
+        dims = (np.int32(r), np.int32(w), np.int32(h))
+        self.k["blur_h"](self.queue, size, None, src, tmp, tbuf, *dims)
+        extra = (self.buf["d"], self.buf["G"], np.int32(level))
+        self.k["blur_v"](self.queue, size, None, tmp, dst, tbuf, *dims, *extra)
 
     def _grid_args(self, gaze):
         lay = self.lay
@@ -256,10 +253,8 @@ class OpenCLBackend:
         # Levels no pixel needs are skipped: a photopic frame costs no blur at all.
         src, dst = b["scene"], b["lvl_a"]
         for level in range(int(d_max[0])):
-            self._blur(
-                src, dst, b["lvl_tmp"], self._acuity_taps[level], lay.width, lay.height, 3,
-                v_kernel=self.k["blur_v_select"], extra=(b["d"], b["G"], np.int32(level)),
-            )  # fmt: skip
+            taps = self._acuity_taps[level]
+            self._blur(src, dst, b["lvl_tmp"], taps, lay.width, lay.height, 3, level)
             src, dst = dst, (b["lvl_b"] if dst is b["lvl_a"] else b["lvl_a"])
 
     def _upload_noise(self, noise: NoiseFrame) -> None:
