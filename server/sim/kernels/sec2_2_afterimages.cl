@@ -8,9 +8,9 @@ inline float3 retina_input(__global const float *down, int low_w, int low_h, int
     float sx = (gx + (j + 0.5f - 0.5f * grid_w) * cell) / cell;
     float sy = (gy + (i + 0.5f - 0.5f * grid_h) * cell) / cell;
     int plane = low_w * low_h;
-    return (float3)(sample_plane(down, low_w, low_h, sx, sy, 0, 0.0f),
-                    sample_plane(down + plane, low_w, low_h, sx, sy, 0, 0.0f),
-                    sample_plane(down + 2 * plane, low_w, low_h, sx, sy, 0, 0.0f));
+    bilinear_t t = bilinear_at(low_w, low_h, sx, sy, 0);
+    return (float3)(bilinear_get(down, t, 0.0f), bilinear_get(down + plane, t, 0.0f),
+                    bilinear_get(down + 2 * plane, t, 0.0f));
 }
 
 inline float3 bleach_inf(__constant const params_t *P, float3 I) {

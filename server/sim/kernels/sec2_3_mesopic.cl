@@ -60,15 +60,3 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
         atomic_max(d_max, d);
     }
 }
-
-// Vertical pass of bank level `level`; pixels that keep exactly this level copy it into G.
-__kernel void blur_v_select(__global const float *src, __global float *dst, __constant float *taps,
-                            int radius, int w, int h, __global const uchar *d_map,
-                            __global float *G, int level) {
-    int x = get_global_id(0), y = get_global_id(1), c = get_global_id(2);
-    if (x >= w) return;
-    float val = blur_v_at(src, taps, radius, w, h, x, y, c);
-    size_t k = ((size_t)c * h + y) * w + x;
-    dst[k] = val;
-    if (d_map[y * w + x] == level + 1) G[k] = val;
-}

@@ -33,12 +33,12 @@ __kernel void compose(__constant const params_t *P, __global const float *G,
     // Afterimage maps at the retinal position of this pixel; off the grid: equilibrium.
     float mx = (px - gx) / cell + 0.5f * grid_w, my = (py - gy) / cell + 0.5f * grid_h;
     int gp = grid_w * grid_h;
-    float3 gain = (float3)(sample_plane(maps, grid_w, grid_h, mx, my, 0, 1.0f),
-                           sample_plane(maps + gp, grid_w, grid_h, mx, my, 0, 1.0f),
-                           sample_plane(maps + 2 * gp, grid_w, grid_h, mx, my, 0, 1.0f));
-    float3 bleach = (float3)(sample_plane(maps + 3 * gp, grid_w, grid_h, mx, my, 0, 0.0f),
-                             sample_plane(maps + 4 * gp, grid_w, grid_h, mx, my, 0, 0.0f),
-                             sample_plane(maps + 5 * gp, grid_w, grid_h, mx, my, 0, 0.0f));
+    bilinear_t t = bilinear_at(grid_w, grid_h, mx, my, 0);
+    float3 gain = (float3)(bilinear_get(maps, t, 1.0f), bilinear_get(maps + gp, t, 1.0f),
+                           bilinear_get(maps + 2 * gp, t, 1.0f));
+    float3 bleach = (float3)(bilinear_get(maps + 3 * gp, t, 0.0f),
+                             bilinear_get(maps + 4 * gp, t, 0.0f),
+                             bilinear_get(maps + 5 * gp, t, 0.0f));
     float dx = px - gx, dy = py - gy;
     float f = exp(-(dx * dx + dy * dy) / (2.0f * fovea_sigma * fovea_sigma));  // foveal fall-off
     float3 lms = mat3_mul(P->rgb2lms, J) * (1.0f + f * (gain - 1.0f));      // Eq. 12, alpha^j2 R
