@@ -214,6 +214,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene", default="lamp", help="built-in scene (default lamp: 1e-1..1e6)")
     ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES))
     args = ap.parse_args(argv)
+    try:
+        import cv2  # noqa: F401
+    except ImportError:
+        ap.error("the OpenCV side needs opencv: pip install -e '.[bench]'")
     if args.frames < 1:
         ap.error("--frames must be at least 1")
     try:

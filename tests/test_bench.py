@@ -1,0 +1,21 @@
+"""`gazehdr bench` runs, names its device, and its OpenCV side computes what the kernels do."""
+
+from __future__ import annotations
+
+import re
+
+from server.bench import main
+
+
+def test_bench_prints_stages_ratios_and_agrees(capsys) -> None:
+    assert main(["--frames", "1", "--sizes", "96x54", "--scene", "lamp"]) == 0
+    out = capsys.readouterr().out
+    assert "OpenCL device:" in out
+    for stage in ("prepare", "adapt", "retina", "acuity", "compose", "pipeline"):
+        row = re.search(rf"^\s+{stage}\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.M)
+        assert row, f"no row for {stage}:\n{out}"
+        cl_ms, cv_ms, ratio = map(float, row.groups())
+        assert cl_ms > 0 and cv_ms > 0
+        assert abs(ratio - cl_ms / cv_ms) < 0.01 + 0.01 * ratio
+    diff = float(re.search(r"mean \|v_OpenCL - v_OpenCV\| = ([\d.e+-]+)", out).group(1))
+    assert diff < 0.01  # the same work on both sides (edge sampling differs slightly)
