@@ -176,7 +176,6 @@ def test_cli_reads_a_csv_gaze_track(tmp_path: Path) -> None:
 
 
 def test_cli_renders_with_opencl(tmp_path: Path) -> None:
-    pytest.importorskip("pyopencl")
     args = ["render", "flash", "--size", "32x18", "--seconds", "0.05", "--fps", "40", "--quiet"]
     assert main([*args, "--backend", "opencl", "--out", str(tmp_path / "cl")]) == 0
     frames = _frames(tmp_path / "cl")
