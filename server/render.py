@@ -21,9 +21,8 @@ from server.dither import dither8
 from server.scenes import Scene
 from server.scenes.exr import write_exr
 from server.sim import Params, Simulator
+from server.sim.layout import check_frame_size
 
-MIN_SIZE = (16, 16)
-MAX_SIZE = (7680, 4320)
 #: Frame files this module writes; `overwrite` removes exactly these and nothing else.
 FRAME_PATTERNS = ("frame_*.png", "frame_*.exr")
 #: zlib level for the PNGs: dithered frames barely compress, and level 1 writes them about 4x
@@ -50,11 +49,10 @@ def _check(seconds: float, fps: float, width: int, height: int, seed: int) -> No
         raise ValueError(f"fps must be a finite positive number, got {fps}")
     if not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds must be a finite positive number, got {seconds}")
-    if not (MIN_SIZE[0] <= width <= MAX_SIZE[0] and MIN_SIZE[1] <= height <= MAX_SIZE[1]):
-        raise ValueError(
-            f"frame size {width}x{height} is out of range: from {MIN_SIZE[0]}x{MIN_SIZE[1]} "
-            f"to {MAX_SIZE[0]}x{MAX_SIZE[1]}"
-        )
+    try:
+        check_frame_size(width, height)
+    except ValueError as exc:
+        raise ValueError(f"frame size {width}x{height} is out of range: {exc}") from None
 
 
 def _prepare_out_dir(out_dir: Path, overwrite: bool) -> None:

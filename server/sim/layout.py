@@ -49,6 +49,15 @@ RGB_TO_LMS = rgb_to_lms_matrix()
 LMS_TO_RGB = np.linalg.inv(RGB_TO_LMS)
 
 
+def check_frame_size(width: int, height: int) -> None:
+    """The one rule for frame sizes, so every entry point refuses the same things alike."""
+    for name, value, limit in (("width", width, MAX_SIZE[0]), ("height", height, MAX_SIZE[1])):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        if not MIN_SIZE <= value <= limit:
+            raise ValueError(f"{name} must be in [{MIN_SIZE}, {limit}], got {value}")
+
+
 @dataclass(frozen=True)
 class Layout:
     """Sizes of every map for one frame size, in pixels, derived from the viewing geometry.
@@ -68,11 +77,7 @@ class Layout:
 
     @classmethod
     def for_frame(cls, width: int, height: int, params: Params) -> Layout:
-        for name, value, limit in (("width", width, MAX_SIZE[0]), ("height", height, MAX_SIZE[1])):
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
-                raise ValueError(f"{name} must be an integer, got {value!r}")
-            if not MIN_SIZE <= value <= limit:
-                raise ValueError(f"{name} must be in [{MIN_SIZE}, {limit}], got {value}")
+        check_frame_size(width, height)
         ppd = params.geometry.pixels_per_degree(int(width))
         cell = max(1, round(params.retina_cell_deg * ppd))
         low_w, low_h = math.ceil(width / cell), math.ceil(height / cell)

@@ -44,7 +44,7 @@ class Params:
     a2: float = 0.2  # adaptation rate to darker stimuli, log10 units / s (Eq. 3)
     b1: Vec3 = (1.2e-3, 1.4e-4, 5.5e-7)  # L, M, S photopigment bleaching rate (Eq. 4-6)
     b2: Vec3 = (6.9e-1, 1.4e0, 5.5e0)  # L, M, S photopigment regeneration rate, 1/s
-    c1: float = 1.0  # calcium influx rate (Eq. 8-10)
+    c1: float = 1.0  # calcium influx rate (Eq. 8-10); cancels in C / C_max, kept by name
     c2: float = 1.0  # calcium efflux rate, 1/s
     j1: float = 0.03  # bleaching afterimage strength (Eq. 7, 12)
     j2: float = 0.15  # adaptation afterimage strength (Eq. 12)
@@ -98,11 +98,6 @@ class Params:
             raise ValueError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
         if self.bands < 1:
             raise ValueError("bands must be at least 1")
-
-    @property
-    def C_max(self) -> float:
-        """Maximum equilibrium calcium, reached in total darkness (Eq. 11)."""
-        return self.c1 / self.c2
 
     def sigma_i(self, ppd: float) -> list[float]:
         """Acuity Gaussian bank in pixels of a frame with `ppd` pixels per degree."""
