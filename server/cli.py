@@ -115,6 +115,82 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+# --- serve ------------------------------------------------------------------------------------
+
+
+def _configure_serve(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8000, help="port (default: 8000)")
+    p.add_argument(
+        "--scene", default="flash", metavar="SCENE", help="built-in or EXR file (default: flash)"
+    )
+    p.add_argument(
+        "--gaze",
+        choices=("mouse", "synthetic", "remote"),
+        default="mouse",
+        help="gaze of new sessions: the viewer's pointer, a seeded scan path, or the gaze "
+        "daemon (default: mouse)",
+    )
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
+    p.add_argument(
+        "--size",
+        type=_size,
+        default=(640, 360),
+        metavar="WxH",
+        help="frame pixel budget; the frame takes the viewer's aspect ratio (default: 640x360)",
+    )
+    p.add_argument("--fixed-size", action="store_true", help="never fit the frame to the viewer")
+    p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
+    p.add_argument("--scale", type=float, metavar="CD_PER_UNIT", help="cd/m^2 per EXR unit")
+    p.add_argument(
+        "--token", help="bearer token for the gaze daemon (default: $GAZEHDR_TOKEN or a new one)"
+    )
+    p.add_argument(
+        "--data-dir",
+        metavar="DIR",
+        help="where uploaded scenes go (default: $GAZEHDR_DATA_DIR or ~/.local/share/gazehdr)",
+    )
+    p.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="ORIGIN",
+        help="another origin (scheme://host:port) whose pages may open /ws/view; repeatable",
+    )
+    p.add_argument(
+        "--encoding", choices=("f16", "rgb10a2"), default="f16", help="frame pixel encoding"
+    )
+    p.add_argument("--backend", choices=("opencl", "reference"), default="opencl")
+    p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
+
+
+def _serve(args: argparse.Namespace, extra: list[str]) -> int:
+    import os
+    from pathlib import Path
+
+    from server.serve import serve
+
+    token = args.token or os.environ.get("GAZEHDR_TOKEN") or None
+    data_dir = args.data_dir or os.environ.get("GAZEHDR_DATA_DIR")
+    return serve(
+        host=args.host,
+        port=args.port,
+        scene=args.scene,
+        scale=args.scale,
+        gaze=args.gaze,
+        fps=args.fps,
+        size=args.size,
+        fit_viewport=not args.fixed_size,
+        params_file=args.params,
+        token=token,
+        data_dir=Path(data_dir) if data_dir else Path.home() / ".local/share/gazehdr",
+        allow_origins=tuple(args.allow_origin),
+        encoding=args.encoding,
+        backend=args.backend,
+        seed=args.seed,
+    )
+
+
 # --- bench ------------------------------------------------------------------------------------
 
 
@@ -152,6 +228,15 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
+    "serve": Command(
+        "serve the live viewer: the simulation in a browser, the mouse as gaze",
+        _serve,
+        _configure_serve,
+        epilog="examples:\n"
+        "  gazehdr serve                      # the demo on http://127.0.0.1:8000\n"
+        "  gazehdr serve --scene night.exr --size 1280x720\n"
+        "  gazehdr serve --gaze remote --host 0.0.0.0 --token SECRET",
+    ),
     "render": Command(
         "render a scene along a gaze track to PNG/EXR frames",
         _render,

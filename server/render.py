@@ -106,6 +106,7 @@ def render(
     digits = max(5, len(str(n - 1)))
     dt = 1.0 / fps
 
+    loaded: object = None
     for i in tqdm(range(n), desc=scene.name, unit="frame", disable=not progress):
         t = i / fps
         x, y, eyes_open = track.at(t)
@@ -114,8 +115,10 @@ def render(
             # Settle the gaze before loading, so the eye starts in equilibrium where it looks.
             sim.step(0.0, gaze=gaze, eyes_open=eyes_open)
             sim.load_scene(scene.render(t, width, height), reset=True)
-        elif scene.animated:
+            loaded = scene.state_at(t)
+        elif scene.animated and scene.state_at(t) != loaded:
             sim.load_scene(scene.render(t, width, height), reset=False)
+            loaded = scene.state_at(t)
         v = sim.step(dt if i else 0.0, gaze=gaze, eyes_open=eyes_open)
         stem = out_dir / f"frame_{i:0{digits}d}"
         Image.fromarray(dither8(v, dither_rng)).save(

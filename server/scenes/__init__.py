@@ -20,6 +20,10 @@ class Scene(Protocol):
 
     def render(self, t: float, width: int, height: int) -> np.ndarray: ...
 
+    def state_at(self, t: float) -> object:
+        """A hashable that changes exactly when `render`'s output does (None: never)."""
+        ...
+
 
 def builtin_names() -> list[str]:
     from server.scenes.procedural import BUILTIN

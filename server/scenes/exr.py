@@ -96,6 +96,9 @@ class ExrScene:
         array every call, not a copy: copy it before modifying it."""
         return self.pixels
 
+    def state_at(self, t: float) -> object:
+        return None
+
 
 def write_exr(
     path: str | os.PathLike[str],

@@ -182,7 +182,7 @@ class _Procedural:
             raise ValueError(f"{self.name}: size must be positive, got {width}×{height}")
         if width * height > MAX_PIXELS:
             raise ValueError(f"{self.name}: {width}×{height} is over {MAX_PIXELS:,} pixels")
-        key = (width, height, self._state(t))
+        key = (width, height, self.state_at(t))
         frame = self._cache.get(key)
         if frame is None:
             if any(k[:2] != (width, height) for k in self._cache):
@@ -191,7 +191,7 @@ class _Procedural:
             self._cache[key] = frame
         return frame.copy()
 
-    def _state(self, t: float) -> object:
+    def state_at(self, t: float) -> object:
         """What `render` depends on besides the size (static scenes: nothing)."""
         return None
 
@@ -237,7 +237,7 @@ class Flash(_Procedural):
         """Whether the flash is firing at `t`: for [first + k·period, + duration), k ≥ 0."""
         return t >= self.first and (t - self.first) % self.period < self.duration
 
-    def _state(self, t: float) -> bool:
+    def state_at(self, t: float) -> bool:
         return self.flash_on(t)
 
     def _draw(self, width: int, height: int, state: object) -> np.ndarray:
@@ -445,7 +445,7 @@ class AdaptationCross(_Procedural):
         _require_positive(self, "cross_luminance", "cross_size", "cross_thickness")
         _require_positive(self, "columns", "rows")
 
-    def _state(self, t: float) -> bool:
+    def state_at(self, t: float) -> bool:
         return t >= self.switch_at
 
     def _draw(self, width: int, height: int, state: object) -> np.ndarray:

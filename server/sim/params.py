@@ -135,3 +135,29 @@ class Params:
     @classmethod
     def load(cls, path: str | Path) -> Params:
         return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+#: Parameters grouped by the paper's sections, for the viewer's panel and the docs.
+SECTIONS: dict[str, list[str]] = {
+    "2.1 Global adaptation": [
+        "n", "a1", "a2", "A_min", "gamma", "plateau_m_over_n", "plateau_K",
+        "adaptation_sigma_deg",
+    ],
+    "2.2 Afterimages": [
+        "b1", "b2", "c1", "c2", "j1", "j2", "H", "alpha_eps", "map_blur_deg",
+        "fovea_sigma_deg", "retina_cell_deg",
+    ],
+    "2.3 Mesopic vision": [
+        "m1", "m2", "w_P", "w_S", "k_s", "rho_sigma_deg", "sigma_0", "rho_step", "g", "bands",
+        "noise_cell_deg", "noise_rate_hz",
+    ],
+    "Input and viewing": ["Y_min", "radiance_max", "geometry"],
+}  # fmt: skip
+#: The values the paper does not give (see their comments in `Params`).
+OURS = frozenset(
+    {
+        "plateau_m_over_n", "plateau_K", "adaptation_sigma_deg", "rho_sigma_deg",
+        "k_s", "noise_cell_deg", "noise_rate_hz", "map_blur_deg", "fovea_sigma_deg",
+        "retina_cell_deg", "alpha_eps", "Y_min", "radiance_max", "geometry",
+    }
+)  # fmt: skip

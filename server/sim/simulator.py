@@ -13,6 +13,7 @@ import numpy as np
 
 from server.sim.layout import Layout, NoiseField, fit_to_frame, sanitize_radiance
 from server.sim.params import Params
+from server.sim.reference import bilinear
 
 BACKENDS = ("opencl", "reference")
 MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no longer a frame)
@@ -50,6 +51,7 @@ class Simulator:
         self._gaze = (width / 2.0, height / 2.0)
         self._eyes = 1.0
         self._prepared_for: float | None = None
+        self._rho: np.ndarray | None = None
         self.load_scene(np.zeros((height, width, 3), np.float32))
 
     # --- properties ---------------------------------------------------------------------------
@@ -80,6 +82,14 @@ class Simulator:
     def gaze(self) -> tuple[float, float]:
         return self._gaze
 
+    def rho_at_gaze(self) -> float:
+        """Mesopic rho (Eq. 13, unclamped) of the scene where the eye looks, for displays."""
+        if self._rho is None:
+            self._prepare()
+            self._rho = self._backend.get("rho")[None].astype(np.float64)
+        x, y = (np.array([c / self.layout.cell]) for c in self._gaze)
+        return float(bilinear(self._rho, x, y)[0, 0])
+
     # --- control ------------------------------------------------------------------------------
 
     def load_scene(self, rgb: np.ndarray, *, reset: bool = True) -> None:
@@ -91,6 +101,7 @@ class Simulator:
         fitted = fit_to_frame(clean, self.width, self.height)
         self._backend.set_scene(np.ascontiguousarray(fitted.transpose(2, 0, 1), np.float32))
         self._prepared_for = None
+        self._rho = None
         if reset:
             self.reset()
 
@@ -99,6 +110,14 @@ class Simulator:
         self._prepare()
         self._backend.adapt(self._gaze, 0.0, True)
         self._backend.retina(self._gaze, 0.0, True)
+
+    def carry_state_from(self, other: Simulator) -> None:
+        """Continue `other`'s eye (after a parameter change): its time and adaptation, and its
+        retinal state when both retina grids are the same; else the retina starts settled."""
+        self.time = other.time
+        self._backend.put("A", other._backend.get("A"))
+        if other.layout == self.layout:
+            self._backend.put("state", other._backend.get("state"))
 
     def step(
         self,

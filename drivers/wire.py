@@ -1,0 +1,159 @@
+"""The gaze wire protocol of `/ws/gaze`: typed, versioned JSON messages, validated on parse.
+
+Shared by the daemon (which sends) and the server (which receives), so both ends apply the
+same rules. No I/O here. Positions are fractions of the tracker's calibrated screen (0..1,
+top-left origin), timestamps monotonic nanoseconds on the sender's clock.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+PROTOCOL = 1
+MAX_MESSAGE_BYTES = 1024 * 1024
+MAX_BATCH = 1000  # samples per `samples` message
+EVENT_KINDS = (
+    "fixation_start",
+    "fixation_update",
+    "fixation_end",
+    "blink_start",
+    "blink_end",
+)
+
+
+class WireError(ValueError):
+    """A gaze message that does not follow the protocol; the text says which field."""
+
+
+@dataclass(frozen=True)
+class Hello:
+    protocol: int
+    tracker: str
+    screen: dict[str, float]
+
+
+@dataclass(frozen=True)
+class Sample:
+    t_ns: int
+    x: float
+    y: float
+    valid: bool
+
+
+@dataclass(frozen=True)
+class Samples:
+    samples: tuple[Sample, ...]
+
+
+@dataclass(frozen=True)
+class Event:
+    kind: str
+    id: int
+    t_ns: int
+    x: float
+    y: float
+
+
+@dataclass(frozen=True)
+class Echo:
+    """Clock echo: the sender's `t0`; the server answers with its own clock added."""
+
+    t0_ns: int
+
+
+Message = Hello | Samples | Event | Echo
+
+
+def _refuse_constant(name: str) -> float:
+    raise WireError(f"{name} is not a number JSON allows")
+
+
+def _int(obj: dict[str, Any], key: str, where: str) -> int:
+    value = obj.get(key)
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 2**63:
+        raise WireError(f"{where}: '{key}' must be a non-negative integer")
+    return value
+
+
+def _coord(obj: dict[str, Any], key: str, where: str) -> float:
+    value = obj.get(key)
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise WireError(f"{where}: '{key}' must be a number")
+    if not (math.isfinite(value) and -3.0 <= value <= 4.0):
+        raise WireError(f"{where}: '{key}' must be finite and within [-3, 4] screens")
+    return float(value)
+
+
+def _sample(obj: Any, where: str) -> Sample:
+    if not isinstance(obj, dict):
+        raise WireError(f"{where}: a sample is an object")
+    valid = obj.get("valid", True)
+    if not isinstance(valid, bool):
+        raise WireError(f"{where}: 'valid' must be true or false")
+    t = _int(obj, "t", where)
+    if not valid:  # position of an invalid sample is meaningless (blink, lost track)
+        return Sample(t, math.nan, math.nan, False)
+    return Sample(t, _coord(obj, "x", where), _coord(obj, "y", where), True)
+
+
+def parse(data: str | bytes) -> Message:
+    """One text message → a typed message, or `WireError` naming what is wrong."""
+    if len(data) > MAX_MESSAGE_BYTES:
+        raise WireError(f"message of {len(data)} bytes; the limit is {MAX_MESSAGE_BYTES}")
+    try:
+        msg = json.loads(data, parse_constant=_refuse_constant)
+    except WireError:
+        raise
+    except (ValueError, UnicodeDecodeError) as e:
+        raise WireError(f"malformed JSON: {e}") from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise WireError("a message is a JSON object with a string 'type'")
+    kind = msg["type"]
+    if kind == "hello":
+        if msg.get("protocol") != PROTOCOL:
+            raise WireError(f"hello: protocol {msg.get('protocol')!r}; this server speaks 1")
+        tracker, screen = msg.get("tracker", ""), msg.get("screen", {})
+        if not isinstance(tracker, str) or not isinstance(screen, dict):
+            raise WireError("hello: 'tracker' is a string and 'screen' an object")
+        return Hello(PROTOCOL, tracker[:200], screen)
+    if kind == "samples":
+        batch = msg.get("samples")
+        if not isinstance(batch, list) or len(batch) > MAX_BATCH:
+            raise WireError(f"samples: 'samples' must be a list of at most {MAX_BATCH}")
+        return Samples(tuple(_sample(s, f"samples[{i}]") for i, s in enumerate(batch)))
+    if kind == "event":
+        if msg.get("kind") not in EVENT_KINDS:
+            raise WireError(f"event: 'kind' must be one of {', '.join(EVENT_KINDS)}")
+        x, y = (
+            (_coord(msg, "x", "event"), _coord(msg, "y", "event"))
+            if msg["kind"].startswith("fixation")
+            else (math.nan, math.nan)
+        )
+        return Event(msg["kind"], _int(msg, "id", "event"), _int(msg, "t", "event"), x, y)
+    if kind == "echo":
+        return Echo(_int(msg, "t0", "echo"))
+    raise WireError(f"unknown message type {kind!r}; known: hello, samples, event, echo")
+
+
+def dumps(message: Message) -> str:
+    """The JSON text of a message (the daemon's side of `parse`)."""
+    if isinstance(message, Hello):
+        body = {"protocol": message.protocol, "tracker": message.tracker, "screen": message.screen}
+        return json.dumps({"type": "hello", **body})
+    if isinstance(message, Samples):
+        rows = [
+            {"t": s.t_ns, "x": s.x, "y": s.y, "valid": True}
+            if s.valid
+            else {"t": s.t_ns, "valid": False}
+            for s in message.samples
+        ]
+        return json.dumps({"type": "samples", "samples": rows})
+    if isinstance(message, Event):
+        body = {"kind": message.kind, "id": message.id, "t": message.t_ns}
+        if message.kind.startswith("fixation"):
+            body |= {"x": message.x, "y": message.y}
+        return json.dumps({"type": "event", **body})
+    return json.dumps({"type": "echo", "t0": message.t0_ns})

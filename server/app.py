@@ -1,0 +1,339 @@
+"""The FastAPI application: REST, the two WebSocket endpoints, and the viewer's static files.
+
+Endpoints only translate between the network and the pure parts: `protocol` / `drivers.wire`
+parse messages, `live.SessionHub` runs the sessions, `scenes.library` holds the scenes.
+`create_app(config)` builds everything from one `ServerConfig`, so tests start a real server
+with exactly the settings they need.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import os
+import secrets
+import time
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from fastapi import Body, FastAPI, HTTPException, Request, WebSocket
+from fastapi.responses import PlainTextResponse
+from fastapi.staticfiles import StaticFiles
+
+from drivers import wire
+from server.live import LiveSession, SessionHub, Viewer
+from server.metrics import Metrics
+from server.protocol import Gaze, ProtocolError, parse_control
+from server.scenes import Scene
+from server.scenes.exr import SceneError
+from server.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
+from server.session import SessionSettings
+from server.sim import Params
+from server.sim.params import OURS, SECTIONS
+
+WEB_DIR = Path(os.environ.get("GAZEHDR_WEB_DIR", Path(__file__).resolve().parent.parent / "web"))
+MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
+GAZE_RATE_HZ = 2000.0  # samples per second per daemon connection, sustained
+GAZE_BURST = 4000.0
+CLOSE_POLICY = 1008
+CLOSE_UNAUTHORIZED = 4401
+CLOSE_ORIGIN = 4403
+CLOSE_BUSY = 1013
+
+
+@dataclass(frozen=True)
+class ServerConfig:
+    host: str = "127.0.0.1"
+    port: int = 8000
+    session: SessionSettings = field(default_factory=SessionSettings)
+    #: Bearer token for `/ws/gaze`; `serve` generates one when none is configured.
+    token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
+    data_dir: Path | None = None
+    #: Scenes opened at start (e.g. an EXR named on the command line), by name.
+    scenes: dict[str, Scene] = field(default_factory=dict)
+    allow_origins: tuple[str, ...] = ()
+    session_grace_s: float = 10.0
+    max_sessions: int = 8
+    max_upload_bytes: int = MAX_UPLOAD_BYTES
+    web_dir: Path = WEB_DIR
+
+
+def origin_allowed(origin: str | None, host: str | None, allowed: tuple[str, ...]) -> bool:
+    """Browsers send Origin; it must be this server or a configured origin. Non-browser
+    clients (tools, the daemon) send none and cannot be driven by a foreign page."""
+    if origin is None:
+        return True
+    return origin in allowed or (host is not None and urlsplit(origin).netloc == host)
+
+
+class TokenBucket:
+    """Allows `rate` items per second on average, `burst` at once."""
+
+    def __init__(self, rate: float, burst: float) -> None:
+        self.rate, self.burst, self.level, self.at = rate, burst, burst, time.monotonic()
+
+    def take(self, n: int) -> int:
+        """How many of `n` items may pass now."""
+        now = time.monotonic()
+        self.level = min(self.burst, self.level + (now - self.at) * self.rate)
+        self.at = now
+        allowed = min(n, int(self.level))
+        self.level -= allowed
+        return allowed
+
+
+def create_app(config: ServerConfig) -> FastAPI:
+    metrics = Metrics()
+    scenes = SceneLibrary(config.data_dir, config.scenes)
+    hub = SessionHub(
+        config.session,
+        scenes,
+        metrics,
+        grace_s=config.session_grace_s,
+        max_sessions=config.max_sessions,
+    )
+    defaults = {"params": config.session.params}
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        yield
+        await hub.close()
+
+    app = FastAPI(
+        title="gazehdr",
+        summary="Gaze-adaptive HDR display: live simulation of the viewer's eye",
+        lifespan=lifespan,
+    )
+    app.state.hub = hub
+    app.state.metrics = metrics
+    app.state.config = config
+
+    # --- REST ---------------------------------------------------------------------------------
+
+    @app.get("/api/health")
+    async def health() -> dict[str, Any]:
+        return {
+            "status": "ok",
+            "sessions": len(hub.sessions),
+            "viewers": int(metrics.viewers.value),
+            "trackers": hub.remote.connections,
+        }
+
+    @app.get("/metrics", response_class=PlainTextResponse)
+    async def prometheus() -> PlainTextResponse:
+        return PlainTextResponse(metrics.render(), media_type="text/plain; version=0.0.4")
+
+    @app.get("/api/scenes")
+    async def list_scenes() -> dict[str, list[str]]:
+        return {"scenes": scenes.names()}
+
+    @app.put("/api/scenes/{name:path}", status_code=201)
+    async def upload_scene(name: str, request: Request) -> dict[str, str]:
+        """Upload an OpenEXR file as the request body; it is validated before it is kept."""
+        try:
+            check_name(name)
+        except SceneError as e:
+            raise HTTPException(400, str(e)) from None
+        cap = config.max_upload_bytes
+        declared = request.headers.get("content-length")
+        if declared and declared.isdigit() and int(declared) > cap:
+            raise HTTPException(413, f"upload of {declared} bytes is over the {cap}-byte limit")
+        chunks, total = [], 0
+        async for chunk in request.stream():
+            total += len(chunk)
+            if total > cap:
+                raise HTTPException(413, f"upload is over the {cap}-byte limit")
+            chunks.append(chunk)
+        try:
+            await asyncio.to_thread(scenes.store, name, chunks)
+        except SceneError as e:
+            raise HTTPException(422, str(e)) from None
+        hub.broadcast({"type": "scenes", "scenes": scenes.names()})
+        return {"name": name}
+
+    @app.get("/api/params")
+    async def get_params() -> dict[str, Any]:
+        """Parameters new sessions start with; `defaults` is the paper's preset."""
+        return {
+            "params": defaults["params"].to_dict(),
+            "defaults": Params().to_dict(),
+            "sections": SECTIONS,
+            "ours": sorted(OURS),
+        }
+
+    @app.put("/api/params")
+    async def put_params(values: dict[str, Any] = Body(...)) -> dict[str, Any]:  # noqa: B008
+        """Change (some of) the parameters new sessions start with."""
+        try:
+            params = Params.from_dict({**defaults["params"].to_dict(), **values})
+        except (TypeError, ValueError) as e:
+            raise HTTPException(422, f"parameters refused: {e}") from None
+        defaults["params"] = params
+        hub.settings = dataclasses.replace(hub.settings, params=params)
+        return {"params": params.to_dict()}
+
+    @app.get("/api/sessions")
+    async def list_sessions() -> list[dict[str, Any]]:
+        return [
+            {
+                "id": live.session.id,
+                "viewers": len(live.viewers),
+                "scene": live.session.scene_name,
+                "frame": live.session.frame,
+                "time": live.session.sim.time,
+                "size": list(live.session.size),
+            }
+            for live in hub.sessions.values()
+        ]
+
+    # --- /ws/view -----------------------------------------------------------------------------
+
+    @app.websocket("/ws/view")
+    async def view(ws: WebSocket, session: str | None = None) -> None:
+        await ws.accept()
+        origin = ws.headers.get("origin")
+        if not origin_allowed(origin, ws.headers.get("host"), config.allow_origins):
+            await ws.close(CLOSE_ORIGIN, f"origin {origin} is not allowed")
+            return
+        viewer = Viewer(ws.send_bytes, ws.send_json, metrics)
+        try:
+            live = await hub.join(session, viewer)
+        except RuntimeError as e:
+            await ws.close(CLOSE_BUSY, str(e))
+            return
+        hello = {"type": "hello", "protocol": 1, "session": live.session.id}
+        viewer.mailbox.put(None, [{**hello, **live.session.state()}])
+        tasks = [
+            asyncio.create_task(viewer.pump()),
+            asyncio.create_task(_receive_controls(ws, live, viewer)),
+        ]
+        try:
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            for task in done:
+                task.result()
+        except Exception:  # the socket went away mid-send; nothing to tell anyone
+            pass
+        finally:
+            for task in tasks:
+                task.cancel()
+            hub.leave(live, viewer)
+        with contextlib.suppress(Exception):
+            await ws.close()
+
+    async def _receive_controls(ws: WebSocket, live: LiveSession, viewer: Viewer) -> None:
+        while True:
+            message = await ws.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            try:
+                text = message.get("text")
+                if text is None:
+                    raise ProtocolError("binary messages are not accepted; send JSON text")
+                control = parse_control(text)
+                if len(live.controls) >= MAX_PENDING_CONTROLS and not isinstance(control, Gaze):
+                    raise ProtocolError("too many messages; slow down", control.__class__.__name__)
+                live.submit(control)
+            except ProtocolError as e:
+                metrics.protocol_errors.inc()
+                viewer.mailbox.put(None, [{"type": "error", "message": str(e), "in": e.in_type}])
+
+    # --- /ws/gaze -----------------------------------------------------------------------------
+
+    @app.websocket("/ws/gaze")
+    async def gaze(ws: WebSocket) -> None:
+        await ws.accept()
+        given = ws.headers.get("authorization", "")
+        expected = f"Bearer {config.token}"
+        if not secrets.compare_digest(given.encode(), expected.encode()):
+            why = "missing" if not given else "wrong"
+            await ws.close(CLOSE_UNAUTHORIZED, f"unauthorized: {why} bearer token")
+            return
+        remote = hub.remote
+        remote.connections += 1
+        metrics.trackers.set(remote.connections)
+        link = _GazeLink(ws, hub, metrics)
+        try:
+            await link.run()
+        finally:
+            remote.connections -= 1
+            metrics.trackers.set(remote.connections)
+            hub.broadcast(_tracker_note(hub))
+
+    if config.web_dir.is_dir():
+        app.mount("/", StaticFiles(directory=config.web_dir, html=True), name="web")
+    return app
+
+
+def _tracker_note(hub: SessionHub) -> dict[str, Any]:
+    r = hub.remote
+    return {
+        "type": "tracker",
+        "connected": r.connections > 0,
+        "name": r.tracker,
+        "samples": r.samples,
+    }
+
+
+class _GazeLink:
+    """One daemon connection: follows its fixations (or raw samples if it sends no events)."""
+
+    def __init__(self, ws: WebSocket, hub: SessionHub, metrics: Metrics) -> None:
+        self.ws, self.hub, self.metrics = ws, hub, metrics
+        self.bucket = TokenBucket(GAZE_RATE_HZ, GAZE_BURST)
+        self.uses_events = False
+        self.warned_at = 0.0
+
+    async def run(self) -> None:
+        while True:
+            message = await self.ws.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            try:
+                text = message.get("text")
+                if text is None:
+                    raise wire.WireError("binary messages are not accepted; send JSON text")
+                reply = self.handle(wire.parse(text), time.monotonic())
+            except wire.WireError as e:
+                self.metrics.protocol_errors.inc()
+                reply = {"type": "error", "message": str(e)}
+            if reply:
+                await self.ws.send_json(reply)
+
+    def handle(self, msg: wire.Message, now: float) -> dict[str, Any] | None:
+        remote = self.hub.remote
+        if isinstance(msg, wire.Echo):
+            return {"type": "echo", "t0": msg.t0_ns, "server_ns": time.monotonic_ns()}
+        if isinstance(msg, wire.Hello):
+            remote.tracker = msg.tracker or "unnamed tracker"
+            self.hub.broadcast(_tracker_note(self.hub))
+            return {"type": "welcome", "protocol": wire.PROTOCOL}
+        if isinstance(msg, wire.Event):
+            self.uses_events = True
+            if msg.kind in ("fixation_start", "fixation_update"):
+                remote.update(msg.x, msg.y, True, now)
+            elif msg.kind in ("blink_start", "blink_end"):
+                remote.update(None, None, msg.kind == "blink_end", now)
+            return None
+        assert isinstance(msg, wire.Samples)
+        allowed = self.bucket.take(len(msg.samples))
+        self.metrics.gaze_samples.inc(allowed)
+        remote.samples += allowed
+        dropped = len(msg.samples) - allowed
+        if not self.uses_events:
+            valid = [s for s in msg.samples[:allowed] if s.valid]
+            if valid:
+                remote.update(valid[-1].x, valid[-1].y, True, now)
+        if dropped:
+            self.metrics.gaze_rate_limited.inc(dropped)
+            if now - self.warned_at > 1.0:
+                self.warned_at = now
+                return {
+                    "type": "error",
+                    "message": f"rate limit: {dropped} samples dropped; at most "
+                    f"{GAZE_RATE_HZ:g} samples/s are accepted",
+                }
+        return None

@@ -1,0 +1,208 @@
+"""Sessions at real time: a render loop per session, a newest-frame mailbox per viewer.
+
+The loop steps its `Session` on a worker thread with the wall-clock time since the last step,
+then hands the frame to every viewer's mailbox. A mailbox holds one frame: a viewer that reads
+slowly skips frames (counted as dropped) instead of growing a queue, and because each viewer
+sends from its own task, one stuck socket never delays another viewer or session.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import secrets
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from server.metrics import Metrics
+from server.protocol import Control
+from server.scenes.library import SceneLibrary
+from server.session import Frame, RemoteGaze, Session, SessionSettings
+
+log = logging.getLogger("gazehdr.live")
+MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
+
+
+@dataclass
+class Mailbox:
+    """The newest frame and the notes (never dropped, but bounded) for one viewer."""
+
+    frame: Frame | None = None
+    notes: list[dict[str, Any]] = field(default_factory=list)
+    dropped: int = 0
+    closed: bool = False  # the session ended: send what is left, then stop
+    ready: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def put(self, frame: Frame | None, notes: list[dict[str, Any]] = ()) -> int:
+        """Store; returns how many unsent frames this replaced (0 or 1)."""
+        replaced = 0
+        if frame is not None:
+            replaced = int(self.frame is not None)
+            self.dropped += replaced
+            self.frame = frame
+        self.notes = [*self.notes, *notes][-MAX_NOTES:]
+        self.ready.set()
+        return replaced
+
+    async def take(self) -> tuple[Frame | None, list[dict[str, Any]]]:
+        await self.ready.wait()
+        self.ready.clear()
+        frame, notes = self.frame, self.notes
+        self.frame, self.notes = None, []
+        return frame, notes
+
+
+class Viewer:
+    """One connected browser: sends what lands in its mailbox, in order, from its own task."""
+
+    def __init__(
+        self,
+        send_bytes: Callable[[bytes], Awaitable[None]],
+        send_json: Callable[[dict[str, Any]], Awaitable[None]],
+        metrics: Metrics,
+    ) -> None:
+        self.mailbox = Mailbox()
+        self._send_bytes, self._send_json, self._metrics = send_bytes, send_json, metrics
+
+    async def pump(self) -> None:
+        m = self._metrics
+        while True:
+            frame, notes = await self.mailbox.take()
+            for note in notes:
+                await self._send_json(note)
+            if self.mailbox.closed:
+                return
+            if frame is None:
+                continue
+            started = time.monotonic()
+            message = frame.message(self.mailbox.dropped)
+            await self._send_bytes(message)
+            sent = time.monotonic()
+            m.send_seconds.observe(sent - started)
+            m.frames_sent.inc()
+            m.bytes_sent.inc(len(message))
+            if frame.gaze_received_at is not None:
+                m.gaze_latency.observe(sent - frame.gaze_received_at)
+
+
+class LiveSession:
+    """A `Session` stepped at real time for its viewers."""
+
+    def __init__(self, session: Session, metrics: Metrics) -> None:
+        self.session = session
+        self.viewers: set[Viewer] = set()
+        self.controls: list[tuple[Control, float]] = []
+        self.metrics = metrics
+        self.task: asyncio.Task[None] | None = None
+        self.closing: asyncio.TimerHandle | None = None
+
+    def submit(self, control: Control) -> None:
+        self.controls.append((control, time.monotonic()))
+
+    def broadcast(self, note: dict[str, Any]) -> None:
+        for viewer in self.viewers:
+            viewer.mailbox.put(None, [note])
+
+    async def run(self) -> None:
+        interval = 1.0 / self.session.settings.fps
+        last: float | None = None
+        m = self.metrics
+        while True:
+            started = time.monotonic()
+            dt = 0.0 if last is None else started - last
+            last = started
+            controls, self.controls = self.controls, []
+            try:
+                frame, notes = await asyncio.to_thread(self.session.tick, dt, controls)
+            except Exception as e:  # a broken device or kernel: tell the viewers, then stop
+                log.exception("session %s stopped", self.session.id)
+                note = {"type": "error", "message": f"simulation failed: {e}", "in": None}
+                for viewer in self.viewers:
+                    viewer.mailbox.put(None, [note])
+                    viewer.mailbox.closed = True
+                return
+            m.sim_seconds.observe(frame.sim_seconds)
+            m.encode_seconds.observe(frame.encode_seconds)
+            for viewer in self.viewers:
+                m.frames_dropped.inc(viewer.mailbox.put(frame, notes))
+            # Sleep out the rest of the frame interval; always yield once so sockets get served.
+            await asyncio.sleep(max(0.0, started + interval - time.monotonic()))
+
+
+class SessionHub:
+    """All live sessions of a server, by id, plus the shared remote gaze."""
+
+    def __init__(
+        self,
+        settings: SessionSettings,
+        scenes: SceneLibrary,
+        metrics: Metrics,
+        *,
+        grace_s: float = 10.0,
+        max_sessions: int = 8,
+    ) -> None:
+        self.settings = settings
+        self.scenes = scenes
+        self.metrics = metrics
+        self.remote = RemoteGaze()
+        self.sessions: dict[str, LiveSession] = {}
+        self.grace_s = grace_s
+        self.max_sessions = max_sessions
+
+    async def join(self, session_id: str | None, viewer: Viewer) -> LiveSession:
+        """The session `session_id` if it still runs, else a new one; `viewer` is added."""
+        live = self.sessions.get(session_id or "")
+        if live is None:
+            if len(self.sessions) >= self.max_sessions:
+                raise RuntimeError(f"the server already runs {self.max_sessions} sessions")
+            new_id = secrets.token_urlsafe(9)
+            session = await asyncio.to_thread(
+                Session, new_id, self.settings, self.scenes, self.remote
+            )
+            live = LiveSession(session, self.metrics)
+            live.task = asyncio.create_task(live.run(), name=f"session {new_id}")
+            self.sessions[new_id] = live
+        if live.closing:
+            live.closing.cancel()
+            live.closing = None
+        live.viewers.add(viewer)
+        self._count()
+        return live
+
+    def leave(self, live: LiveSession, viewer: Viewer) -> None:
+        live.viewers.discard(viewer)
+        if not live.viewers and live.closing is None:
+            loop = asyncio.get_running_loop()
+            live.closing = loop.call_later(self.grace_s, self._end, live)
+        self._count()
+
+    def broadcast(self, note: dict[str, Any]) -> None:
+        for live in self.sessions.values():
+            live.broadcast(note)
+
+    async def close(self) -> None:
+        """Stop every session (server shutdown), whether or not viewers remain."""
+        lives, self.sessions = list(self.sessions.values()), {}
+        for live in lives:
+            if live.closing:
+                live.closing.cancel()
+            if live.task:
+                live.task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await live.task
+        self._count()
+
+    def _end(self, live: LiveSession) -> None:
+        if live.viewers:
+            return
+        if live.task:
+            live.task.cancel()
+        self.sessions.pop(live.session.id, None)
+        self._count()
+
+    def _count(self) -> None:
+        self.metrics.sessions.set(len(self.sessions))
+        self.metrics.viewers.set(sum(len(s.viewers) for s in self.sessions.values()))
