@@ -90,6 +90,19 @@ def test_builtin_scenes_match_reference(name: str) -> None:
         compare_all(sims[0]._backend, sims[1]._backend)
 
 
+@pytest.mark.parametrize("size", [(480, 270), (136, 77), (17, 16)])
+def test_any_frame_size_matches_reference(size: tuple[int, int]) -> None:
+    """Map planes whose byte offsets are not multiples of the device's alignment (480×270
+    once crashed creating a sub-buffer), odd sizes, and the smallest frame."""
+    w, h = size
+    scene = np.resize(mixed_scene(4), (h, w, 3))
+    sims = [Simulator(w, h, backend=b, seed=2) for b in ("reference", "opencl")]
+    for s in sims:
+        s.load_scene(scene)
+        s.step(0.1, gaze=(w / 3, h / 2))
+    compare_all(sims[0]._backend, sims[1]._backend)
+
+
 def _pair(params: Params | None = None):
     p = params or Params()
     lay = Layout.for_frame(W, H, p)

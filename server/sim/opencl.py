@@ -128,7 +128,7 @@ class OpenCLBackend:
         sizes = {
             "scene": 3 * full, "down": 5 * low, "rho": low, "A": 1, "state": 6 * grid,
             "maps": 6 * grid, "G": 3 * full, "v": 3 * full, "d_max": 1,
-            "grid_a": 6 * grid, "grid_b": 6 * grid, "low_tmp": 2 * low,
+            "grid_a": 6 * grid, "grid_b": 6 * grid, "low_yp": low, "low_blur": low, "low_tmp": low,
             "lvl_a": 3 * full, "lvl_b": 3 * full, "lvl_tmp": 3 * full,
         }  # fmt: skip
         mf = cl.mem_flags
@@ -198,10 +198,12 @@ class OpenCLBackend:
             np.int32(lay.cell), np.int32(lay.low_w), np.int32(lay.low_h), np.float32(eyes),
         )  # fmt: skip
         low = lay.low_w * lay.low_h
-        yp = b["down"].get_sub_region(3 * low * 4, low * 4)
-        blurred = b["low_tmp"].get_sub_region(0, low * 4)
-        scratch = b["low_tmp"].get_sub_region(low * 4, low * 4)
-        self._blur(yp, blurred, scratch, self._rho_taps, lay.low_w, lay.low_h, 1)
+        # A copy, not a sub-buffer: sub-buffer offsets must be aligned, plane offsets are not.
+        cl.enqueue_copy(
+            self.queue, b["low_yp"], b["down"], src_offset=3 * low * 4, byte_count=low * 4
+        )
+        blurred = b["low_blur"]
+        self._blur(b["low_yp"], blurred, b["low_tmp"], self._rho_taps, lay.low_w, lay.low_h, 1)
         self.k["rho_map"](
             self.queue, (_round_up(low, ROW_GROUP),), None, self.P, blurred, b["rho"],
             np.int32(low),

@@ -1,0 +1,420 @@
+"""The Docker images and the compose file, checked without a Docker engine.
+
+The Dockerfiles are parsed with `dockerfile` (Docker's own Go parser, from PyPI) and the compose
+files with PyYAML; the server's CMD goes through gazehdr's own argument parser, so a renamed
+option breaks this test rather than the container. What cannot be checked here (the images build,
+the container answers its health check) is left to a machine with Docker.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import dockerfile
+import pytest
+import yaml
+
+from server.cli import build_parser
+
+tomllib = pytest.importorskip("tomllib", reason="reads pyproject.toml with Python 3.11's tomllib")
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCKER = ROOT / "docker"
+SERVER = DOCKER / "server.Dockerfile"
+DAEMON = DOCKER / "daemon.Dockerfile"
+DOCKERFILES = [SERVER, DAEMON]
+COMPOSE = DOCKER / "compose.yaml"
+COMPOSE_GPU = DOCKER / "compose.gpu.yaml"
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
+
+
+# --- helpers --------------------------------------------------------------------------------------
+
+
+def stages(path: Path) -> list[tuple[str | None, list[dockerfile.Command]]]:
+    """The Dockerfile's stages in order: (name from `FROM … AS name`, instructions after FROM)."""
+    result: list[tuple[str | None, list[dockerfile.Command]]] = []
+    for command in dockerfile.parse_file(str(path)):
+        if command.cmd == "FROM":
+            value = command.value
+            name = value[2] if len(value) == 3 and value[1].upper() == "AS" else None
+            result.append((name, [command]))
+        else:
+            assert result, f"{path.name}:{command.start_line}: {command.cmd} before the first FROM"
+            result[-1][1].append(command)
+    assert result, f"{path.name}: no FROM"
+    return result
+
+
+def final_stage(path: Path) -> list[dockerfile.Command]:
+    return stages(path)[-1][1]
+
+
+def only(commands: list[dockerfile.Command], cmd: str) -> dockerfile.Command:
+    found = [c for c in commands if c.cmd == cmd]
+    assert len(found) == 1, f"expected one {cmd}, found {len(found)}"
+    return found[0]
+
+
+def env(commands: list[dockerfile.Command]) -> dict[str, str]:
+    """ENV values of a stage (`ENV K=V K2=V2` form, which the parser gives as pairs)."""
+    values: dict[str, str] = {}
+    for c in commands:
+        if c.cmd == "ENV":
+            pairs = c.value
+            values.update(zip(pairs[::2], pairs[1::2], strict=True))
+    return values
+
+
+def local_copies(path: Path) -> list[tuple[dockerfile.Command, list[str], str]]:
+    """(command, sources, destination) of every COPY/ADD from the build context."""
+    copies = []
+    for _, commands in stages(path):
+        for c in commands:
+            if c.cmd in ("COPY", "ADD") and not any(f.startswith("--from=") for f in c.flags):
+                *sources, dest = c.value
+                copies.append((c, sources, dest))
+    return copies
+
+
+def runs(path: Path) -> list[str]:
+    return [c.value[0] for _, commands in stages(path) for c in commands if c.cmd == "RUN"]
+
+
+def dockerignore_excludes(rel: str) -> bool:
+    """Whether .dockerignore keeps `rel` (or a folder above it) out of the build context.
+
+    Docker's rules: patterns are Go filepath.Match patterns from the context root, `**` spans any
+    number of folders, `!` re-includes, the last matching line wins, and a matched folder takes
+    its contents along.
+    """
+    rules = []
+    for line in (ROOT / ".dockerignore").read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        negate = line.startswith("!")
+        pattern = line.lstrip("!").strip().strip("/")
+        regex = ""
+        for token in re.split(r"(\*\*/|\*\*|\*|\?|\[[^\]]*\])", pattern):
+            if token.startswith("[") and token.endswith("]") and len(token) > 2:
+                regex += "[^" + token[2:] if token.startswith(("[^", "[!")) else token
+            else:
+                regex += {"**/": "(?:.*/)?", "**": ".*", "*": "[^/]*", "?": "[^/]"}.get(
+                    token, re.escape(token)
+                )
+        rules.append((re.compile(regex + r"\Z"), negate))
+    parts = Path(rel).parts
+    candidates = ["/".join(parts[: i + 1]) for i in range(len(parts))]
+    excluded = False
+    for regex, negate in rules:
+        if any(regex.match(c) for c in candidates):
+            excluded = not negate
+    return excluded
+
+
+def compose(path: Path = COMPOSE) -> dict:
+    data = yaml.safe_load(path.read_text())
+    assert isinstance(data, dict) and isinstance(data.get("services"), dict), path.name
+    return data
+
+
+def environment(service: dict) -> dict[str, str | None]:
+    """A service's environment as a mapping; None is a pass-through of the host's variable."""
+    raw = service.get("environment") or {}
+    if isinstance(raw, dict):
+        return {k: None if v is None else str(v) for k, v in raw.items()}
+    variables: dict[str, str | None] = {}
+    for item in raw:
+        name, has_value, value = item.partition("=")
+        variables[name] = value if has_value else None
+    return variables
+
+
+def interpolate(text: str) -> str:
+    """Compose's `${VAR:-default}` and `${VAR}` with no variables set: the defaults."""
+    return re.sub(r"\$\{\w+(?::?-([^}]*))?\}", lambda m: m[1] or "", text)
+
+
+def expose_port(path: Path) -> int:
+    return int(only(final_stage(path), "EXPOSE").value[0].split("/")[0])
+
+
+# --- Dockerfiles ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_every_stage_starts_from_a_pinned_tag(path: Path) -> None:
+    seen: list[str] = []
+    for name, commands in stages(path):
+        image = commands[0].value[0]
+        assert "$" not in image, f"{path.name}: FROM {image}: build arguments hide the tag"
+        if image not in seen and "@sha256:" not in image:  # not an earlier stage, not a digest
+            repo, _, tag = image.rpartition(":")
+            assert repo and "/" not in tag, f"{path.name}: FROM {image} has no tag"
+            assert tag != "latest", f"{path.name}: FROM {image}: 'latest' is not a pin"
+        if name:
+            seen.append(name)
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_final_stage_runs_as_a_user_it_creates(path: Path) -> None:
+    commands = final_stage(path)
+    users = [c.value[0] for c in commands if c.cmd == "USER"]
+    assert users, f"{path.name}: the final stage never sets USER, so it runs as root"
+    user = users[-1].split(":")[0]
+    assert user not in ("root", "0"), f"{path.name}: USER {users[-1]}"
+    runs = " ".join(c.value[0] for c in commands if c.cmd == "RUN")
+    assert re.search(rf"useradd\b[^&;]*\s{re.escape(user)}(\s|$)", runs), (
+        f"{path.name}: USER {user} is never created with useradd in the final stage"
+    )
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_copy_sources_exist_and_reach_the_build_context(path: Path) -> None:
+    names = [name for name, _ in stages(path) if name]
+    for _, commands in stages(path):
+        for c in commands:
+            for flag in c.flags:
+                if flag.startswith("--from="):
+                    assert flag.removeprefix("--from=") in names, f"{path.name}: {c.original}"
+    for c, sources, _ in local_copies(path):
+        for source in sources:
+            assert not source.startswith(("/", "..")), f"{path.name}: {c.original}"
+            assert (ROOT / source).exists(), f"{path.name}:{c.start_line}: no {source} in the repo"
+            assert not dockerignore_excludes(source), (
+                f"{path.name}:{c.start_line}: .dockerignore keeps {source} out of the context"
+            )
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_builder_copies_what_pip_install_needs(path: Path) -> None:
+    """pyproject.toml, its readme and every top-level package `packages.find` includes."""
+    copied = {
+        Path(s).as_posix().strip("/") for _, sources, _ in local_copies(path) for s in sources
+    }
+    needed = {"pyproject.toml", PYPROJECT["project"]["readme"]}
+    for pattern in PYPROJECT["tool"]["setuptools"]["packages"]["find"]["include"]:
+        needed.add(pattern.split(".")[0].rstrip("*"))
+    assert needed <= copied, f"{path.name}: not copied: {sorted(needed - copied)}"
+
+
+def test_server_installs_the_server_extra() -> None:
+    commands = runs(SERVER)
+    assert any(re.search(r"pip install\s+'?\.\[server\]'?", r) for r in commands), commands
+
+
+def test_daemon_installs_the_daemon_extra_and_never_pyopencl() -> None:
+    commands = runs(DAEMON)
+    assert any(re.search(r"pip install\s+'?\.\[daemon\]'?", r) for r in commands), commands
+    text = DAEMON.read_text()
+    for forbidden in ("pyopencl", "pocl", "[server]", "[test]", "[bench]", "'server']"):
+        # Comments may say what is left out; instructions may not bring it in.
+        code = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
+        assert forbidden not in code.lower(), f"daemon.Dockerfile mentions {forbidden}"
+
+
+def test_daemon_extra_does_not_pull_in_pyopencl() -> None:
+    """Follows `gazehdr[...]` self-references in pyproject.toml from the base and `daemon`."""
+    extras = PYPROJECT["project"]["optional-dependencies"]
+    todo, seen, requirements = ["daemon"], set(), list(PYPROJECT["project"]["dependencies"])
+    while todo:
+        extra = todo.pop()
+        if extra in seen:
+            continue
+        seen.add(extra)
+        for requirement in extras[extra]:
+            match = re.match(r"gazehdr\[([^\]]+)\]", requirement)
+            if match:
+                todo += [e.strip() for e in match[1].split(",")]
+            else:
+                requirements.append(requirement)
+    names = {re.split(r"[\s\[<>=!~;]", r, maxsplit=1)[0].lower() for r in requirements}
+    assert not names & {"pyopencl", "pocl-binary-distribution"}, sorted(names)
+
+
+def test_server_cmd_parses_with_the_gazehdr_cli() -> None:
+    cmd = only(final_stage(SERVER), "CMD")
+    assert cmd.json, "CMD must be exec form, so that gazehdr is PID 1 and gets SIGTERM"
+    program, *argv = cmd.value
+    assert program in PYPROJECT["project"]["scripts"], program
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:
+        pytest.fail(f"gazehdr rejects the server image's CMD {cmd.value} (exit {e.code})")
+    assert args.command == "serve"
+    assert args.host == "0.0.0.0", "inside a container only 0.0.0.0 is reachable from outside"
+    assert args.port == expose_port(SERVER)
+
+
+def test_daemon_entrypoint_is_gazehdr_daemon() -> None:
+    entrypoint = only(final_stage(DAEMON), "ENTRYPOINT")
+    assert entrypoint.json and list(entrypoint.value) == ["gazehdr", "daemon"], entrypoint.value
+
+
+def test_server_healthcheck_gets_api_health_with_the_stdlib() -> None:
+    check = only(final_stage(SERVER), "HEALTHCHECK")
+    assert check.json and check.value[0] == "CMD", "exec form: no shell needed"
+    program, *argv = check.value[1:]
+    assert program in ("python", "python3", "/opt/venv/bin/python"), "slim images have no curl"
+    assert argv[0] == "-c"
+    code = argv[1]
+    compile(code, "<HEALTHCHECK>", "exec")
+    urls = re.findall(r"https?://[^'\"\s]+", code)
+    assert len(urls) == 1, code
+    url = urlsplit(urls[0])
+    assert url.path == "/api/health"
+    assert url.hostname == "127.0.0.1" and url.port == expose_port(SERVER)
+    assert "timeout=" in code, "a hung server must fail the check, not hang it"
+
+
+def test_server_environment_matches_the_layout() -> None:
+    commands = final_stage(SERVER)
+    values = env(commands)
+    web = [dest for _, sources, dest in local_copies(SERVER) if sources == ["web"]]
+    assert web and values.get("GAZEHDR_WEB_DIR") == web[-1].rstrip("/")
+    volumes = [v for c in commands if c.cmd == "VOLUME" for v in c.value]
+    assert values.get("GAZEHDR_DATA_DIR") in volumes
+    assert env(final_stage(DAEMON)).get("GAZEHDR_DATA_DIR") in [
+        v for c in final_stage(DAEMON) if c.cmd == "VOLUME" for v in c.value
+    ]
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_no_token_is_baked_into_an_image(path: Path) -> None:
+    for _, commands in stages(path):
+        for c in commands:
+            if c.cmd in ("ENV", "ARG", "LABEL"):
+                assert "GAZEHDR_TOKEN" not in c.original, f"{path.name}: {c.original}"
+
+
+def test_dockerignore_keeps_local_state_out() -> None:
+    for rel in (".git", ".venv", "out/flash/f.png", "server/__pycache__", "x/y.pyc", "a/b.exr"):
+        assert dockerignore_excludes(rel), rel
+    for rel in ("pyproject.toml", "README.md", "server/cli.py", "drivers", "web/index.html"):
+        assert not dockerignore_excludes(rel), rel
+
+
+# --- compose ------------------------------------------------------------------------------------
+
+
+def test_compose_builds_both_images_from_the_repo_root() -> None:
+    services = compose()["services"]
+    for service, path in (("server", SERVER), ("daemon", DAEMON)):
+        build = services[service]["build"]
+        context = (COMPOSE.parent / build["context"]).resolve()
+        assert context == ROOT, f"{service}: context {context}"
+        assert (context / build["dockerfile"]).resolve() == path.resolve()
+
+
+def test_plain_compose_up_runs_only_the_server() -> None:
+    services = compose()["services"]
+    default = {name for name, s in services.items() if not s.get("profiles")}
+    assert default == {"server"}
+    assert "tracker" in services["daemon"]["profiles"]
+
+
+def test_compose_server_is_published_on_loopback_with_a_data_volume() -> None:
+    data = compose()
+    server = data["services"]["server"]
+    assert server["ports"] == [f"127.0.0.1:{expose_port(SERVER)}:{expose_port(SERVER)}"]
+    data_dir = env(final_stage(SERVER))["GAZEHDR_DATA_DIR"]
+    mounts = [v.split(":") for v in server["volumes"]]
+    assert any(target == data_dir and source in data["volumes"] for source, target in mounts)
+
+
+def test_compose_passes_the_token_through_without_a_value() -> None:
+    """A value in compose.yaml would be a secret in git; an empty one would be a token ''."""
+    for name in ("server", "daemon"):
+        variables = environment(compose()["services"][name])
+        assert "GAZEHDR_TOKEN" in variables and variables["GAZEHDR_TOKEN"] is None, name
+
+
+def test_compose_daemon_gets_the_tracker_under_its_own_path() -> None:
+    daemon = compose()["services"]["daemon"]
+    assert environment(daemon)["GAZEHDR_SERVER"].endswith(":8000/ws/gaze")
+    for device in daemon["devices"]:
+        outside, inside = interpolate(device).split(":")[:2]
+        assert outside == inside, f"{device}: hidapi looks the node up by its host name"
+    assert daemon["group_add"], "the node belongs to the host's plugdev"
+
+
+def test_compose_gpu_override_only_touches_the_server() -> None:
+    data = compose(COMPOSE_GPU)
+    assert set(data["services"]) == {"server"}
+    server = data["services"]["server"]
+    assert environment(server)["NVIDIA_DRIVER_CAPABILITIES"].split(",")[0] == "compute"
+    devices = server["deploy"]["resources"]["reservations"]["devices"]
+    assert devices[0]["driver"] == "nvidia"
+    assert any(v.split(":")[1] == "/etc/OpenCL/vendors/nvidia.icd" for v in server["volumes"])
+
+
+# --- udev -----------------------------------------------------------------------------------------
+
+MATCH = DOCKER / "udev" / "gazehdr-eyetracker-match"
+
+# A mouse collection, then an eye tracker: Usage Page 0x12, Usage 0x01, Collection (Application),
+# padded so that the match straddles od's 16-byte lines.
+EYE_TRACKER = bytes.fromhex("05010902a101 0901a100 c0c0 0000 05120901a101 8510 c0".replace(" ", ""))
+EYE_TRACKER_LONG_PAGE = bytes.fromhex("0612000a0100a101c0")
+MOUSE = bytes.fromhex("05010902a1010901a100c0c0")
+# The right nibbles across byte boundaries, the wrong bytes: a0 51 20 90 1a 10.
+MISALIGNED = bytes.fromhex("a05120901a10")
+HEAD_TRACKER = bytes.fromhex("05120902a101c0")  # also usage page 0x12
+# Usage Page 0x12 inside a collection that is not an application one (a1 00: physical).
+NOT_APPLICATION = bytes.fromhex("05120901a100c0")
+
+
+@pytest.mark.skipif(shutil.which("od") is None, reason="needs a POSIX shell with od")
+@pytest.mark.parametrize(
+    ("descriptor", "matches"),
+    [
+        (EYE_TRACKER, True),
+        (EYE_TRACKER_LONG_PAGE, True),
+        (MOUSE, False),
+        (MISALIGNED, False),
+        (HEAD_TRACKER, True),
+        (NOT_APPLICATION, False),
+        (None, False),
+    ],
+    ids=[
+        "eye-tracker",
+        "two-byte-page",
+        "mouse",
+        "misaligned",
+        "head-tracker",
+        "physical-collection",
+        "no-descriptor",
+    ],
+)
+def test_udev_matcher_finds_usage_page_0x12_by_report_descriptor(
+    tmp_path: Path, descriptor: bytes | None, matches: bool
+) -> None:
+    assert os.access(MATCH, os.X_OK), "udev runs the matcher directly: it must be executable"
+    devpath = "/devices/pci0000:00/usb1/1-1/1-1:1.0/0003:2104:0127.0001/hidraw/hidraw0"
+    if descriptor is not None:
+        hid = tmp_path / devpath.lstrip("/") / "device"
+        hid.mkdir(parents=True)
+        (hid / "report_descriptor").write_bytes(descriptor)
+    result = subprocess.run(
+        ["sh", str(MATCH), devpath], env={**os.environ, "SYSFS": str(tmp_path)}, check=False
+    )
+    assert (result.returncode == 0) == matches
+
+
+def test_udev_rule_runs_the_matcher_and_hands_the_node_to_plugdev() -> None:
+    rules = [
+        line
+        for line in (DOCKER / "udev" / "70-gazehdr-eyetracker.rules").read_text().splitlines()
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    assert len(rules) == 1
+    rule = rules[0]
+    assert 'SUBSYSTEM=="hidraw"' in rule
+    assert f'PROGRAM="/usr/local/libexec/{MATCH.name} %p"' in rule
+    assert 'GROUP="plugdev"' in rule and 'MODE="0660"' in rule

@@ -1,0 +1,401 @@
+"""The server for real: uvicorn on loopback, WebSocket clients from the `websockets` library."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+import urllib.error
+import urllib.request
+from typing import Any
+
+import numpy as np
+import pytest
+import websockets
+from websockets.exceptions import ConnectionClosed
+
+from server.protocol import FrameHeader, decode_frame
+from server.scenes.exr import write_exr
+
+TIMEOUT = 30.0
+
+
+def run(coro):
+    return asyncio.run(asyncio.wait_for(coro, TIMEOUT))
+
+
+def http(method: str, url: str, body: bytes | None = None, **headers: str) -> tuple[int, Any]:
+    request = urllib.request.Request(url, data=body, method=method, headers=headers)
+    try:
+        with urllib.request.urlopen(request, timeout=TIMEOUT) as response:
+            status, raw, kind = response.status, response.read(), response.headers["content-type"]
+    except urllib.error.HTTPError as e:
+        status, raw, kind = e.code, e.read(), e.headers["content-type"]
+    return status, json.loads(raw) if "json" in (kind or "") else raw.decode()
+
+
+class Client:
+    """A viewer: keeps the JSON notes it receives, returns frames on request."""
+
+    def __init__(self, ws) -> None:
+        self.ws = ws
+        self.notes: list[dict[str, Any]] = []
+
+    @classmethod
+    async def open(cls, server, query: str = "", **kw) -> Client:
+        ws = await websockets.connect(f"{server.ws_url}/ws/view{query}", **kw)
+        client = cls(ws)
+        hello = await client.note("hello")
+        client.hello = hello
+        return client
+
+    async def send(self, **message: Any) -> None:
+        await self.ws.send(json.dumps(message))
+
+    async def _next(self) -> tuple[FrameHeader, np.ndarray] | None:
+        message = await self.ws.recv()
+        if isinstance(message, str):
+            self.notes.append(json.loads(message))
+            return None
+        return decode_frame(message)
+
+    async def frame(self, until=lambda h: True) -> tuple[FrameHeader, np.ndarray]:
+        while True:
+            got = await self._next()
+            if got and until(got[0]):
+                return got
+
+    async def note(self, kind: str) -> dict[str, Any]:
+        while True:
+            for note in self.notes:
+                if note["type"] == kind:
+                    self.notes.remove(note)
+                    return note
+            await self._next()
+
+
+# --- REST ---------------------------------------------------------------------------------------
+
+
+def test_health_metrics_scenes_openapi(live_server) -> None:
+    server = live_server()
+    assert http("GET", server.url + "/api/health") == (
+        200,
+        {"status": "ok", "sessions": 0, "viewers": 0, "trackers": 0},
+    )
+    status, scenes = http("GET", server.url + "/api/scenes")
+    assert status == 200 and {"flash", "lamp", "checker-night"} <= set(scenes["scenes"])
+    status, spec = http("GET", server.url + "/openapi.json")
+    assert status == 200 and "/api/scenes/{name}" in spec["paths"]
+    status, text = http("GET", server.url + "/metrics")
+    assert status == 200 and "# TYPE gazehdr_frames_sent_total counter" in text
+
+
+def test_params_rest_validates_and_sets_new_sessions(live_server) -> None:
+    server = live_server()
+    status, body = http("GET", server.url + "/api/params")
+    assert status == 200 and body["params"] == body["defaults"] and body["defaults"]["j1"] == 0.03
+    assert "2.2 Afterimages" in body["sections"] and "plateau_K" in body["ours"]
+    bad = [b'{"n": -1}', b'{"nope": 1}', b'{"b1": [1, 2]}', b'{"n": "x"}', b"[1]", b"{"]
+    for payload in bad:
+        status, err = http(
+            "PUT", server.url + "/api/params", payload, **{"content-type": "application/json"}
+        )
+        assert status == 422, (payload, err)
+    status, body = http(
+        "PUT", server.url + "/api/params", b'{"j1": 0.2}', **{"content-type": "application/json"}
+    )
+    assert status == 200 and body["params"]["j1"] == 0.2
+
+    async def check() -> None:
+        client = await Client.open(server)
+        assert client.hello["params"]["j1"] == 0.2 and client.hello["defaults"]["j1"] == 0.03
+        await client.ws.close()
+
+    run(check())
+
+
+def test_exr_upload(live_server, tmp_path) -> None:
+    server = live_server(max_upload_bytes=200_000)
+    good = tmp_path / "good.exr"
+    write_exr(good, np.full((20, 30, 3), 50.0, np.float32))
+    status, body = http("PUT", server.url + "/api/scenes/office", good.read_bytes())
+    assert (status, body) == (201, {"name": "office"})
+    assert "office" in http("GET", server.url + "/api/scenes")[1]["scenes"]
+    stored = server.config.data_dir / "scenes"
+    assert sorted(p.name for p in stored.iterdir()) == ["office.exr"]
+
+    cases = [
+        ("broken", b"\x76\x2f\x31\x01" + b"\x00" * 64, 422, "upload 'broken'"),
+        ("text", b"hello", 422, "not an OpenEXR file"),
+        ("huge", b"\x00" * 200_001, 413, "limit"),
+        ("..%2F..%2Fescape", good.read_bytes(), 400, "not allowed"),
+        ("a%2Fb", good.read_bytes(), 400, "not allowed"),
+        (".hidden", good.read_bytes(), 400, "not allowed"),
+        ("flash", good.read_bytes(), 422, "taken by a built-in"),
+    ]
+    for name, payload, code, message in cases:
+        status, body = http("PUT", f"{server.url}/api/scenes/{name}", payload)
+        assert status == code and message in body["detail"], (name, status, body)
+    # Nothing of the refused uploads was kept, in the folder or outside it.
+    assert sorted(p.name for p in stored.iterdir()) == ["office.exr"]
+    assert sorted(p.name for p in server.config.data_dir.iterdir()) == ["scenes"]
+
+    async def view_upload() -> None:
+        client = await Client.open(server)
+        await client.send(type="scene", name="office")
+        state = await client.note("state")
+        assert state["scene"] == "office"
+        await client.ws.close()
+
+    run(view_upload())
+
+
+# --- /ws/view -----------------------------------------------------------------------------------
+
+
+def test_frames_flow_at_real_time_and_follow_the_pointer(live_server) -> None:
+    server = live_server(scene="lamp", fps=20.0)
+
+    async def check() -> None:
+        client = await Client.open(server)
+        hello = client.hello
+        assert hello["protocol"] == 1 and hello["scene"] == "lamp" and hello["width"] == 160
+        await client.send(type="gaze", x=0.125, y=0.75, seq=9)
+        header, v = await client.frame(lambda h: h.gaze_seq == 9)
+        assert (header.gaze_x, header.gaze_y) == (0.125, 0.75)
+        assert v.shape == (96, 160, 3) and np.all((v >= 0) & (v <= 1))
+        # Simulation time follows the wall clock: read continuously for 1.5 s (so nothing
+        # queues in the client) and compare the two clocks over that span.
+        first, _ = await client.frame()
+        started = time.monotonic()
+        while time.monotonic() - started < 1.5:
+            last, _ = await client.frame()
+        elapsed = time.monotonic() - started
+        assert last.time - first.time == pytest.approx(elapsed, abs=0.2)
+        assert last.frame > first.frame + 10
+        await client.send(type="eyes", open=False)
+        closed, _ = await client.frame(lambda h: not h.eyes_open)
+        assert not closed.eyes_open
+        await client.ws.close()
+
+    run(check())
+    assert server.metrics.frames_sent.value > 5
+    assert server.metrics.gaze_latency.n >= 1
+
+
+def test_controls_change_the_session_and_errors_do_not_stop_it(live_server) -> None:
+    server = live_server()
+
+    async def check() -> None:
+        client = await Client.open(server)
+        await client.send(type="viewport", width=500, height=500)
+        state = await client.note("state")
+        side = state["width"]
+        assert state["width"] == state["height"] and abs(side * side - 160 * 96) < 16 * side
+        await client.frame(lambda h: h.width == side)
+
+        await client.send(type="params", values={"j1": 0.5})
+        assert (await client.note("state"))["params"]["j1"] == 0.5
+        for bad, what in [
+            ("{oops", "malformed JSON"),
+            ('{"type": "warp"}', "unknown message type"),
+            ('{"type": "gaze", "x": NaN, "y": 0, "seq": 1}', "NaN"),
+            ('{"type": "scene", "name": "../../etc/passwd"}', "not allowed"),
+            ('{"type": "scene", "name": "nowhere"}', "no scene named"),
+            ('{"type": "params", "values": {"n": 0}}', "parameters refused"),
+            ('{"type": "model", "name": "magic"}', "unknown model"),
+            (json.dumps({"type": "reset", "pad": "x" * 70_000}), "limit is 65536"),
+        ]:
+            await client.ws.send(bad)
+            error = await client.note("error")
+            assert what in error["message"], (bad, error)
+        await client.ws.send(b"\x00binary")
+        assert "binary" in (await client.note("error"))["message"]
+        # The session is unharmed: still lamp... no, still its scene, frames keep coming.
+        before, _ = await client.frame()
+        after, _ = await client.frame(lambda h: h.frame > before.frame + 2)
+        assert after.time > before.time
+        await client.ws.close()
+
+    run(check())
+
+
+def test_oversized_message_closes_only_that_connection(live_server) -> None:
+    server = live_server()
+
+    async def check() -> None:
+        bystander = await Client.open(server)
+        rogue = await Client.open(server, max_size=None)
+        await rogue.ws.send("x" * (2 * 1024 * 1024))
+        with pytest.raises(ConnectionClosed) as info:
+            while True:
+                await rogue._next()
+        assert info.value.rcvd.code == 1009  # message too big
+        before, _ = await bystander.frame()
+        await bystander.frame(lambda h: h.frame >= before.frame + 3)
+        await bystander.ws.close()
+
+    run(check())
+
+
+def test_foreign_origin_is_refused(live_server) -> None:
+    server = live_server(allow_origins=("https://lab.example",))
+
+    async def check() -> None:
+        ws = await websockets.connect(server.ws_url + "/ws/view", origin="https://evil.example")
+        with pytest.raises(ConnectionClosed) as info:
+            await ws.recv()
+        assert info.value.rcvd.code == 4403 and "evil.example" in info.value.rcvd.reason
+        for origin in (server.url, "https://lab.example"):
+            client = await Client.open(server, origin=origin)
+            await client.frame()
+            await client.ws.close()
+
+    run(check())
+
+
+def test_slow_viewer_neither_queues_nor_slows_another(live_server) -> None:
+    """Two viewers of one session; one stops reading. Its frames are replaced, not queued."""
+    server = live_server(size=(480, 270), fps=15.0)
+
+    async def check() -> tuple[int, float, float]:
+        fast = await Client.open(server)
+        session = fast.hello["session"]
+        # max_queue=1: the stalled client stops reading its socket after one message.
+        slow = await Client.open(server, f"?session={session}", max_queue=1)
+        assert slow.hello["session"] == session
+        hub = server.hub
+        live = hub.sessions[session]
+        first, _ = await fast.frame()
+        peak = 0
+        while (header := (await fast.frame())[0]).frame < first.frame + 60:
+            mailboxes = [v.mailbox for v in live.viewers]
+            peak = max(peak, *(int(m.frame is not None) for m in mailboxes))
+        received = header.frame - first.frame
+        dropped = [v.mailbox.dropped for v in live.viewers]
+        await fast.ws.close()
+        await slow.ws.close()
+        return peak, received, header.dropped, max(dropped)
+
+    peak, received, fast_dropped, slow_dropped = run(check())
+    assert peak <= 1  # never more than the newest frame waits for anyone
+    assert slow_dropped > 20  # the stalled viewer really stalled, and its frames were skipped
+    # The other viewer got every frame the session made while the first one was stuck (its
+    # frame numbers are consecutive but for the odd frame replaced in its own mailbox).
+    assert fast_dropped <= 3 and received == 60
+
+
+def test_session_ends_when_its_page_closes(live_server) -> None:
+    server = live_server()
+
+    async def check() -> None:
+        client = await Client.open(server)
+        await client.frame()
+        assert len(server.hub.sessions) == 1
+        await client.ws.close()
+        for _ in range(100):
+            if not server.hub.sessions:
+                return
+            await asyncio.sleep(0.05)
+        raise AssertionError("session still running after its viewer left")
+
+    run(check())
+    assert http("GET", server.url + "/api/health")[1]["sessions"] == 0
+
+
+# --- /ws/gaze -----------------------------------------------------------------------------------
+
+
+def test_gaze_endpoint_refuses_wrong_or_missing_token(live_server) -> None:
+    server = live_server(token="s3cret")
+
+    async def check(headers: dict[str, str], why: str) -> None:
+        ws = await websockets.connect(server.ws_url + "/ws/gaze", additional_headers=headers)
+        with pytest.raises(ConnectionClosed) as info:
+            await ws.recv()
+        assert info.value.rcvd.code == 4401
+        assert info.value.rcvd.reason == f"unauthorized: {why} bearer token"
+
+    run(check({}, "missing"))
+    run(check({"Authorization": "Bearer wrong"}, "wrong"))
+    run(check({"Authorization": "s3cret"}, "wrong"))
+
+
+def test_remote_gaze_drives_a_session(live_server) -> None:
+    server = live_server(token="tok", gaze_source="remote")
+    auth = {"Authorization": "Bearer tok"}
+
+    async def check() -> None:
+        viewer = await Client.open(server)
+        async with websockets.connect(server.ws_url + "/ws/gaze", additional_headers=auth) as d:
+            await d.send(json.dumps({"type": "hello", "protocol": 1, "tracker": "test rig"}))
+            assert json.loads(await d.recv()) == {"type": "welcome", "protocol": 1}
+            note = await viewer.note("tracker")
+            assert note["connected"] and note["name"] == "test rig"
+            await d.send(json.dumps({"type": "echo", "t0": 5}))
+            echo = json.loads(await d.recv())
+            assert echo["t0"] == 5 and echo["server_ns"] > 0
+            samples = [{"t": i, "x": 0.3, "y": 0.6} for i in range(10)]
+            await d.send(json.dumps({"type": "samples", "samples": samples}))
+            header, _ = await viewer.frame(lambda h: math.isclose(h.gaze_x, 0.3, abs_tol=1e-6))
+            assert header.tracker and header.gaze_y == pytest.approx(0.6)
+            # Once fixation events arrive the session follows them, not the raw samples.
+            event = {
+                "type": "event",
+                "kind": "fixation_start",
+                "id": 1,
+                "t": 20,
+                "x": 0.8,
+                "y": 0.1,
+            }
+            await d.send(json.dumps(event))
+            await d.send(
+                json.dumps({"type": "samples", "samples": [{"t": 30, "x": 0.2, "y": 0.2}]})
+            )
+            await viewer.frame(lambda h: math.isclose(h.gaze_x, 0.8, abs_tol=1e-6))
+            await d.send(json.dumps({"type": "event", "kind": "blink_start", "id": 2, "t": 40}))
+            await viewer.frame(lambda h: not h.eyes_open)
+            await d.send('{"type": "samples", "samples": [{"t": 1, "x": NaN, "y": 0}]}')
+            assert "NaN" in json.loads(await d.recv())["message"]
+        assert not (await viewer.note("tracker"))["connected"]
+        await viewer.ws.close()
+
+    run(check())
+
+
+def test_sample_flood_is_rate_limited_without_harming_viewers(live_server) -> None:
+    server = live_server(token="tok")
+    auth = {"Authorization": "Bearer tok"}
+
+    async def watch(viewer: Client, seconds: float) -> float:
+        """Frames per second the viewer receives, read continuously."""
+        first, _ = await viewer.frame()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < seconds:
+            last, _ = await viewer.frame()
+        return (last.frame - first.frame) / (time.monotonic() - t0)
+
+    async def check() -> tuple[int, float, float]:
+        viewer = await Client.open(server)
+        quiet = await watch(viewer, 2.0)
+        flooded = asyncio.create_task(watch(viewer, 4.0))
+        batch = json.dumps({"type": "samples", "samples": [{"t": 1, "x": 0.5, "y": 0.5}] * 1000})
+        errors = 0
+        async with websockets.connect(server.ws_url + "/ws/gaze", additional_headers=auth) as d:
+            for _ in range(100):  # 100k samples as fast as the socket takes them
+                await d.send(batch)
+            with pytest.raises(asyncio.TimeoutError):
+                while True:
+                    reply = json.loads(await asyncio.wait_for(d.recv(), 1.0))
+                    errors += "rate limit" in reply["message"]
+        rate = await flooded
+        await viewer.ws.close()
+        return errors, quiet, rate
+
+    errors, quiet, flooded = run(check())
+    assert errors >= 1
+    assert server.metrics.gaze_rate_limited.value > 50_000
+    assert server.metrics.gaze_samples.value < 50_000
+    assert flooded > 0.7 * quiet, (quiet, flooded)  # the flood must not starve the session
