@@ -192,7 +192,7 @@ class Session:
             if size == self.size:
                 return False
             self.size = size
-            self.sim = self._new_simulator()
+            self.sim = self._new_simulator(keep_from=self.sim)
             return True
         if isinstance(control, ParamChange):
             return self._set_params(control.values)
