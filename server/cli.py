@@ -204,6 +204,12 @@ def _bench(args: argparse.Namespace, extra: list[str]) -> int:
     return int(bench.main(extra) or 0)
 
 
+def _bench_live(args: argparse.Namespace, extra: list[str]) -> int:
+    from server.bench_live import main as bench_live
+
+    return bench_live(extra)
+
+
 # --- scenes -----------------------------------------------------------------------------------
 
 
@@ -247,6 +253,11 @@ COMMANDS: dict[str, Command] = {
         "  gazehdr render lamp --gaze gaze.csv --backend reference --out out/lamp",
     ),
     "bench": Command("benchmark the simulator (arguments pass through)", _bench, passthrough=True),
+    "bench-live": Command(
+        "benchmark the live server with a real browser (arguments pass through)",
+        _bench_live,
+        passthrough=True,
+    ),
     "scenes": Command("list the built-in scenes", _scenes),
 }
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 import secrets
+import threading
+import time
 from pathlib import Path
 
 import uvicorn
@@ -78,20 +80,50 @@ def build_config(
     )
 
 
+def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicorn.Server:
+    """The one way we run uvicorn: the websockets library's sans-I/O core, which waits for the
+    socket to drain before each send (a slow viewer then skips frames, see server/live.py)."""
+    config = uvicorn.Config(
+        app,
+        host=host,
+        port=port,
+        ws="websockets-sansio",
+        ws_max_size=WS_MAX_MESSAGE,
+        access_log=False,
+        log_level=log_level,
+    )
+    return uvicorn.Server(config)
+
+
+class BackgroundServer:
+    """`create_app(config)` on 127.0.0.1 and a free port, in a thread: for tests and benchmarks."""
+
+    def __init__(self, config: ServerConfig) -> None:
+        self.config = config
+        self.app = create_app(config)
+        self.server = uvicorn_server(self.app, "127.0.0.1", 0, log_level="warning")
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 30
+        while not self.server.started:
+            if not self.thread.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError("uvicorn did not start")
+            time.sleep(0.01)
+        self.port = self.server.servers[0].sockets[0].getsockname()[1]
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.ws_url = f"ws://127.0.0.1:{self.port}"
+        self.token = config.token
+        self.hub = self.app.state.hub
+        self.metrics = self.app.state.metrics
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=15)
+
+
 def serve(**options) -> int:
     config = build_config(**options)
-    app = create_app(config)
-    server = uvicorn.Server(
-        uvicorn.Config(
-            app,
-            host=config.host,
-            port=config.port,
-            ws="websockets-sansio",
-            ws_max_size=WS_MAX_MESSAGE,
-            access_log=False,
-            log_level="info",
-        )
-    )
+    server = uvicorn_server(create_app(config), config.host, config.port)
     shown = f"[{config.host}]" if ":" in config.host else config.host
     s = config.session
     print(f"gazehdr: open http://{shown}:{config.port}/ (scene {s.scene}, gaze {s.gaze_source})")

@@ -1,0 +1,201 @@
+"""`gazehdr bench-live`: the live path measured end to end, server and a real browser.
+
+For each frame size and encoding it starts a real server (uvicorn on loopback), opens the viewer
+in headless Chromium (Debian's, driven by Playwright), moves the mouse every 100 ms, and reports
+over the same window: frames per second delivered to the page, bytes per frame, the server's time
+per frame split into simulation, encoding and sending, and the latency from a pointer move to
+the first frame that used it, as the page measured it (p50, p95). The same run with a plain
+WebSocket client instead of the browser separates the browser's own cost (on a 2-core machine
+Chromium's software WebGL competes with the simulation for the CPU).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import random
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from server.protocol import Encoding, decode_frame
+
+CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+]  # fmt: skip
+
+
+def _size(text: str) -> tuple[int, int]:
+    w, h = text.lower().split("x")
+    return int(w), int(h)
+
+
+def _server_snapshot(metrics) -> dict[str, float]:
+    return {
+        "frames": metrics.frames_sent.value,
+        "bytes": metrics.bytes_sent.value,
+        "sim_s": metrics.sim_seconds.total,
+        "sim_n": metrics.sim_seconds.n,
+        "enc_s": metrics.encode_seconds.total,
+        "send_s": metrics.send_seconds.total,
+        "send_n": metrics.send_seconds.n,
+    }
+
+
+def _server_figures(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    d = {k: after[k] - before[k] for k in before}
+    n, sent = max(d["sim_n"], 1), max(d["frames"], 1)
+    return {
+        "bytes_per_frame": d["bytes"] / sent,
+        "sim_ms": 1e3 * d["sim_s"] / n,
+        "encode_ms": 1e3 * d["enc_s"] / n,
+        "send_ms": 1e3 * d["send_s"] / max(d["send_n"], 1),
+        "made": d["sim_n"],
+    }
+
+
+def _percentiles(values: list[float]) -> tuple[float, float]:
+    if len(values) < 2:
+        return (values[0], values[0]) if values else (float("nan"), float("nan"))
+    q = statistics.quantiles(values, n=20, method="inclusive")
+    return statistics.median(values), q[18]
+
+
+def run_browser(live, size: tuple[int, int], seconds: float, warmup: float) -> dict[str, float]:
+    from playwright.sync_api import sync_playwright
+
+    w, h = size
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": w, "height": h})
+        page.goto(live.url + "/")
+        page.wait_for_function("window.gazehdr && window.gazehdr.stats.received > 2", timeout=60e3)
+        rng = random.Random(0)
+
+        def wiggle(duration: float) -> None:
+            end = time.monotonic() + duration
+            while time.monotonic() < end:
+                page.mouse.move(rng.uniform(0.1, 0.9) * w, rng.uniform(0.1, 0.9) * h)
+                page.wait_for_timeout(100)
+
+        wiggle(warmup)
+        read = "(() => { const s = window.gazehdr.stats; return [s.received, s.latency.total] })()"
+        received0, lat0 = page.evaluate(read)
+        before, t0 = _server_snapshot(live.metrics), time.monotonic()
+        latencies: list[float] = []
+        seen = lat0
+        while time.monotonic() - t0 < seconds:
+            wiggle(0.5)
+            total, values = page.evaluate(
+                "(() => { const l = window.gazehdr.stats.latency; return [l.total, l.values] })()"
+            )
+            fresh = min(total - seen, len(values))
+            latencies += values[len(values) - fresh :] if fresh else []
+            seen = total
+        elapsed = time.monotonic() - t0
+        received1, _ = page.evaluate(read)
+        after = _server_snapshot(live.metrics)
+        browser.close()
+    p50, p95 = _percentiles(latencies)
+    return {
+        "fps": (received1 - received0) / elapsed,
+        "lat_p50": p50,
+        "lat_p95": p95,
+        "lat_n": len(latencies),
+        **_server_figures(before, after),
+    }
+
+
+async def _socket_client(live, seconds: float, warmup: float) -> dict[str, float]:
+    import websockets
+
+    async with websockets.connect(f"{live.ws_url}/ws/view", max_size=None) as ws:
+        sent: dict[int, float] = {}
+        latencies: list[float] = []
+        seq, frames, t0 = 0, 0, None
+        rng = random.Random(0)
+        start = time.monotonic()
+        next_move = start
+        before: dict[str, float] = {}
+        while True:
+            now = time.monotonic()
+            if t0 is None and now - start >= warmup:
+                t0, frames, before = now, 0, _server_snapshot(live.metrics)
+            if t0 is not None and now - t0 >= seconds:
+                break
+            if now >= next_move:
+                seq += 1
+                sent[seq] = now
+                gaze = {"type": "gaze", "x": rng.random(), "y": rng.random(), "seq": seq}
+                await ws.send(json.dumps(gaze))
+                next_move = now + 0.1
+            message = await ws.recv()
+            if isinstance(message, str):
+                continue
+            header, _ = decode_frame(message)
+            frames += 1
+            if header.gaze_seq in sent and t0 is not None:
+                latencies.append(1e3 * (time.monotonic() - sent.pop(header.gaze_seq)))
+            for old in [s for s in sent if s < header.gaze_seq]:
+                sent.pop(old)
+        elapsed = time.monotonic() - t0
+        after = _server_snapshot(live.metrics)
+    p50, p95 = _percentiles(latencies)
+    return {
+        "fps": frames / elapsed,
+        "lat_p50": p50,
+        "lat_p95": p95,
+        "lat_n": len(latencies),
+        **_server_figures(before, after),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="gazehdr bench-live", description=__doc__.split("\n")[0])
+    parser.add_argument("--sizes", default="1280x720,1920x1080")
+    parser.add_argument("--encodings", default="f16,rgb10a2")
+    parser.add_argument("--clients", default="browser,socket")
+    parser.add_argument("--scene", default="lamp")
+    parser.add_argument("--fps", type=float, default=30.0)
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--warmup", type=float, default=3.0)
+    args = parser.parse_args(argv)
+
+    from server.app import ServerConfig
+    from server.serve import BackgroundServer
+    from server.session import SessionSettings
+
+    print(
+        f"{'size':>10} {'encoding':>8} {'client':>7} {'fps':>6} {'KiB/frame':>10} "
+        f"{'sim ms':>7} {'enc ms':>7} {'send ms':>7} {'lat p50':>8} {'lat p95':>8} {'n':>4}"
+    )
+    for size in (_size(s) for s in args.sizes.split(",")):
+        for encoding in args.encodings.split(","):
+            for client in args.clients.split(","):
+                settings = SessionSettings(
+                    width=size[0], height=size[1], fps=args.fps, scene=args.scene,
+                    encoding=Encoding[encoding], fit_viewport=False,
+                )  # fmt: skip
+                with tempfile.TemporaryDirectory() as data:
+                    live = BackgroundServer(ServerConfig(session=settings, data_dir=Path(data)))
+                    try:
+                        if client == "browser":
+                            r = run_browser(live, size, args.seconds, args.warmup)
+                        else:
+                            r = asyncio.run(_socket_client(live, args.seconds, args.warmup))
+                    finally:
+                        live.stop()
+                print(
+                    f"{size[0]:>5}x{size[1]:<4} {encoding:>8} {client:>7} {r['fps']:6.1f} "
+                    f"{r['bytes_per_frame'] / 1024:10.0f} {r['sim_ms']:7.1f} "
+                    f"{r['encode_ms']:7.2f} {r['send_ms']:7.2f} {r['lat_p50']:8.0f} "
+                    f"{r['lat_p95']:8.0f} {r['lat_n']:4d}",
+                    flush=True,
+                )
+    return 0
