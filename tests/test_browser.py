@@ -1,0 +1,656 @@
+"""The browser viewer (web/) in real headless Chromium, against a real server.
+
+Chromium is Debian's (`/usr/bin/chromium`, or GAZEHDR_CHROMIUM), driven by Playwright's sync
+API; WebGL2 runs on SwiftShader, so no GPU is needed. Without Chromium or Playwright the tests
+skip, except on CI (CI set), where that is a failure.
+
+Frames are kept small (320×176 or the fixture's 160×96): CI has two cores and runs the
+kernels on the CPU, so a frame takes 50-200 ms there. Nothing here assumes a frame rate:
+every wait is on a condition (a frame number, a gaze sequence number, a simulation time).
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import math
+import os
+import socket
+import struct
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless=new",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+]
+WEB_DIR = Path(__file__).resolve().parent.parent / "web"
+#: The frame header of docs/protocol.md, written out again here so that the test checks the
+#: browser's decoder against the document, not against the server's own code.
+HEADER = struct.Struct("<4sHHIIdffffHHBBHfI")
+HEADER_FIELDS = (
+    "magic", "version", "header_bytes", "frame", "gaze_seq", "time", "gaze_x", "gaze_y",
+    "adaptation", "rho", "width", "height", "encoding", "flags", "reserved", "server_ms",
+    "dropped",
+)  # fmt: skip
+WAIT_MS = 30_000  # generous: a loaded 2-core CI machine
+
+#: Base64 of an ArrayBuffer, in chunks (String.fromCharCode has an argument limit).
+B64_JS = """
+window.__b64 = (buffer) => {
+  const u8 = new Uint8Array(buffer);
+  let s = '';
+  for (let i = 0; i < u8.length; i += 0x8000) {
+    s += String.fromCharCode.apply(null, u8.subarray(i, i + 0x8000));
+  }
+  return btoa(s);
+};
+"""
+
+
+def _unavailable(reason: str) -> None:
+    if os.environ.get("CI"):
+        pytest.fail(f"{reason} (CI is set, so this is an error, not a skip)")
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        _unavailable("the playwright package is not installed")
+    if not os.access(CHROMIUM, os.X_OK):
+        _unavailable(f"no Chromium at {CHROMIUM} (apt-get install chromium)")
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = chromium.new_page()
+            page.set_content("<canvas></canvas>")
+            if not page.evaluate("() => !!document.querySelector('canvas').getContext('webgl2')"):
+                _unavailable("Chromium gives no WebGL2 context (SwiftShader missing?)")
+            page.close()
+            yield chromium
+        finally:
+            chromium.close()
+
+
+class Viewer:
+    """A page showing the viewer, with its errors collected and small helpers."""
+
+    def __init__(self, browser: Any, url: str, width: int, height: int) -> None:
+        self.page = browser.new_page(viewport={"width": width, "height": height})
+        self.errors: list[str] = []
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+        self.page.add_init_script(B64_JS)
+        self.page.goto(url)
+        self.wait("() => window.gazehdr?.state?.session && window.gazehdr.lastHeader")
+
+    def wait(self, predicate: str, arg: Any = None, timeout: float = WAIT_MS) -> Any:
+        return self.page.wait_for_function(predicate, arg=arg, timeout=timeout).json_value()
+
+    def js(self, expression: str, arg: Any = None) -> Any:
+        return self.page.evaluate(expression, arg)
+
+    def header(self) -> dict[str, Any]:
+        return self.js("() => window.gazehdr.lastHeader")
+
+    def next_frame(self, after: int | None = None) -> dict[str, Any]:
+        """The header of a frame newer than `after` (default: the current one)."""
+        if after is None:
+            after = self.header()["frame"]
+        return self.wait(
+            "(n) => window.gazehdr.lastHeader.frame > n && window.gazehdr.lastHeader", after
+        )
+
+    def payload(self) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
+        """The last frame message as (header decoded here, header decoded by the page, v)."""
+        got = self.js("() => [window.__b64(window.gazehdr.lastPayload), window.gazehdr.lastHeader]")
+        data = base64.b64decode(got[0])
+        mine = dict(zip(HEADER_FIELDS, HEADER.unpack_from(data), strict=True))
+        w, h, start = mine["width"], mine["height"], mine["header_bytes"]
+        assert mine["magic"] == b"GZHF" and mine["encoding"] == 1  # f16: the server default
+        v = np.frombuffer(data, "<f2", count=w * h * 3, offset=start).reshape(h, w, 3)
+        return mine, got[1], v.astype(np.float64)
+
+    def move_gaze(self, x: float, y: float) -> dict[str, Any]:
+        """Move the pointer (CSS px) and wait for a frame that used that gaze."""
+        sent = self.js("() => window.gazehdr.stats.gazeSent")
+        self.page.mouse.move(x, y)
+        seq = self.wait(
+            "(s) => window.gazehdr.stats.gazeSent > s && window.gazehdr.stats.gazeSent", sent
+        )
+        return self.wait(
+            "(s) => window.gazehdr.lastHeader.gaze_seq >= s && window.gazehdr.lastHeader", seq
+        )
+
+    def close(self) -> None:
+        self.page.close()
+        assert not self.errors, f"errors on the page: {self.errors}"
+
+
+@pytest.fixture
+def open_viewer(browser: Any) -> Iterator[Any]:
+    pages: list[Viewer] = []
+
+    def open_(url: str, width: int, height: int) -> Viewer:
+        viewer = Viewer(browser, url, width, height)
+        pages.append(viewer)
+        return viewer
+
+    yield open_
+    for viewer in pages:
+        viewer.close()
+
+
+def _png(data: bytes) -> np.ndarray:
+    import io
+
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"), dtype=np.float64)
+
+
+def _levels(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two 8-bit levels `floor(255 v + u)` can give, u in [0, 1). A hair of slack where
+    255·v is within float32 rounding of an integer (the GPU computes in float32)."""
+    x = 255.0 * np.clip(v, 0.0, 1.0)
+    return np.floor(x - 1e-4), np.minimum(np.floor(x + 1e-4) + 1, 255)
+
+
+# --- 1. connect, frames, canvas, HUD ----------------------------------------------------------
+
+
+def test_viewer_connects_shows_frames_and_hud(live_server, open_viewer) -> None:
+    W, H = 320, 176  # the viewport has the frame's aspect, so the frame fills the canvas
+    srv = live_server(scene="flash", size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+
+    state = viewer.js("() => window.gazehdr.state")
+    assert state["scene"] == "flash" and "flash" in state["scenes"]
+    assert state["gaze_source"] == "mouse" and "mouse" in state["gaze_sources"]
+    assert state["params"] and state["defaults"] and state["sections"]
+
+    first = viewer.header()
+    later = viewer.next_frame(first["frame"] + 2)  # frame numbers increase
+    assert later["frame"] > first["frame"] + 2 and later["time"] > first["time"]
+    assert (later["width"], later["height"], later["encoding"]) == (W, H, 1)
+
+    # The page's header decoder agrees with docs/protocol.md field by field.
+    mine, theirs, v = viewer.payload()
+    assert mine["version"] == 1 and mine["header_bytes"] == 56 and mine["reserved"] == 0
+    for name in ("frame", "gaze_seq", "width", "height", "encoding", "flags", "dropped"):
+        assert theirs[name] == mine[name], name
+    for name in ("time", "gaze_x", "gaze_y", "adaptation", "rho", "server_ms"):
+        assert theirs[name] == pytest.approx(mine[name], rel=1e-6, abs=1e-9), name
+    assert theirs["eyes_open"] == bool(mine["flags"] & 1)
+    assert 0.0 <= v.min() and v.max() <= 1.0 and v.std() > 0.01  # a picture, not a blank
+
+    # The canvas shows exactly that frame, top row at the top, each value dithered to one of
+    # its two neighbouring 8-bit levels: upload it and draw in one task, then read back.
+    got = viewer.js(
+        """async () => {
+          const { decodeFrame } = await import('/protocol.js');
+          const g = window.gazehdr, r = g.renderer, buf = g.lastPayload;
+          const { header: h, pixels } = decodeFrame(buf);
+          r.upload(h.width, h.height, h.encoding, pixels);
+          r.draw();
+          const px = r.readPixels();
+          return [window.__b64(buf), window.__b64(px.buffer),
+                  r.gl.drawingBufferWidth, r.gl.drawingBufferHeight];
+        }"""
+    )
+    data = base64.b64decode(got[0])
+    v = np.frombuffer(data, "<f2", count=W * H * 3, offset=56).reshape(H, W, 3).astype(np.float64)
+    assert (got[2], got[3]) == (W, H)
+    shown = np.frombuffer(base64.b64decode(got[1]), np.uint8).reshape(H, W, 4)[::-1, :, :3]
+    lo, hi = _levels(v)
+    bad = (shown < lo) | (shown > hi)
+    assert not bad.any(), f"{bad.sum()} values off their two levels, first at {np.argwhere(bad)[0]}"
+
+    # HUD: visible by default and showing live values; H hides it, H shows it again.
+    viewer.wait(
+        "() => /frames (?!0\\.0 )\\d+\\.\\d fps/.test(document.getElementById('hud').textContent)"
+    )
+    h = viewer.header()
+    text = viewer.wait(
+        "(n) => window.gazehdr.lastHeader.frame >= n && document.getElementById('hud').textContent",
+        h["frame"],
+    )
+    for needle in ("open", f"{W}×{H} f16", "A = ", "cd/m²", "ρ = ", "server ", "dropped "):
+        assert needle in text, (needle, text)
+    assert viewer.js("() => !document.getElementById('hud').hidden")
+    viewer.page.keyboard.press("h")
+    assert viewer.js("() => document.getElementById('hud').hidden")
+
+    # The live draw loop (HUD hidden, it covers the picture): two moments differ (new noise
+    # every draw, new frames), both show the frame's brightness (mean within 3 levels of
+    # 255·v: the dither noise averages out over 56k pixels).
+    clip = {"x": 0, "y": 0, "width": W, "height": H}
+    shot1 = _png(viewer.page.screenshot(clip=clip))
+    viewer.next_frame()
+    shot2 = _png(viewer.page.screenshot(clip=clip))
+    assert (shot1 != shot2).mean() > 0.05
+    _, _, v_now = viewer.payload()
+    for shot in (shot1, shot2):
+        assert abs(shot.mean() - 255 * v_now.mean()) < 3.0
+
+    viewer.page.keyboard.press("h")
+    assert viewer.js("() => !document.getElementById('hud').hidden")
+
+
+def test_side_panel_sends_controls(live_server, open_viewer) -> None:
+    srv = live_server()
+    viewer = open_viewer(srv.url, 800, 600)
+    page = viewer.page
+    assert viewer.js("() => document.getElementById('panel').hidden")  # hidden by default
+    page.keyboard.press("p")
+    assert viewer.js("() => !document.getElementById('panel').hidden")
+    scenes = viewer.js(
+        "() => [...document.querySelectorAll('#scene-select option')].map(o => o.value)"
+    )
+    assert scenes == viewer.js("() => window.gazehdr.state.scenes") and "flash" in scenes
+
+    # A parameter edited in the panel goes to the server, which answers with a new state.
+    a1 = page.locator("#panel .param", has=page.locator(".name", has_text="a1")).locator("input")
+    a1.fill("0.5")
+    a1.press("Enter")
+    viewer.wait("() => window.gazehdr.state.params.a1 === 0.5")
+    # The paper preset sends every default back.
+    page.click("text=Paper preset")
+    viewer.wait("() => window.gazehdr.state.params.a1 === window.gazehdr.state.defaults.a1")
+    # A refused value: the server says why, the page shows it, nothing changes.
+    a1.fill("-1")
+    a1.press("Enter")
+    viewer.wait("() => /a1/.test(document.getElementById('toasts').textContent)")
+    assert viewer.js("() => window.gazehdr.state.params.a1 === window.gazehdr.state.defaults.a1")
+    # Matrices are shown, not edited.
+    assert viewer.js("() => document.querySelectorAll('#panel code.readonly').length") >= 1
+
+
+# --- 2. the pointer is the gaze; afterimages stay on the retina -------------------------------
+
+
+def test_pointer_moves_the_gaze(live_server, open_viewer) -> None:
+    W, H = 320, 176
+    srv = live_server(scene="flash", size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+
+    seqs = []
+    for x, y in [(80.0, 44.0), (250.5, 150.5), (3.0, 170.0)]:
+        h = viewer.move_gaze(x, y)
+        # The canvas is the frame, 1 CSS px = 1 frame px: the gaze is the pointer's fraction.
+        # Tolerance: one pixel (pointer coordinates are whole CSS px in some Chromium builds).
+        assert h["gaze_x"] * W == pytest.approx(x, abs=1.0)
+        assert h["gaze_y"] * H == pytest.approx(y, abs=1.0)
+        assert not h["tracker_gaze"]
+        seqs.append(h["gaze_seq"])
+    assert seqs == sorted(seqs) and len(set(seqs)) == 3
+
+    # End-to-end latency: one sample per acknowledged gaze, shown in the HUD.
+    lat = viewer.js("() => window.gazehdr.stats.latency.values")
+    assert len(lat) >= 3 and all(0 < t < 10_000 for t in lat)
+    viewer.wait("() => /latency p50 \\d+ ms/.test(document.getElementById('hud').textContent)")
+
+    # A window of another aspect ratio: the frame takes it (within the server's rounding of
+    # sizes to multiples of 8: 296×192 here), is drawn "contain" with 6 px bars left and right,
+    # and the pointer over a bar gives a gaze outside [0, 1].
+    VW, VH = 376, 236
+    viewer.page.set_viewport_size({"width": VW, "height": VH})
+    h = viewer.wait("(h) => window.gazehdr.lastHeader.height != h && window.gazehdr.lastHeader", H)
+    fw, fh = h["width"], h["height"]
+    s = min(VW / fw, VH / fh)
+    dw, dh = round(fw * s), round(fh * s)
+    x0, y0 = (VW - dw) // 2, (VH - dh) // 2
+    assert y0 > 0 or x0 > 0, "no bars to test with"
+    px, py = (VW / 2, 1.0) if y0 > 0 else (1.0, VH / 2)
+    h = viewer.move_gaze(px, py)
+    assert h["gaze_x"] == pytest.approx((px - x0) / dw, abs=1.0 / dw)
+    assert h["gaze_y"] == pytest.approx((py - y0) / dh, abs=1.0 / dh)
+    assert h["gaze_x"] < 0 or h["gaze_y"] < 0
+
+
+def _afterimage_centroid(v: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Centroid (x, y; pixel centres at +0.5) of the pixels above half the peak, the peak, and
+    how far the farthest of those pixels is from the centroid, for a frame seen with the eyes
+    closed: dark but for the afterimage (and a faint trace of the whole wall)."""
+    s = v.sum(axis=2)
+    peak = float(s.max())
+    w = np.where(s > 0.5 * peak, s, 0.0)
+    yy, xx = np.mgrid[: s.shape[0], : s.shape[1]]
+    c = np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()
+    radius = float(np.hypot(xx - c[0], yy - c[1])[w > 0].max())
+    return c + 0.5, peak, radius
+
+
+def test_afterimage_moves_with_the_gaze(live_server, open_viewer) -> None:
+    """The `flash` scene fires 1e7 cd/m² at frame position (0.5, 0.42) for 1/8 s every 4 s from
+    t = 1 s. Fixate it through a flash, close the eyes (Space) so the frame is dark but for
+    the afterimage, then move the gaze: the afterimage moves by the same offset, because it
+    lives on the retina, not on the screen."""
+    W, H = 320, 176
+    srv = live_server(scene="flash", size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    flash = np.array([0.5 * W, 0.42 * H])
+    # A log of every header the page receives (rAF outpaces the frames), to see which frame
+    # integrated the flash and where the gaze was then.
+    viewer.js(
+        """() => { window.__log = []; const f = () => { const h = window.gazehdr.lastHeader;
+          const l = window.__log;
+          if (h && (!l.length || l[l.length - 1].frame !== h.frame)) l.push(h);
+          requestAnimationFrame(f); }; f(); }"""
+    )
+    h = viewer.move_gaze(*flash)
+    assert h["gaze_x"] * W == pytest.approx(flash[0], abs=1.0)
+
+    # A step whose end time falls in [t_f, t_f + 1/8) integrates the flash (the session loads
+    # the scene at the step's end). On a slow machine a step can be longer than the flash and
+    # jump over it; then wait for the next one rather than loosen the test.
+    for t_flash in (1.0, 5.0, 9.0):
+        if h["time"] > t_flash - 0.05:
+            continue
+        viewer.wait("(t) => window.gazehdr.lastHeader.time > t", t_flash + 0.3, timeout=60_000)
+        log = viewer.js("() => window.__log")
+        lit = [e for e in log if t_flash <= e["time"] < t_flash + 0.125]
+        if lit and all(
+            abs(e["gaze_x"] * W - flash[0]) < 1 and abs(e["gaze_y"] * H - flash[1]) < 1 for e in lit
+        ):
+            break
+    else:
+        pytest.fail(
+            f"no frame integrated a flash while fixating it: {viewer.js('() => window.__log')}"
+        )
+
+    viewer.page.keyboard.down("Space")
+    try:
+        closed = viewer.wait(
+            "() => !window.gazehdr.lastHeader.eyes_open && window.gazehdr.lastHeader"
+        )
+        viewer.next_frame(closed["frame"])
+        before, peak0, radius0 = _afterimage_centroid(viewer.payload()[2])
+        shift = np.array([40.0, 30.0])
+        h = viewer.move_gaze(*(flash + shift))
+        assert not h["eyes_open"]
+        after, peak1, radius1 = _afterimage_centroid(viewer.payload()[2])
+    finally:
+        viewer.page.keyboard.up("Space")
+    # A real afterimage, not noise: a bright (v summed over RGB > 0.1; ~0.35 seen), compact
+    # blob (the flash head with its halo, blurred: ~11 px from centre to the half-peak edge).
+    assert peak0 > 0.1 and peak1 > 0.05, (peak0, peak1)
+    assert radius0 < 20 and radius1 < 20, ("not one blob", radius0, radius1)
+    # Where the flash was on the retina: at the gaze, i.e. on the flash (within 1.5 px: the
+    # flash head's edges are rounded to whole pixels and the retina's cells are ~1 px here).
+    np.testing.assert_allclose(before, flash, atol=1.5)
+    # And it moved with the eye, by the gaze shift (1 px: the retina is sampled bilinearly at
+    # the gaze, so a shift moves the whole blob without changing its shape).
+    np.testing.assert_allclose(after - before, shift, atol=1.0)
+    viewer.wait("() => window.gazehdr.lastHeader.eyes_open")  # Space released: eyes open
+
+
+# --- 3. the dither shader ---------------------------------------------------------------------
+
+
+DITHER_JS = """
+async ([size, frames, encoding, words]) => {
+  const { Renderer } = await import('/renderer.js');
+  const canvas = document.createElement('canvas');
+  canvas.width = canvas.height = size;
+  const r = new Renderer(canvas);
+  const n = size * size;
+  const pixels = encoding === 1 ? new Uint16Array(n * 3) : new Uint32Array(n);
+  const per = encoding === 1 ? 3 : 1;
+  for (let i = 0; i < pixels.length; i++) pixels[i] = words[i % per];
+  r.upload(size, size, encoding, pixels);
+  const out = new Uint8Array(frames * n * 3);
+  for (let k = 0; k < frames; k++) {
+    r.draw(k);
+    const px = r.readPixels();
+    for (let i = 0; i < n; i++) {
+      for (let c = 0; c < 3; c++) out[(k * n + i) * 3 + c] = px[i * 4 + c];
+    }
+  }
+  return window.__b64(out.buffer);
+}
+"""
+
+
+def _serve_web(page: Any) -> str:
+    """Serve web/ from disk under a made-up origin: the shader needs no server."""
+    origin = "http://viewer.test"
+    types = {".js": "text/javascript", ".html": "text/html", ".css": "text/css"}
+
+    def handle(route: Any) -> None:
+        path = route.request.url[len(origin) :].split("?")[0].lstrip("/") or "blank.html"
+        file = WEB_DIR / path
+        if path == "blank.html":
+            route.fulfill(body="<!doctype html><title>blank</title>", content_type="text/html")
+        elif file.is_file() and WEB_DIR in file.resolve().parents:
+            route.fulfill(body=file.read_bytes(), content_type=types.get(file.suffix, "text/plain"))
+        else:
+            route.fulfill(status=404, body="not found")
+
+    page.route(f"{origin}/**", handle)
+    page.goto(f"{origin}/blank.html")
+    return origin
+
+
+def _dither(page: Any, encoding: int, words: list[int], size: int, frames: int) -> np.ndarray:
+    """frames × size × size × 3 bytes read back from the real Renderer drawing a constant
+    frame with frame counters 0..frames-1."""
+    data = page.evaluate(DITHER_JS, [size, frames, encoding, words])
+    return np.frombuffer(base64.b64decode(data), np.uint8).reshape(frames, size, size, 3)
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a.ravel() - a.mean(), b.ravel() - b.mean()
+    return float((a * b).sum() / math.sqrt((a * a).sum() * (b * b).sum()))
+
+
+def test_dither_shader_is_unbiased_and_uncorrelated(browser) -> None:
+    page = browser.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.add_init_script(B64_JS)
+    try:
+        _serve_web(page)
+        size, frames = 32, 256
+
+        # f16: values between two 8-bit levels, rounded to half precision; the expected mean
+        # is 255·v of the half actually sent, not of the decimal asked for.
+        halves = np.array([100.3, 40.7, 200.5]) / 255
+        halves = halves.astype(np.float16)
+        v = halves.astype(np.float64)
+        out = _dither(page, 1, [int(h) for h in halves.view(np.uint16)], size, frames)
+        _check_dither(out, v)
+
+        # rgb10a2: v = q/1023.
+        q = np.array([402, 163, 803])
+        word = int(q[0] | (q[1] << 10) | (q[2] << 20))
+        out = _dither(page, 2, [word], size, 64)
+        _check_dither(out, q / 1023.0, correlations=False)
+
+        # The ends: 0 and 1 are shown exactly, never dithered off the range.
+        ends = [int(x) for x in np.array([0.0, 1.0, 0.0], np.float16).view(np.uint16)]
+        out = _dither(page, 1, ends, 8, 16)
+        assert (out[..., 0] == 0).all() and (out[..., 1] == 255).all() and (out[..., 2] == 0).all()
+    finally:
+        page.close()
+    assert not errors, errors
+
+
+def _check_dither(out: np.ndarray, v: np.ndarray, correlations: bool = True) -> None:
+    frames, h, w, _ = out.shape
+    x = 255.0 * v
+    lo = np.floor(x)
+    p = x - lo  # probability of the upper level
+    # Every value is one of the two levels around 255·v.
+    assert ((out == lo) | (out == lo + 1)).all(), np.unique(out.reshape(-1, 3), axis=0)
+    d = (out - lo).astype(np.float64)  # the dither decisions, 0 or 1
+
+    # Mean over frames and pixels: an unbiased dither gives p. Each decision is Bernoulli(p);
+    # with independent decisions the mean's standard deviation is sqrt(p(1-p)/N): allow 5 of
+    # them (N = 262144 for 256 frames of 32×32: about 0.0045 levels at p = 0.3).
+    n = frames * h * w
+    sigma = np.sqrt(p * (1 - p) / n)
+    mean = d.mean(axis=(0, 1, 2))
+    assert (np.abs(mean - p) < 5 * sigma).all(), (mean, p, sigma)
+
+    # Per pixel over frames, looser: sqrt(p(1-p)/frames) each, 6 sigma over 3072 pixel
+    # channels (a chance of ~1e-5 that one exceeds it with a perfect hash; the hash is
+    # deterministic, so this either always passes or always fails).
+    sigma_px = np.sqrt(p * (1 - p) / frames)
+    per_pixel = d.mean(axis=0)
+    worst = np.abs(per_pixel - p) / sigma_px
+    assert (worst < 6).all(), worst.max(axis=(0, 1))
+
+    if not correlations:
+        return
+    # Independence: neighbours in x, y and time (per channel: the channels' means differ, so
+    # pooling them would correlate by itself) and the three channels must not be locked
+    # together. With ~250k pairs a correlation coefficient has std 1/sqrt(N) ≈ 0.002, so
+    # |r| < 0.02 is 10 sigma from a perfect hash, yet far below what shared or row-wise noise
+    # gives (r = 1) or a weak hash typically does.
+    pairs = {"R and G": (d[..., 0], d[..., 1]), "R and B": (d[..., 0], d[..., 2])}
+    pairs["G and B"] = (d[..., 1], d[..., 2])
+    for c in range(3):
+        e = d[..., c]
+        pairs[f"x neighbours, channel {c}"] = (e[:, :, 1:], e[:, :, :-1])
+        pairs[f"y neighbours, channel {c}"] = (e[:, 1:], e[:, :-1])
+        pairs[f"diagonal neighbours, channel {c}"] = (e[:, 1:, 1:], e[:, :-1, :-1])
+        pairs[f"next frame, channel {c}"] = (e[1:], e[:-1])
+    for name, (a, b) in pairs.items():
+        r = _corr(a, b)
+        assert abs(r) < 0.02, f"dither decisions correlated across {name}: r = {r:.4f}"
+
+
+# --- 4. reconnecting ----------------------------------------------------------------------------
+
+
+class Proxy:
+    """A TCP forwarder in front of the server: `drop()` cuts every connection as a network
+    failure or a dying server would, `refusing` closes new ones at once (a server that is
+    down), and `backend` can point at another server (a restart on the same address)."""
+
+    def __init__(self, backend_port: int) -> None:
+        self.backend = backend_port
+        self.refusing = False
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.sockets: set[socket.socket] = set()
+        self.lock = threading.Lock()
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.listener.accept()
+            except OSError:
+                return
+            if self.refusing:
+                client.close()
+                continue
+            try:
+                upstream = socket.create_connection(("127.0.0.1", self.backend), timeout=5)
+                upstream.settimeout(None)
+            except OSError:
+                client.close()
+                continue
+            with self.lock:
+                self.sockets |= {client, upstream}
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
+
+    def _pump(self, src: socket.socket, dst: socket.socket) -> None:
+        try:
+            while data := src.recv(65536):
+                dst.sendall(data)
+        except OSError:
+            pass
+        finally:
+            self._kill(src, dst)
+
+    def _kill(self, *socks: socket.socket) -> None:
+        for s in socks:
+            with self.lock:
+                self.sockets.discard(s)
+            with contextlib.suppress(OSError):
+                s.shutdown(socket.SHUT_RDWR)
+            s.close()
+
+    def drop(self) -> None:
+        with self.lock:
+            socks = list(self.sockets)
+        self._kill(*socks)
+
+    def close(self) -> None:
+        self.listener.close()
+        self.drop()
+
+
+def test_viewer_reconnects(live_server, open_viewer) -> None:
+    # Sessions outlive their viewer by 30 s here, so a reconnect can rejoin its session.
+    first = live_server(session_grace_s=30.0)
+    proxy = Proxy(first.port)
+    try:
+        viewer = open_viewer(proxy.url, 160, 96)
+        session = viewer.js("() => window.gazehdr.state.session")
+        before = viewer.next_frame(3)["frame"]
+        assert viewer.js("() => window.gazehdr.stats.connects") == 1
+
+        def joined(connects: int) -> tuple[str, int]:
+            """Wait for the hello on socket number `connects`; its session and the count of
+            frames received so far (every later frame comes from that session)."""
+            return viewer.wait(
+                """(n) => { const g = window.gazehdr;
+                  return g.stats.connects === n && g.connection.helloSeen
+                    && [g.state.session, g.stats.received]; }""",
+                connects,
+                timeout=40_000,
+            )
+
+        # A network blip: the page notices, reconnects after the first back-off step, and
+        # rejoins its session (?session=ID), whose frame numbers went on meanwhile (a new
+        # session would start again from 0).
+        proxy.drop()
+        viewer.wait("() => window.gazehdr.connection.status === 'reconnecting'")
+        rejoined, received = joined(2)
+        assert rejoined == session
+        viewer.wait("(n) => window.gazehdr.stats.received > n", received)
+        assert viewer.header()["frame"] > before
+
+        # The server goes away and another starts on the same address a moment later: the
+        # page retries with growing delays, says so, and gets a fresh session.
+        proxy.refusing = True
+        proxy.drop()
+        first.stop()
+        text = viewer.wait(
+            "() => { const t = document.getElementById('hud').textContent;"
+            " return /reconnecting in \\d/.test(t) && t; }"
+        )
+        assert "reconnecting" in text
+        second = live_server()
+        proxy.backend = second.port
+        time.sleep(1.0)  # at least one refused attempt
+        proxy.refusing = False
+        fresh, received = joined(3)
+        assert fresh != session
+        viewer.wait("(n) => window.gazehdr.stats.received > n + 2", received)
+        assert viewer.js("() => window.gazehdr.connection.status") == "open"
+    finally:
+        proxy.close()

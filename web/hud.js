@@ -1,0 +1,109 @@
+// Heads-up display: rates, latency, the model's state at the gaze, connection status, and a
+// ring where the server put the gaze. Text is rebuilt a few times a second, not every draw.
+
+import { ENCODING_NAMES } from './protocol.js';
+
+/** Events per second over the last `windowMs`, from a list of timestamps (ms). */
+export class RateMeter {
+  constructor(windowMs = 1000) {
+    this.windowMs = windowMs;
+    this.times = [];
+  }
+  tick(now) {
+    this.times.push(now);
+    this.prune(now);
+  }
+  prune(now) {
+    const t = this.times;
+    let i = 0;
+    while (i < t.length && t[i] < now - this.windowMs) i++;
+    if (i) t.splice(0, i);
+  }
+  rate(now) {
+    this.prune(now);
+    return (this.times.length * 1000) / this.windowMs;
+  }
+}
+
+/** A ring of the last `size` samples with percentiles. */
+export class Ring {
+  constructor(size = 64) {
+    this.size = size;
+    this.values = [];
+  }
+  push(v) {
+    this.values.push(v);
+    if (this.values.length > this.size) this.values.shift();
+  }
+  percentile(p) {
+    if (!this.values.length) return NaN;
+    const s = [...this.values].sort((a, b) => a - b);
+    return s[Math.min(s.length - 1, Math.floor((p / 100) * s.length))];
+  }
+}
+
+const fmt = (v, digits = 1) => (Number.isFinite(v) ? v.toFixed(digits) : '–');
+
+/** 10^A as a readable luminance: 100, 3.2e5, 0.01. */
+function luminance(a) {
+  if (!Number.isFinite(a)) return '–';
+  const y = 10 ** a;
+  return y >= 1e4 || y < 1e-2 ? y.toExponential(1) : String(Number(y.toPrecision(3)));
+}
+
+export class Hud {
+  constructor(element, marker) {
+    this.element = element;
+    this.marker = marker;
+    this.visible = true;
+  }
+
+  toggle(visible = !this.visible) {
+    this.visible = visible;
+    this.element.hidden = !visible;
+    if (!visible) this.marker.hidden = true;
+  }
+
+  /** Rebuild the text. `info`: see main.js's hudInfo(). */
+  update(info) {
+    if (!this.visible) return;
+    const h = info.header;
+    const lines = [];
+    lines.push(`gazehdr · ${info.connection}${info.session ? ` · session ${info.session}` : ''}`);
+    lines.push(
+      `frames ${fmt(info.frameRate)} fps · draws ${fmt(info.drawRate)} fps · dropped ${h ? h.dropped : '–'}`,
+    );
+    lines.push(
+      `latency p50 ${fmt(info.latencyP50, 0)} ms · p95 ${fmt(info.latencyP95, 0)} ms · ` +
+        `server ${h ? fmt(h.server_ms) : '–'} ms`,
+    );
+    if (h) {
+      lines.push(`A = ${fmt(h.adaptation, 2)} (${luminance(h.adaptation)} cd/m²) · ρ = ${fmt(h.rho, 2)}`);
+      lines.push(
+        `frame ${h.width}×${h.height} ${ENCODING_NAMES[h.encoding] ?? h.encoding} · ` +
+          `#${h.frame} · t = ${fmt(h.time, 2)} s`,
+      );
+      lines.push(
+        `gaze ${fmt(h.gaze_x, 3)}, ${fmt(h.gaze_y, 3)} (${h.tracker_gaze ? 'tracker' : 'pointer'}) · ` +
+          `eyes ${h.eyes_open ? 'open' : 'closed'}`,
+      );
+    } else {
+      lines.push('no frame yet');
+    }
+    lines.push(`scene ${info.scene ?? '–'} · model ${info.model ?? '–'} · source ${info.gazeSource ?? '–'}`);
+    lines.push(`tracker ${info.tracker}`);
+    this.element.textContent = lines.join('\n');
+  }
+
+  /** Place the gaze ring at the header's gaze (frame fractions) inside the drawn rectangle. */
+  placeMarker(header, rect) {
+    if (!this.visible || !header || !Number.isFinite(header.gaze_x)) {
+      this.marker.hidden = true;
+      return;
+    }
+    this.marker.hidden = false;
+    const x = rect.x + header.gaze_x * rect.width;
+    const y = rect.y + header.gaze_y * rect.height;
+    this.marker.style.transform = `translate(${x}px, ${y}px)`;
+  }
+}

@@ -1,0 +1,311 @@
+// Wiring: the /ws/view connection (with reconnect), input (pointer = gaze, keys), and the draw
+// loop. The server does the simulation; this page displays, dithers and reports.
+
+import { decodeFrame, messages, parseText } from './protocol.js';
+import { Renderer } from './renderer.js';
+import { Hud, RateMeter, Ring } from './hud.js';
+import { Panel } from './panel.js';
+
+const BACKOFF_MIN_MS = 500;
+const BACKOFF_MAX_MS = 8000;
+const VIEWPORT_DEBOUNCE_MS = 200;
+const HUD_INTERVAL_MS = 250;
+const SEQ_RING = 512; // send times kept for latency; far more than frames in flight
+
+const canvas = document.getElementById('view');
+const hud = new Hud(document.getElementById('hud'), document.getElementById('marker'));
+const toasts = document.getElementById('toasts');
+
+function toast(text, ms = 4000) {
+  const t = document.createElement('div');
+  t.className = 'toast';
+  t.textContent = text;
+  toasts.append(t);
+  setTimeout(() => t.remove(), ms);
+}
+
+let renderer;
+try {
+  renderer = new Renderer(canvas);
+} catch (err) {
+  document.getElementById('fatal').textContent = `${err.message}: gazehdr needs WebGL2.`;
+  throw err;
+}
+
+const stats = {
+  frames: new RateMeter(),
+  draws: new RateMeter(),
+  latency: new Ring(64),
+  received: 0, // frames
+  errors: 0,
+  gazeSent: 0, // seq of the last gaze sent
+  connects: 0, // sockets opened, reconnects included
+};
+const state = {}; // the last hello/state from the server
+const tracker = { connected: false, name: null, samples: 0 };
+
+// ---- connection -------------------------------------------------------------------------
+
+class Connection {
+  constructor() {
+    this.ws = null;
+    this.status = 'connecting';
+    this.session = null;
+    this.attempt = 0;
+    this.retryAt = 0;
+    this.timer = null;
+    this.helloSeen = false;
+    this.opened = false;
+  }
+
+  url() {
+    const scheme = location.protocol === 'https:' ? 'wss' : 'ws';
+    const query = this.session ? `?session=${encodeURIComponent(this.session)}` : '';
+    return `${scheme}://${location.host}/ws/view${query}`;
+  }
+
+  open() {
+    clearTimeout(this.timer);
+    this.status = this.attempt ? 'reconnecting' : 'connecting';
+    this.helloSeen = false;
+    this.opened = false;
+    const ws = new WebSocket(this.url());
+    ws.binaryType = 'arraybuffer';
+    ws.onopen = () => {
+      this.status = 'open';
+      this.opened = true;
+      stats.connects += 1;
+      sendViewport();
+      if (eyesClosed) this.send(messages.eyes(false));
+    };
+    ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(ev.data) : onFrame(ev.data));
+    ws.onclose = (ev) => this.closed(ws, ev);
+    this.ws = ws;
+  }
+
+  closed(ws, ev) {
+    if (ws !== this.ws) return;
+    this.ws = null;
+    if (ev.code === 4403) toast('the server refused this page’s origin (4403)');
+    // Opened but closed before hello: the server refused the session (it restarted and no
+    // longer knows it). Start a fresh one next time. A failed connect keeps it: a blip.
+    if (this.opened && !this.helloSeen) this.session = null;
+    const delay = Math.min(BACKOFF_MAX_MS, BACKOFF_MIN_MS * 2 ** this.attempt);
+    this.attempt += 1;
+    this.status = 'reconnecting';
+    this.retryAt = performance.now() + delay;
+    this.timer = setTimeout(() => this.open(), delay);
+  }
+
+  hello(msg) {
+    this.helloSeen = true;
+    this.attempt = 0; // back-off restarts once a connection really works
+    if (msg.session != null) this.session = String(msg.session);
+  }
+
+  send(msg) {
+    if (this.ws?.readyState !== WebSocket.OPEN) return false;
+    this.ws.send(JSON.stringify(msg));
+    return true;
+  }
+
+  /** Drop the socket as if the network had (for debugging and tests). */
+  drop() {
+    this.ws?.close();
+  }
+
+  describe(now) {
+    if (this.status !== 'reconnecting' || !this.timer) return this.status;
+    const s = Math.max(0, (this.retryAt - now) / 1000);
+    return this.ws ? 'reconnecting' : `reconnecting in ${s.toFixed(1)} s`;
+  }
+}
+
+const conn = new Connection();
+const send = (msg) => conn.send(msg);
+const panel = new Panel(document.getElementById('panel'), send, toast);
+
+// ---- messages from the server -----------------------------------------------------------
+
+let lastHeader = null;
+let pending = null; // newest decoded frame not yet uploaded: upload only what gets drawn
+let lastPayload = null;
+const gazeSentAt = new Float64Array(SEQ_RING);
+let gazeSeq = 0;
+let latencySeq = 0; // newest seq already counted, so each gaze gives one latency sample
+
+function onFrame(buffer) {
+  let frame;
+  try {
+    frame = decodeFrame(buffer);
+  } catch (err) {
+    stats.errors += 1;
+    console.warn('bad frame:', err.message);
+    return;
+  }
+  const now = performance.now();
+  const h = frame.header;
+  stats.frames.tick(now);
+  stats.received += 1;
+  if (h.gaze_seq > latencySeq && h.gaze_seq <= gazeSeq && gazeSeq - h.gaze_seq < SEQ_RING) {
+    stats.latency.push(now - gazeSentAt[h.gaze_seq % SEQ_RING]);
+    latencySeq = h.gaze_seq;
+  }
+  lastHeader = h;
+  lastPayload = buffer;
+  pending = frame;
+  api.lastHeader = h;
+  api.lastPayload = buffer;
+}
+
+function onText(text) {
+  const msg = parseText(text);
+  if (!msg) return console.warn('bad message:', text.slice(0, 200));
+  switch (msg.type) {
+    case 'hello':
+      conn.hello(msg);
+    // falls through: hello carries the whole state
+    case 'state': {
+      const { type, ...rest } = msg;
+      Object.assign(state, rest);
+      panel.update(state);
+      break;
+    }
+    case 'error':
+      stats.errors += 1;
+      toast(`${msg.in ? `${msg.in}: ` : ''}${msg.message}`);
+      break;
+    case 'tracker':
+      Object.assign(tracker, msg);
+      break;
+    case 'scenes': // the scene list changed (an upload), sent to every session
+      state.scenes = msg.scenes;
+      panel.update(state);
+      break;
+    default:
+      console.warn('unknown message type', msg.type);
+  }
+}
+
+// ---- input ------------------------------------------------------------------------------
+
+let pointer = null; // newest pointer position (client px), sent at most once per frame
+let eyesClosed = false;
+
+function sendViewport() {
+  send(messages.viewport(canvas.clientWidth, canvas.clientHeight));
+}
+
+let viewportTimer = null;
+window.addEventListener('resize', () => {
+  clearTimeout(viewportTimer);
+  viewportTimer = setTimeout(sendViewport, VIEWPORT_DEBOUNCE_MS);
+});
+
+window.addEventListener('pointermove', (ev) => {
+  if (ev.target instanceof Element && ev.target.closest('#panel')) return; // using the panel
+  pointer = { x: ev.clientX, y: ev.clientY };
+});
+
+function flushGaze() {
+  if (!pointer) return;
+  const box = canvas.getBoundingClientRect();
+  const r = renderer.cssRect();
+  const fx = (pointer.x - box.left - r.x) / r.width;
+  const fy = (pointer.y - box.top - r.y) / r.height;
+  if (!Number.isFinite(fx) || !Number.isFinite(fy)) return;
+  const seq = gazeSeq + 1;
+  // Not connected yet: keep the position, so the first gaze goes out as soon as it can.
+  if (send(messages.gaze(fx, fy, seq))) {
+    pointer = null;
+    gazeSeq = seq;
+    stats.gazeSent = seq;
+    gazeSentAt[seq % SEQ_RING] = performance.now();
+  }
+}
+
+function setEyes(open) {
+  if (eyesClosed === !open) return;
+  eyesClosed = !open;
+  send(messages.eyes(open));
+}
+
+const typing = (ev) => ev.target instanceof HTMLElement && ev.target.closest('input, select, textarea');
+
+window.addEventListener('keydown', (ev) => {
+  if (typing(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  if (ev.code === 'Space') {
+    ev.preventDefault();
+    setEyes(false);
+    return;
+  }
+  if (ev.repeat) return;
+  switch (ev.key.toLowerCase()) {
+    case 'h':
+      hud.toggle();
+      break;
+    case 'p':
+      panel.toggle();
+      break;
+    case 'f':
+      if (document.fullscreenElement) document.exitFullscreen();
+      else document.documentElement.requestFullscreen?.().catch(() => toast('fullscreen refused'));
+      break;
+    case 'r':
+      send(messages.reset());
+      break;
+  }
+});
+window.addEventListener('keyup', (ev) => {
+  if (ev.code === 'Space') setEyes(true);
+});
+// A released key may never arrive (focus lost while held): open the eyes.
+window.addEventListener('blur', () => setEyes(true));
+document.addEventListener('visibilitychange', () => document.hidden && setEyes(true));
+
+// ---- draw loop --------------------------------------------------------------------------
+
+let hudAt = 0;
+
+function hudInfo(now) {
+  return {
+    header: lastHeader,
+    connection: conn.describe(now),
+    session: conn.session,
+    frameRate: stats.frames.rate(now),
+    drawRate: stats.draws.rate(now),
+    latencyP50: stats.latency.percentile(50),
+    latencyP95: stats.latency.percentile(95),
+    scene: state.scene,
+    model: state.model,
+    gazeSource: state.gaze_source,
+    tracker: tracker.connected
+      ? `${tracker.name ?? 'connected'} · ${tracker.samples} samples`
+      : 'not connected',
+  };
+}
+
+function tick(now) {
+  requestAnimationFrame(tick);
+  if (pending) {
+    const { header: h, pixels } = pending;
+    pending = null;
+    renderer.upload(h.width, h.height, h.encoding, pixels);
+  }
+  renderer.fitToCSS();
+  flushGaze();
+  renderer.draw(); // every display frame: the dither noise must change even without new frames
+  stats.draws.tick(now);
+  hud.placeMarker(lastHeader, renderer.cssRect());
+  if (now - hudAt >= HUD_INTERVAL_MS) {
+    hudAt = now;
+    hud.update(hudInfo(now));
+  }
+}
+
+// For tests and debugging; keep it small.
+const api = { state, lastHeader, stats, lastPayload, renderer, connection: conn, tracker };
+window.gazehdr = api;
+
+conn.open();
+requestAnimationFrame(tick);

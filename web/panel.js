@@ -1,0 +1,201 @@
+// Side panel: scene / model / gaze source, the model's parameters grouped by paper section,
+// presets and EXR upload. It only builds messages; main.js sends them.
+
+import { messages } from './protocol.js';
+
+/** Values edited as text would be a trap: matrices and geometry are shown read-only. */
+const READ_ONLY = new Set(['H', 'geometry']);
+
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === 'class') e.className = v;
+    else if (k in e) e[k] = v;
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c);
+  return e;
+}
+
+const isNumberVector = (v) => Array.isArray(v) && v.length <= 4 && v.every((x) => typeof x === 'number');
+
+export class Panel {
+  /**
+   * @param {HTMLElement} root
+   * @param {(msg: object) => void} send
+   * @param {(text: string) => void} toast
+   */
+  constructor(root, send, toast) {
+    this.root = root;
+    this.send = send;
+    this.toast = toast;
+    this.visible = false;
+    this.layoutKey = null; // rebuild parameter inputs only when the set of names changes
+    this.inputs = new Map(); // name -> {update(value)}
+    this.defaults = {};
+    root.hidden = true;
+    this.build();
+  }
+
+  toggle(visible = !this.visible) {
+    this.visible = visible;
+    this.root.hidden = !visible;
+  }
+
+  build() {
+    this.sceneSelect = el('select', { id: 'scene-select' });
+    this.modelSelect = el('select', { id: 'model-select' });
+    this.sourceSelect = el('select', { id: 'source-select' });
+    this.sceneSelect.addEventListener('change', () => this.send(messages.scene(this.sceneSelect.value)));
+    this.modelSelect.addEventListener('change', () => this.send(messages.model(this.modelSelect.value)));
+    this.sourceSelect.addEventListener('change', () =>
+      this.send(messages.gazeSource(this.sourceSelect.value)),
+    );
+    const preset = el('button', { type: 'button', textContent: 'Paper preset' });
+    preset.addEventListener('click', () => this.send(messages.params({ ...this.defaults })));
+    const reset = el('button', { type: 'button', textContent: 'Reset eye' });
+    reset.addEventListener('click', () => this.send(messages.reset()));
+
+    this.fileInput = el('input', { type: 'file', accept: '.exr' });
+    this.uploadName = el('input', { type: 'text', placeholder: 'scene name', size: 12 });
+    this.fileInput.addEventListener('change', () => {
+      const f = this.fileInput.files[0];
+      if (f && !this.uploadName.value) this.uploadName.value = sceneName(f.name);
+    });
+    const upload = el('button', { type: 'button', textContent: 'Upload EXR' });
+    upload.addEventListener('click', () => this.upload());
+
+    this.params = el('div', { class: 'params' });
+    this.root.append(
+      el('h2', {}, 'gazehdr'),
+      el('label', {}, 'scene ', this.sceneSelect),
+      el('label', {}, 'model ', this.modelSelect),
+      el('label', {}, 'gaze ', this.sourceSelect),
+      el('div', { class: 'row' }, preset, reset),
+      el('div', { class: 'row' }, this.fileInput),
+      el('div', { class: 'row' }, this.uploadName, upload),
+      this.params,
+      el('p', { class: 'hint' }, 'H HUD · P panel · F fullscreen · R reset · hold Space: eyes closed'),
+    );
+  }
+
+  /** Refresh from a hello/state message. */
+  update(state) {
+    fillSelect(this.sceneSelect, state.scenes, state.scene);
+    fillSelect(this.modelSelect, state.models, state.model);
+    fillSelect(this.sourceSelect, state.gaze_sources, state.gaze_source);
+    this.defaults = state.defaults ?? {};
+    const params = state.params ?? {};
+    const key = JSON.stringify([Object.keys(params).sort(), state.sections]);
+    if (key !== this.layoutKey) {
+      this.layoutKey = key;
+      this.buildParams(params, state.sections ?? {}, new Set(state.ours ?? []));
+    }
+    for (const [name, value] of Object.entries(params)) this.inputs.get(name)?.update(value);
+  }
+
+  buildParams(params, sections, ours) {
+    this.params.replaceChildren();
+    this.inputs.clear();
+    const placed = new Set();
+    const groups = Object.entries(sections).map(([title, names]) => [title, names]);
+    const rest = Object.keys(params).filter((n) => !Object.values(sections).some((ns) => ns.includes(n)));
+    if (rest.length) groups.push(['other', rest]);
+    for (const [title, names] of groups) {
+      const fieldset = el('fieldset', {}, el('legend', {}, title));
+      for (const name of names) {
+        if (!(name in params) || placed.has(name)) continue;
+        placed.add(name);
+        fieldset.append(this.paramRow(name, params[name], ours.has(name)));
+      }
+      this.params.append(fieldset);
+    }
+  }
+
+  paramRow(name, value, isOurs) {
+    const label = el('span', { class: 'name', title: isOurs ? 'ours: not given by the paper' : 'paper' }, name);
+    if (isOurs) label.append(el('sup', { class: 'ours' }, 'ours'));
+    const row = el('div', { class: 'param' }, label);
+    if (READ_ONLY.has(name) || !(typeof value === 'number' || typeof value === 'boolean' || isNumberVector(value))) {
+      const code = el('code', { class: 'readonly' });
+      row.append(code);
+      this.inputs.set(name, { update: (v) => (code.textContent = JSON.stringify(v)) });
+      return row;
+    }
+    if (typeof value === 'boolean') {
+      const box = el('input', { type: 'checkbox' });
+      box.addEventListener('change', () => this.send(messages.params({ [name]: box.checked })));
+      row.append(box);
+      this.inputs.set(name, { update: (v) => (box.checked = v) });
+      return row;
+    }
+    const n = Array.isArray(value) ? value.length : 1;
+    const fields = Array.from({ length: n }, () => el('input', { type: 'number', step: 'any' }));
+    const commit = () => {
+      const nums = fields.map((f) => Number(f.value));
+      const bad = fields.filter((f, i) => f.value.trim() === '' || !Number.isFinite(nums[i]));
+      for (const f of fields) f.classList.toggle('invalid', bad.includes(f));
+      if (bad.length) return;
+      this.send(messages.params({ [name]: Array.isArray(value) ? nums : nums[0] }));
+    };
+    for (const f of fields) {
+      f.addEventListener('change', commit);
+      row.append(f);
+    }
+    this.inputs.set(name, {
+      update: (v) => {
+        const vs = Array.isArray(v) ? v : [v];
+        fields.forEach((f, i) => {
+          if (document.activeElement !== f) f.value = String(vs[i]); // never fight the user
+          f.classList.remove('invalid');
+        });
+      },
+    });
+    return row;
+  }
+
+  async upload() {
+    const file = this.fileInput.files[0];
+    const name = sceneName(this.uploadName.value || file?.name || '');
+    if (!file) return this.toast('choose an EXR file first');
+    if (!name) return this.toast('give the scene a name');
+    try {
+      const res = await fetch(`/api/scenes/${encodeURIComponent(name)}`, {
+        method: 'PUT',
+        headers: { 'Content-Type': 'application/octet-stream' },
+        body: file,
+      });
+      if (!res.ok) {
+        let detail = await res.text();
+        try {
+          detail = JSON.parse(detail).detail ?? detail;
+        } catch {
+          /* plain text */
+        }
+        return this.toast(`upload refused (${res.status}): ${typeof detail === 'string' ? detail : JSON.stringify(detail)}`);
+      }
+      this.send(messages.scene(name));
+    } catch (err) {
+      this.toast(`upload failed: ${err.message}`);
+    }
+  }
+}
+
+/** A file name to a scene name: base name, safe characters only. */
+function sceneName(filename) {
+  return filename
+    .replace(/\.exr$/i, '')
+    .replace(/[^A-Za-z0-9_.-]+/g, '-')
+    .replace(/^[-.]+|[-.]+$/g, '')
+    .slice(0, 64);
+}
+
+function fillSelect(select, options, current) {
+  if (!Array.isArray(options)) return;
+  const key = options.join('\n');
+  if (select.dataset.key !== key) {
+    select.replaceChildren(...options.map((o) => el('option', { value: o, textContent: o })));
+    select.dataset.key = key;
+  }
+  if (current != null && document.activeElement !== select) select.value = current;
+}

@@ -1,0 +1,118 @@
+// The browser side of /ws/view (docs/protocol.md). No I/O here: bytes in, typed objects out,
+// and plain objects for the control messages, so the wire format lives in one place.
+
+export const PROTOCOL = 1;
+export const MAGIC = 'GZHF';
+/** Header size of version 1; later versions may append fields, so readers use header_bytes. */
+export const HEADER_BYTES_V1 = 56;
+export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2 });
+export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2' });
+const BYTES_PER_PIXEL = { 1: 6, 2: 4 };
+/** The server refuses gaze outside [-3, 4] frame fractions; clamp rather than get an error. */
+const GAZE_MIN = -3;
+const GAZE_MAX = 4;
+
+export class ProtocolError extends Error {}
+
+/** Decode the fixed header of a binary frame message (all little-endian). */
+export function decodeHeader(buffer) {
+  if (!(buffer instanceof ArrayBuffer)) throw new ProtocolError('frame is not an ArrayBuffer');
+  if (buffer.byteLength < HEADER_BYTES_V1) {
+    throw new ProtocolError(`frame of ${buffer.byteLength} bytes is shorter than its header`);
+  }
+  const dv = new DataView(buffer);
+  const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
+  if (magic !== MAGIC) throw new ProtocolError(`bad frame magic ${JSON.stringify(magic)}`);
+  const version = dv.getUint16(4, true);
+  const header_bytes = dv.getUint16(6, true);
+  if (version < 1) throw new ProtocolError(`bad frame version ${version}`);
+  if (header_bytes < HEADER_BYTES_V1 || header_bytes > buffer.byteLength) {
+    throw new ProtocolError(`bad header_bytes ${header_bytes}`);
+  }
+  const flags = dv.getUint8(45);
+  return {
+    version,
+    header_bytes,
+    frame: dv.getUint32(8, true),
+    gaze_seq: dv.getUint32(12, true),
+    time: dv.getFloat64(16, true),
+    gaze_x: dv.getFloat32(24, true),
+    gaze_y: dv.getFloat32(28, true),
+    adaptation: dv.getFloat32(32, true),
+    rho: dv.getFloat32(36, true),
+    width: dv.getUint16(40, true),
+    height: dv.getUint16(42, true),
+    encoding: dv.getUint8(44),
+    flags,
+    eyes_open: (flags & 1) !== 0,
+    tracker_gaze: (flags & 2) !== 0,
+    server_ms: dv.getFloat32(48, true),
+    dropped: dv.getUint32(52, true),
+  };
+}
+
+/**
+ * Decode a whole frame: the header and a typed view of the pixels, ready for texImage2D
+ * (Uint16Array of halves for f16, Uint32Array of packed words for rgb10a2). No copy unless a
+ * future header size breaks the view's alignment.
+ */
+export function decodeFrame(buffer) {
+  const header = decodeHeader(buffer);
+  const bpp = BYTES_PER_PIXEL[header.encoding];
+  if (!bpp) throw new ProtocolError(`unknown frame encoding ${header.encoding}`);
+  if (header.width === 0 || header.height === 0) throw new ProtocolError('empty frame');
+  const bytes = header.width * header.height * bpp;
+  if (buffer.byteLength - header.header_bytes < bytes) {
+    throw new ProtocolError(
+      `frame ${header.width}×${header.height} ${ENCODING_NAMES[header.encoding]} needs ` +
+        `${bytes} payload bytes, got ${buffer.byteLength - header.header_bytes}`,
+    );
+  }
+  const Typed = header.encoding === ENCODING.F16 ? Uint16Array : Uint32Array;
+  let source = buffer;
+  let offset = header.header_bytes;
+  if (offset % Typed.BYTES_PER_ELEMENT !== 0) {
+    source = buffer.slice(offset, offset + bytes);
+    offset = 0;
+  }
+  return { header, pixels: new Typed(source, offset, bytes / Typed.BYTES_PER_ELEMENT) };
+}
+
+/** IEEE 754 half (as a u16) to a number; for debugging and tests. */
+export function halfToFloat(h) {
+  const sign = h & 0x8000 ? -1 : 1;
+  const exp = (h >> 10) & 0x1f;
+  const frac = h & 0x3ff;
+  if (exp === 0) return sign * frac * 2 ** -24;
+  if (exp === 31) return frac ? NaN : sign * Infinity;
+  return sign * (1 + frac / 1024) * 2 ** (exp - 15);
+}
+
+const clampGaze = (v) => Math.min(GAZE_MAX, Math.max(GAZE_MIN, v));
+
+/** Control messages, browser → server (JSON text). */
+export const messages = {
+  viewport: (width, height) => ({
+    type: 'viewport',
+    width: Math.max(1, Math.round(width)),
+    height: Math.max(1, Math.round(height)),
+  }),
+  gaze: (x, y, seq) => ({ type: 'gaze', x: clampGaze(x), y: clampGaze(y), seq }),
+  eyes: (open) => ({ type: 'eyes', open: Boolean(open) }),
+  scene: (name) => ({ type: 'scene', name }),
+  model: (name) => ({ type: 'model', name }),
+  gazeSource: (name) => ({ type: 'gaze_source', name }),
+  params: (values) => ({ type: 'params', values }),
+  reset: () => ({ type: 'reset' }),
+};
+
+/** Parse a text message; null if it is not a JSON object with a string `type`. */
+export function parseText(text) {
+  let msg;
+  try {
+    msg = JSON.parse(text);
+  } catch {
+    return null;
+  }
+  return msg && typeof msg === 'object' && typeof msg.type === 'string' ? msg : null;
+}
