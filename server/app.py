@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import logging
 import os
 import secrets
 import time
@@ -25,7 +26,7 @@ from fastapi.responses import PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
 from drivers import wire
-from server.live import LiveSession, SessionHub, Viewer
+from server.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from server.metrics import Metrics
 from server.protocol import Gaze, ProtocolError, parse_control
 from server.scenes import Scene
@@ -43,6 +44,8 @@ CLOSE_POLICY = 1008
 CLOSE_UNAUTHORIZED = 4401
 CLOSE_ORIGIN = 4403
 CLOSE_BUSY = 1013
+CLOSE_INTERNAL = 1011
+log = logging.getLogger("gazehdr.app")
 
 
 @dataclass(frozen=True)
@@ -202,8 +205,13 @@ def create_app(config: ServerConfig) -> FastAPI:
         viewer = Viewer(ws.send_bytes, ws.send_json, metrics)
         try:
             live = await hub.join(session, viewer)
-        except RuntimeError as e:
+        except TooManySessionsError as e:
             await ws.close(CLOSE_BUSY, str(e))
+            return
+        except Exception as e:  # a scene or device that fails: say so instead of a bare close
+            log.exception("could not start a session")
+            await ws.send_json({"type": "error", "message": f"no session: {e}", "in": None})
+            await ws.close(CLOSE_INTERNAL, "could not start a session")
             return
         hello = {"type": "hello", "protocol": 1, "session": live.session.id}
         viewer.mailbox.put(None, [{**hello, **live.session.state()}])

@@ -26,6 +26,10 @@ log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
 
 
+class TooManySessionsError(Exception):
+    """The server runs as many sessions as it is allowed to."""
+
+
 @dataclass
 class Mailbox:
     """The newest frame and the notes (never dropped, but bounded) for one viewer."""
@@ -157,7 +161,7 @@ class SessionHub:
         live = self.sessions.get(session_id or "")
         if live is None:
             if len(self.sessions) >= self.max_sessions:
-                raise RuntimeError(f"the server already runs {self.max_sessions} sessions")
+                raise TooManySessionsError(f"the server already runs {self.max_sessions} sessions")
             new_id = secrets.token_urlsafe(9)
             session = await asyncio.to_thread(
                 Session, new_id, self.settings, self.scenes, self.remote

@@ -96,6 +96,8 @@ class Frame:
 def fit_size(budget: tuple[int, int], viewport: tuple[int, int]) -> tuple[int, int]:
     """Frame size with the viewport's aspect ratio and about `budget`'s number of pixels."""
     aspect = viewport[0] / viewport[1]
+    if abs(aspect / (budget[0] / budget[1]) - 1) < 0.01:  # the budget's own shape: keep it exact
+        return budget
     pixels = budget[0] * budget[1]
     w = round(math.sqrt(pixels * aspect) / SIZE_STEP) * SIZE_STEP
     h = round(math.sqrt(pixels / aspect) / SIZE_STEP) * SIZE_STEP
@@ -249,6 +251,13 @@ class Session:
         self._loaded = self.scene.state_at(t)
         self.sim.load_scene(self.scene.render(t, *self.size), reset=reset)
 
+    def _sync_scene(self) -> None:
+        """Load the scene as it is at the simulator's time, if that differs from what it sees."""
+        t = self.sim.time
+        if self.scene.animated and self.scene.state_at(t) != self._loaded:
+            self._loaded = self.scene.state_at(t)
+            self.sim.load_scene(self.scene.render(t, *self.size), reset=False)
+
     def _current_gaze(self) -> bool:
         """Update gaze and eyes from the session's source; True when it came from a tracker."""
         if self.gaze_source == "remote":
@@ -270,10 +279,15 @@ class Session:
         started = time.perf_counter()
         tracker = self._current_gaze()
         sim, (w, h) = self.sim, self.size
-        if self.scene.animated and self.scene.state_at(sim.time + dt) != self._loaded:
-            self._loaded = self.scene.state_at(sim.time + dt)
-            sim.load_scene(self.scene.render(sim.time + dt, w, h), reset=False)
-        v = sim.step(dt, gaze=(self.gaze[0] * w, self.gaze[1] * h), eyes_open=self.eyes_open)
+        gaze = (self.gaze[0] * w, self.gaze[1] * h)
+        # Split the step where the scene changes: a flash shorter than a frame is seen for
+        # exactly its duration, never skipped nor stretched to the whole frame.
+        end = sim.time + dt
+        while (change := self.scene.next_change(sim.time)) is not None and change < end:
+            sim.step(change - sim.time, gaze=gaze, eyes_open=self.eyes_open)
+            self._sync_scene()
+        self._sync_scene()
+        v = sim.step(max(0.0, end - sim.time), gaze=gaze, eyes_open=self.eyes_open)
         stepped = time.perf_counter()
         payload = encode_pixels(v, self.settings.encoding)
         encoded = time.perf_counter()

@@ -91,3 +91,24 @@ def test_synthetic_gaze_source_moves_the_eye() -> None:
         seen.add((round(frame.header.gaze_x, 3), round(frame.header.gaze_y, 3)))
         assert frame.header.tracker
     assert len(seen) > 3 and (0.9, 0.9) not in seen
+
+
+def _bleaching_peak(session: Session) -> float:
+    state = session.sim._backend.get("state")  # B_L, B_M, B_S, C_L, C_M, C_S
+    return float(state[0].max())
+
+
+def test_a_flash_inside_a_long_frame_is_seen_for_its_duration() -> None:
+    """The flash fires for [1, 1.125) s. A 0.5 s frame from 0.9 s ends after it: the step is
+    split at the flash's edges, so the eye bleaches as much as with 10 ms frames."""
+    coarse, fine = new_session(), new_session()
+    for s in (coarse, fine):
+        s.tick(0.0, [(Gaze(0.5, 0.42, 1), 0.0)])
+        s.tick(0.9, [])
+    rest = _bleaching_peak(coarse)
+    coarse.tick(0.5, [])
+    for _ in range(50):
+        fine.tick(0.01, [])
+    assert coarse.sim.time == pytest.approx(fine.sim.time)
+    assert _bleaching_peak(coarse) > 5 * rest
+    assert _bleaching_peak(coarse) == pytest.approx(_bleaching_peak(fine), rel=0.05)

@@ -24,6 +24,11 @@ class Scene(Protocol):
         """A hashable that changes exactly when `render`'s output does (None: never)."""
         ...
 
+    def next_change(self, t: float) -> float | None:
+        """The first time after `t` at which `state_at` changes (None: never), so that a caller
+        stepping in long frames can split a step there and miss no brief flash."""
+        ...
+
 
 def builtin_names() -> list[str]:
     from server.scenes.procedural import BUILTIN

@@ -99,6 +99,9 @@ class ExrScene:
     def state_at(self, t: float) -> object:
         return None
 
+    def next_change(self, t: float) -> float | None:
+        return None
+
 
 def write_exr(
     path: str | os.PathLike[str],

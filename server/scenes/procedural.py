@@ -195,6 +195,10 @@ class _Procedural:
         """What `render` depends on besides the size (static scenes: nothing)."""
         return None
 
+    def next_change(self, t: float) -> float | None:
+        """The first time after `t` at which `state_at` changes (None: never)."""
+        return None
+
     def _draw(self, width: int, height: int, state: object) -> np.ndarray:
         raise NotImplementedError
 
@@ -239,6 +243,13 @@ class Flash(_Procedural):
 
     def state_at(self, t: float) -> bool:
         return self.flash_on(t)
+
+    def next_change(self, t: float) -> float | None:
+        if t < self.first:
+            return self.first
+        k, phase = divmod(t - self.first, self.period)
+        start = self.first + k * self.period
+        return start + self.duration if phase < self.duration else start + self.period
 
     def _draw(self, width: int, height: int, state: object) -> np.ndarray:
         wall = self.wall_luminance
@@ -447,6 +458,9 @@ class AdaptationCross(_Procedural):
 
     def state_at(self, t: float) -> bool:
         return t >= self.switch_at
+
+    def next_change(self, t: float) -> float | None:
+        return self.switch_at if t < self.switch_at else None
 
     def _draw(self, width: int, height: int, state: object) -> np.ndarray:
         if state:
