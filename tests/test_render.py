@@ -96,6 +96,12 @@ class _Box:
         rgb[height // 3 : 2 * height // 3, width // 3 : 2 * width // 3] = 3e4 * (1 + t)
         return rgb
 
+    def state_at(self, t: float) -> object:
+        return t if self.animated else None  # brightens continuously
+
+    def next_change(self, t: float) -> float | None:
+        return None
+
 
 @pytest.mark.parametrize("animated", [False, True])
 def test_static_scenes_load_once_animated_every_frame(tmp_path: Path, animated: bool) -> None:
