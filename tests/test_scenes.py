@@ -540,3 +540,17 @@ def test_adaptation_cross() -> None:
 def test_bad_parameters(make: Callable[[], object]) -> None:
     with pytest.raises(ValueError, match="must be"):
         make()
+
+
+@pytest.mark.parametrize("name", ["flash", "adaptation-cross", "lamp"])
+def test_next_change_is_exactly_where_the_state_changes(name: str) -> None:
+    scene = open_scene(name)
+    for t in np.linspace(0.0, 13.0, 521):
+        change = scene.next_change(float(t))
+        if change is None:
+            assert all(scene.state_at(u) == scene.state_at(t) for u in (t + 1, t + 100))
+            continue
+        assert change > t
+        inside = np.linspace(t, change, 7)[:-1]
+        assert all(scene.state_at(float(u)) == scene.state_at(float(t)) for u in inside)
+        assert scene.state_at(change) != scene.state_at(float(t))
