@@ -30,8 +30,10 @@ export class Ring {
   constructor(size = 64) {
     this.size = size;
     this.values = [];
+    this.total = 0; // values ever pushed, so a reader polling now and then can tell new ones
   }
   push(v) {
+    this.total += 1;
     this.values.push(v);
     if (this.values.length > this.size) this.values.shift();
   }
