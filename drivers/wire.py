@@ -68,7 +68,22 @@ Message = Hello | Samples | Event | Echo
 
 
 def _refuse_constant(name: str) -> float:
-    raise WireError(f"{name} is not a number JSON allows")
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def load_typed_json(data: str | bytes, limit: int) -> dict[str, Any]:
+    """A JSON object with a string `type`, at most `limit` bytes, strictly JSON (no NaN or
+    Infinity, which Python's json would accept). Raises ValueError saying what is wrong; each
+    protocol turns it into its own error type."""
+    if len(data) > limit:
+        raise ValueError(f"message of {len(data)} bytes; the limit is {limit}")
+    try:
+        msg = json.loads(data, parse_constant=_refuse_constant)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ValueError(f"malformed JSON: {e}") from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise ValueError("a message is a JSON object with a string 'type'")
+    return msg
 
 
 def _int(obj: dict[str, Any], key: str, where: str) -> int:
@@ -101,16 +116,10 @@ def _sample(obj: Any, where: str) -> Sample:
 
 def parse(data: str | bytes) -> Message:
     """One text message → a typed message, or `WireError` naming what is wrong."""
-    if len(data) > MAX_MESSAGE_BYTES:
-        raise WireError(f"message of {len(data)} bytes; the limit is {MAX_MESSAGE_BYTES}")
     try:
-        msg = json.loads(data, parse_constant=_refuse_constant)
-    except WireError:
-        raise
-    except (ValueError, UnicodeDecodeError) as e:
-        raise WireError(f"malformed JSON: {e}") from None
-    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        raise WireError("a message is a JSON object with a string 'type'")
+        msg = load_typed_json(data, MAX_MESSAGE_BYTES)
+    except ValueError as e:
+        raise WireError(str(e)) from None
     kind = msg["type"]
     if kind == "hello":
         if msg.get("protocol") != PROTOCOL:

@@ -6,7 +6,6 @@ these functions produce, so every rule about the wire is tested here without a s
 
 from __future__ import annotations
 
-import json
 import math
 import struct
 from dataclasses import dataclass
@@ -14,6 +13,8 @@ from enum import IntEnum
 from typing import Any
 
 import numpy as np
+
+from drivers.wire import load_typed_json
 
 MAGIC = b"GZHF"
 VERSION = 1
@@ -144,10 +145,6 @@ Control = Viewport | Gaze | Eyes | Choose | ParamChange | Reset
 CHOICES = ("scene", "model", "gaze_source")
 
 
-def _refuse_constant(name: str) -> float:
-    raise ProtocolError(f"{name} is not a number JSON allows")
-
-
 def _field(msg: dict[str, Any], key: str, kind: type | tuple[type, ...], what: str) -> Any:
     value = msg.get(key)
     # bool is an int in Python, but never a valid number or size on this wire.
@@ -165,16 +162,10 @@ def _number(msg: dict[str, Any], key: str, lo: float, hi: float) -> float:
 
 def parse_control(data: str | bytes) -> Control:
     """One text message from the viewer → a typed control, or `ProtocolError` saying why not."""
-    if len(data) > MAX_CONTROL_BYTES:
-        raise ProtocolError(f"message of {len(data)} bytes; the limit is {MAX_CONTROL_BYTES}")
     try:
-        msg = json.loads(data, parse_constant=_refuse_constant)
-    except ProtocolError:
-        raise
-    except (ValueError, UnicodeDecodeError) as e:
-        raise ProtocolError(f"malformed JSON: {e}") from None
-    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        raise ProtocolError("a control message is a JSON object with a string 'type'")
+        msg = load_typed_json(data, MAX_CONTROL_BYTES)
+    except ValueError as e:
+        raise ProtocolError(str(e)) from None
     kind = msg["type"]
     if kind == "viewport":
         w, h = (int(_number(msg, k, 1, 16384)) for k in ("width", "height"))

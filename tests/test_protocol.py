@@ -92,8 +92,8 @@ def test_controls_parse(message: dict, expected: object) -> None:
     ("text", "match"),
     [
         ("{not json", "malformed JSON"),
-        ("[1, 2]", "JSON object with a string 'type'"),
-        ('{"x": 1}', "JSON object with a string 'type'"),
+        ("[1, 2]", "a message is a JSON object with a string 'type'"),
+        ('{"x": 1}', "a message is a JSON object with a string 'type'"),
         ('{"type": "teleport"}', "unknown message type 'teleport'"),
         ('{"type": "gaze", "x": NaN, "y": 0.5, "seq": 1}', "NaN is not a number"),
         ('{"type": "gaze", "x": Infinity, "y": 0.5, "seq": 1}', "Infinity"),
