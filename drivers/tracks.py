@@ -24,6 +24,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from drivers.samples import GazePoint, GazeTrack
+from drivers.sessionlog import read_session_track
 from drivers.synthetic import FixedGaze, SyntheticScanPath
 
 _TRUE = {"1", "true", "yes"}
@@ -92,7 +93,10 @@ def _parse_row(fields: list[str], where: str) -> tuple[float, GazePoint]:
 
 
 #: Gaze file readers by lower-case suffix; session logs and imported recordings join here.
-FILE_TRACKS: dict[str, Callable[[Path], GazeTrack]] = {".csv": CsvGazeTrack.read}
+FILE_TRACKS: dict[str, Callable[[Path], GazeTrack]] = {
+    ".csv": CsvGazeTrack.read,
+    ".jsonl": read_session_track,  # a native session log (drivers/sessionlog.py)
+}
 
 
 def open_track(spec: str, *, seed: int = 0, duration: float = 60.0) -> GazeTrack:

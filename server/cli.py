@@ -210,6 +210,21 @@ def _bench_live(args: argparse.Namespace, extra: list[str]) -> int:
     return bench_live(extra)
 
 
+# --- import / export --------------------------------------------------------------------------
+
+
+def _import(args: argparse.Namespace, extra: list[str]) -> int:
+    from drivers.formats import import_main
+
+    return import_main(extra)
+
+
+def _export(args: argparse.Namespace, extra: list[str]) -> int:
+    from drivers.formats import export_main
+
+    return export_main(extra)
+
+
 # --- scenes -----------------------------------------------------------------------------------
 
 
@@ -256,6 +271,17 @@ COMMANDS: dict[str, Command] = {
     "bench-live": Command(
         "benchmark the live server with a real browser (arguments pass through)",
         _bench_live,
+        passthrough=True,
+    ),
+    "import": Command(
+        "convert a recording (BIDS physio, EyeLink .asc, Pupil gaze_positions.csv, Tobii .tsv) "
+        "into a session log (arguments pass through; see 'gazehdr import --help')",
+        _import,
+        passthrough=True,
+    ),
+    "export": Command(
+        "write a session log as BIDS eye-tracking physio (see 'gazehdr export --help')",
+        _export,
         passthrough=True,
     ),
     "scenes": Command("list the built-in scenes", _scenes),

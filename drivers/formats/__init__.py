@@ -1,0 +1,275 @@
+"""Recordings of other eye-tracking tools, into and out of the native session log.
+
+Importers (each module's docstring says which documentation it follows, and what it assumes):
+
+- `bids`: BIDS eye-tracking physio, `*_recording-<eye>_physio.tsv.gz` + JSON sidecars and
+  `*_physioevents.tsv.gz`; also the exporter (`write_bids`).
+- `eyelink`: SR Research EyeLink ASC files (EDF2ASC output).
+- `pupil`: Pupil Player's `gaze_positions.csv`.
+- `tobii`: the Tobii TSV written by PyGaze's `libtobii` and by `psychopy_tobii_controller`.
+
+Each gives a `SessionLog` (samples in screen pixels, time in integer ns on the recording's clock,
+events, notes, the screen geometry where the format records it). Malformed input raises
+`FormatError` naming the file, the line and the field. `import_main` and `export_main` are the
+`gazehdr import` / `gazehdr export` command lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
+from pathlib import Path
+from typing import Any, NoReturn
+
+from drivers.samples import EyeSample, ScreenGeometry
+from drivers.sessionlog import FormatError, SessionLog, write_session_log
+
+IMPORTERS: dict[str, tuple[str, str]] = {
+    "bids": ("drivers.formats.bids", "read_bids"),
+    "eyelink": ("drivers.formats.eyelink", "read_eyelink_asc"),
+    "pupil": ("drivers.formats.pupil", "read_pupil_gaze_csv"),
+    "tobii": ("drivers.formats.tobii", "read_tobii_tsv"),
+}
+
+
+# --- helpers shared by the importers ----------------------------------------------------------
+
+
+def decimal_ns(text: str, unit_ns: int) -> int:
+    """A decimal time string in some unit (`unit_ns` ns each) → integer ns, exactly.
+
+    Through `Decimal`, so "2154556.5" ms is 2154556500000 ns with no float rounding.
+    Raises ValueError for anything but a finite number.
+    """
+    try:
+        value = Decimal(text.strip())
+    except InvalidOperation:
+        raise ValueError(f"not a number: {text!r}") from None
+    if not value.is_finite():
+        raise ValueError(f"not a finite number: {text!r}")
+    return int((value * unit_ns).to_integral_value(ROUND_HALF_EVEN))
+
+
+def finite_float(text: str) -> float:
+    """A finite float from text, or ValueError."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"not a finite number: {text!r}")
+    return value
+
+
+def mean_of_eyes(*eyes: EyeSample | None) -> tuple[float, float] | None:
+    """The mean position of the eyes that have one, or None when no eye has."""
+    found = [e for e in eyes if e is not None and math.isfinite(e.x) and math.isfinite(e.y)]
+    if not found:
+        return None
+    return sum(e.x for e in found) / len(found), sum(e.y for e in found) / len(found)
+
+
+def geometry_with(
+    base: ScreenGeometry | None,
+    *,
+    width_px: int | None = None,
+    height_px: int | None = None,
+    diagonal_m: float | None = None,
+    distance_m: float | None = None,
+) -> ScreenGeometry:
+    """`base` (or the defaults) with the values a file recorded put in."""
+    g = base or ScreenGeometry()
+    changes: dict[str, Any] = {}
+    if width_px is not None:
+        changes["screen_width_px"] = int(width_px)
+    if height_px is not None:
+        changes["screen_height_px"] = int(height_px)
+    if diagonal_m is not None:
+        changes["screen_diagonal_m"] = float(diagonal_m)
+    if distance_m is not None:
+        changes["viewing_distance_m"] = float(distance_m)
+    return replace(g, **changes)
+
+
+# --- dispatch ---------------------------------------------------------------------------------
+
+
+def detect_format(path: str | Path) -> str:
+    """Which importer reads `path`, from its name and (for ambiguous suffixes) its first line."""
+    p = Path(path)
+    name = p.name.lower()
+    if p.is_dir() or name.endswith(("_physio.tsv.gz", "_physio.tsv", "_physio.json")):
+        return "bids"
+    if name.endswith(".asc"):
+        return "eyelink"
+    if name.endswith(".csv"):
+        return "pupil"
+    if name.endswith((".tsv", ".txt")):
+        with p.open(encoding="utf-8", errors="replace") as f:
+            if f.readline().startswith("Recording date:"):
+                return "tobii"
+    raise ValueError(
+        f"{p}: cannot tell its format from the name; pass --format "
+        f"({', '.join(IMPORTERS)}). Expected a BIDS *_physio.tsv.gz, an EyeLink .asc, a Pupil "
+        "Player gaze_positions.csv or a Tobii .tsv starting with 'Recording date:'"
+    )
+
+
+def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> SessionLog:
+    """Read a recording in any supported format into a `SessionLog`.
+
+    `options` go to the importer: `geometry` (a `ScreenGeometry` for what the file does not
+    record) for all; `min_confidence` (pupil); `units` (tobii, psychopy_tobii_controller files);
+    `missing` (eyelink, the `edf2asc -miss` string).
+    """
+    if fmt == "auto":
+        fmt = detect_format(path)
+    if fmt not in IMPORTERS:
+        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(IMPORTERS)}")
+    module, function = IMPORTERS[fmt]
+    return getattr(importlib.import_module(module), function)(Path(path), **options)
+
+
+# --- command lines ----------------------------------------------------------------------------
+
+
+def _screen(text: str) -> tuple[int, int]:
+    parts = text.lower().replace("×", "x").split("x")
+    try:
+        width, height = (int(v) for v in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT such as 1920x1080, got {text!r}"
+        ) from None
+    return width, height
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """One-line usage errors, as the rest of the `gazehdr` command line gives them."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        raise SystemExit(2)
+
+
+def import_main(argv: Sequence[str] | None = None) -> int:
+    """`gazehdr import FILE --out LOG.jsonl`: a recording → a native session log.
+
+    Returns 0; bad arguments exit with status 2 (one line on stderr); unreadable or malformed
+    input raises (`FormatError`/`ValueError`/`OSError`), for the caller to report.
+    """
+    p = _Parser(
+        prog="gazehdr import",
+        description="Convert an eye-tracking recording into a gazehdr session log (JSON Lines).",
+        epilog="examples:\n"
+        "  gazehdr import s01.asc --out s01.jsonl\n"
+        "  gazehdr import sub-01/beh/sub-01_task-x_recording-eye1_physio.tsv.gz --out s01.jsonl\n"
+        "  gazehdr import exports/000/gaze_positions.csv --screen 1280x720 --out s01.jsonl\n"
+        "  gazehdr import test.tsv --units height --out s01.jsonl",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("file", help="the recording (a BIDS physio file or directory, .asc, .csv, .tsv)")
+    p.add_argument("--out", required=True, help="the session log to write (.jsonl)")
+    p.add_argument("--format", default="auto", choices=["auto", *IMPORTERS])
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument(
+        "--screen", type=_screen, help="screen size WxH in pixels, where the file has none"
+    )
+    p.add_argument("--diagonal", type=_positive, help="screen diagonal in metres (default 0.6)")
+    p.add_argument("--distance", type=_positive, help="viewing distance in metres (default 1.0)")
+    p.add_argument(
+        "--units",
+        choices=["pix", "norm", "height"],
+        help="PsychoPy window units of a psychopy_tobii_controller file (the file does not say)",
+    )
+    p.add_argument(
+        "--min-confidence",
+        type=float,
+        default=0.6,
+        help="Pupil gaze below this confidence is invalid (default 0.6, Pupil Player's own)",
+    )
+    args = p.parse_args(argv)
+    fmt = detect_format(args.file) if args.format == "auto" else args.format
+    geometry = None
+    if args.screen or args.diagonal or args.distance:
+        width, height = args.screen or (None, None)
+        geometry = geometry_with(
+            None,
+            width_px=width,
+            height_px=height,
+            diagonal_m=args.diagonal,
+            distance_m=args.distance,
+        )
+    options: dict[str, Any] = {"geometry": geometry}
+    if fmt == "pupil":
+        options["min_confidence"] = args.min_confidence
+    if fmt == "tobii":
+        options["units"] = args.units
+    log = import_recording(args.file, fmt, **options)
+    out = write_session_log(args.out, log, overwrite=args.overwrite)
+    invalid = sum(not s.valid for s in log.samples)
+    screen = log.header.screen
+    print(
+        f"{args.file} ({fmt}): {len(log.samples)} samples ({invalid} invalid), "
+        f"{len(log.events)} events, {len(log.notes)} notes, screen "
+        f"{screen.screen_width_px}x{screen.screen_height_px} -> {out}"
+    )
+    return 0
+
+
+def export_main(argv: Sequence[str] | None = None) -> int:
+    """`gazehdr export LOG.jsonl --out DIR`: a native session log → BIDS physio files."""
+    p = _Parser(
+        prog="gazehdr export",
+        description="Write a gazehdr session log as BIDS eye-tracking physio files "
+        "(*_recording-eye<N>_physio.tsv.gz + .json, *_physioevents.tsv.gz + .json).",
+        epilog="example:\n"
+        "  gazehdr export s01.jsonl --out bids/sub-01/beh --prefix sub-01_task-hdr",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("log", help="a gazehdr session log (.jsonl)")
+    p.add_argument("--out", required=True, help="directory for the files (created if missing)")
+    p.add_argument("--format", default="bids", choices=["bids"])
+    p.add_argument(
+        "--prefix",
+        default="sub-01_task-gazehdr",
+        help="BIDS entities before _recording-... (default sub-01_task-gazehdr)",
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace files that exist")
+    args = p.parse_args(argv)
+    from drivers.formats.bids import write_bids
+    from drivers.sessionlog import read_session_log
+
+    log = read_session_log(args.log)
+    if log.truncated:
+        print(f"{args.log}: cut short at line {log.truncated_line}; exporting what was whole")
+    written = write_bids(log, args.out, prefix=args.prefix, overwrite=args.overwrite)
+    print(f"{args.log}: wrote {len(written)} files to {args.out}")
+    for path in written:
+        print(f"  {path.name}")
+    return 0
+
+
+__all__ = [
+    "IMPORTERS",
+    "FormatError",
+    "decimal_ns",
+    "detect_format",
+    "export_main",
+    "geometry_with",
+    "import_main",
+    "import_recording",
+    "mean_of_eyes",
+]

@@ -1,0 +1,111 @@
+"""Pupil Player's `gaze_positions.csv` (Pupil Core, Raw Data Exporter) → a session log.
+
+Written from Pupil Labs' own sources: the exporter that writes the file (pupil-labs/pupil,
+`pupil_src/shared_modules/raw_data_exporter.py`, `Gaze_Positions_Exporter`: a header row, then
+`gaze_timestamp, world_index, confidence, norm_pos_x, norm_pos_y, base_data, gaze_point_3d_x,
+..., gaze_normal1_z`, empty fields where a value is None) and the Pupil Core terminology page
+(pupil-labs/pupil-docs, `src/core/terminology.md`: timestamps are seconds of "Pupil Time", a
+monotonic clock with an arbitrary epoch; "2D Normalized Space" has its origin at the
+**bottom** left, unit image width/height).
+
+- Time: `gaze_timestamp` seconds → integer ns, exactly (the decimal text, not a float).
+  Files from Pupil versions before `gaze_timestamp` was named call it `timestamp`.
+- Position: `norm_pos_x`, `norm_pos_y` are normalised coordinates of the world camera image,
+  origin bottom-left; we take that image as the screen, so x_px = norm_x · width and
+  y_px = (1 − norm_y) · height (flipped to our top-left origin). Values outside [0, 1] (gaze
+  off the image) are kept. The file records no screen: `geometry` gives it (default
+  `ScreenGeometry()`, 1920×1080).
+- Validity: a sample whose `confidence` is below `min_confidence` (0.6, the default of Pupil
+  Player's `min_data_confidence`, below which its exporter leaves data out) is invalid.
+- Other columns (3d gaze, eye centres, normals) are not used.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from drivers.formats import decimal_ns, finite_float
+from drivers.samples import GazeSample, ScreenGeometry
+from drivers.sessionlog import ClockInfo, FormatError, SessionHeader, SessionLog
+
+MIN_CONFIDENCE = 0.6
+_REQUIRED = ("confidence", "norm_pos_x", "norm_pos_y")
+
+
+def read_pupil_gaze_csv(
+    path: Path,
+    *,
+    geometry: ScreenGeometry | None = None,
+    min_confidence: float = MIN_CONFIDENCE,
+) -> SessionLog:
+    """Read a Pupil Player `gaze_positions.csv`; `geometry` is the screen the image stands for."""
+    path = Path(path)
+    if not 0 <= min_confidence <= 1:
+        raise ValueError(f"min_confidence must lie in [0, 1], got {min_confidence}")
+    screen = geometry or ScreenGeometry()
+    width, height = screen.screen_width_px, screen.screen_height_px
+    samples: list[GazeSample] = []
+    with path.open(newline="", encoding="utf-8-sig") as f:
+        rows = csv.reader(f)
+        header = [name.strip() for name in next(rows, [])]
+        time_column = "gaze_timestamp" if "gaze_timestamp" in header else "timestamp"
+        for name in (time_column, *_REQUIRED):
+            if name not in header:
+                raise FormatError(
+                    path,
+                    1,
+                    name,
+                    "missing column; a Pupil Player gaze_positions.csv has gaze_timestamp, "
+                    "confidence, norm_pos_x and norm_pos_y",
+                )
+        index = {name: header.index(name) for name in (time_column, *_REQUIRED)}
+        for row in rows:
+            line = rows.line_num
+            if not any(field.strip() for field in row):
+                continue
+            if len(row) != len(header):
+                raise FormatError(
+                    path, line, None, f"{len(row)} fields; the header names {len(header)}"
+                )
+
+            def number(name: str, row: list[str] = row, line: int = line) -> float:
+                text = row[index[name]]
+                try:
+                    return finite_float(text)
+                except ValueError:
+                    raise FormatError(
+                        path, line, name, f"expected a number, got {text!r}"
+                    ) from None
+
+            text = row[index[time_column]]
+            try:
+                t = decimal_ns(text, 1_000_000_000)
+            except ValueError:
+                raise FormatError(
+                    path, line, time_column, f"expected a time in seconds, got {text!r}"
+                ) from None
+            if samples and t < samples[-1].t_ns:
+                raise FormatError(path, line, time_column, f"{text} s goes back in time")
+            confidence = number("confidence")
+            if not 0 <= confidence <= 1:
+                raise FormatError(path, line, "confidence", f"must lie in [0, 1], got {confidence}")
+            nx, ny = number("norm_pos_x"), number("norm_pos_y")
+            if confidence >= min_confidence:
+                samples.append(GazeSample(t, nx * width, (1.0 - ny) * height))
+            else:
+                samples.append(GazeSample(t, math.nan, math.nan, False))
+    if not samples:
+        raise FormatError(path, None, None, "no gaze rows")
+    header_ = SessionHeader(
+        tracker={
+            "format": "pupil-player-gaze-positions",
+            "file": path.name,
+            "coordinates": "world camera image, normalised, origin bottom-left",
+            "min_confidence": min_confidence,
+        },
+        screen=screen,
+        clock=ClockInfo(source="Pupil Time"),
+    )
+    return SessionLog(header_, samples, path=path)

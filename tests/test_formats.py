@@ -1,0 +1,672 @@
+"""Importers (BIDS, EyeLink ASC, Pupil Player, Tobii TSV) on handwritten fixtures; BIDS export.
+
+The fixtures in tests/data/formats are written the way the tools write them (header lines,
+missing-data markers, trailing tabs, CRLF where the tool writes it); each test checks exact
+times in ns, positions in pixels and coordinate flips.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from drivers.formats import detect_format, export_main, import_main, import_recording
+from drivers.formats.bids import read_bids, write_bids
+from drivers.formats.eyelink import read_eyelink_asc
+from drivers.formats.pupil import read_pupil_gaze_csv
+from drivers.formats.tobii import read_tobii_tsv
+from drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from drivers.sessionlog import (
+    ClockInfo,
+    ClockUpdate,
+    FormatError,
+    GazeEvent,
+    Note,
+    ParamsChange,
+    SceneChange,
+    SessionHeader,
+    SessionLog,
+    read_session_log,
+)
+
+DATA = Path(__file__).parent / "data" / "formats"
+NAN = math.nan
+
+
+def xyv(log: SessionLog) -> list[tuple]:
+    """(t_ns, x, y, valid) per sample, NaN positions as None for easy comparison."""
+    return [
+        (s.t_ns, None if math.isnan(s.x) else s.x, None if math.isnan(s.y) else s.y, s.valid)
+        for s in log.samples
+    ]
+
+
+def approx_rows(rows: list[tuple]) -> list:
+    return [
+        tuple(pytest.approx(v, abs=1e-9) if isinstance(v, float) else v for v in r) for r in rows
+    ]
+
+
+def events(log: SessionLog) -> list[tuple]:
+    return [
+        (e.kind, e.id, e.t_ns, None if math.isnan(e.x) else e.x, None if math.isnan(e.y) else e.y,
+         e.duration_ns, e.eye)
+        for e in log.events
+    ]  # fmt: skip
+
+
+def corrupt(tmp_path: Path, name: str, line: int, text: str) -> Path:
+    """A copy of fixture `name` with line `line` (1-based) replaced by `text`."""
+    raw = (DATA / name).read_bytes().decode("utf-8")
+    newline = "\r\n" if "\r\n" in raw else "\n"
+    lines = raw.split(newline)
+    lines[line - 1] = text
+    path = tmp_path / name
+    path.write_bytes(newline.join(lines).encode("utf-8"))
+    return path
+
+
+def assert_names(err: FormatError, path: Path, line: int | None, field: str | None) -> None:
+    assert (err.path, err.line, err.field) == (str(path), line, field)
+    where = f"{path}:{line}: " if line is not None else f"{path}: "
+    assert str(err).startswith(where)
+    if field:
+        assert f"field '{field}'" in str(err)
+
+
+# --- EyeLink ASC ------------------------------------------------------------------------------
+
+
+def test_eyelink_monocular() -> None:
+    log = read_eyelink_asc(DATA / "eyelink_mono.asc")
+    ms = 1_000_000
+    assert approx_rows(xyv(log)) == approx_rows([
+        (2154556 * ms, 640.2, 512.4, True),
+        (2154558 * ms, 640.6, 512.0, True),
+        (2154560 * ms, 641.0, 511.8, True),
+        (2154562 * ms, 700.5, 480.0, True),
+        (2154564 * ms, 820.3, 400.2, True),
+        (2154566 * ms, 830.1, 395.5, True),
+        (2154568 * ms, 830.9, 396.1, True),
+        (2154570 * ms, None, None, False),  # '.' during the blink
+        (2154572 * ms, None, None, False),
+        (2154574 * ms, 831.0, 396.0, True),  # CR flag 'C..' does not invalidate
+        (2154576 * ms, 831.4, 396.4, True),
+        (2154578 * ms, None, None, False),  # END of block 1
+        (2154700 * ms, 100.0, 100.0, True),
+        (2154702 * ms, 101.0, 101.5, True),
+        (2154703 * ms, None, None, False),  # END of block 2
+    ])  # fmt: skip
+    assert all(s.left is None and s.right is None for s in log.samples)
+    assert events(log) == [
+        ("fixation_start", 1, 2154556 * ms, None, None, None, "left"),
+        ("fixation_end", 1, 2154560 * ms, 640.6, 512.1, 6 * ms, "left"),
+        ("fixation_start", 2, 2154566 * ms, None, None, None, "left"),
+        ("fixation_end", 2, 2154568 * ms, 830.5, 395.8, 4 * ms, "left"),
+        ("blink_start", 1, 2154570 * ms, None, None, None, "left"),
+        ("blink_end", 1, 2154572 * ms, None, None, 4 * ms, "left"),
+        ("fixation_start", 3, 2154576 * ms, None, None, None, "left"),
+        ("fixation_end", 3, 2154576 * ms, 831.4, 396.4, 2 * ms, "left"),
+    ]
+    assert [n.text for n in log.notes] == [
+        "DISPLAY_COORDS 0 0 1279 1023",
+        "RECCFG CR 500 2 1 L",
+        "ELCLCFG BTABLER",
+        "GAZE_COORDS 0.00 0.00 1279.00 1023.00",
+        "THRESHOLDS L 102 242",
+        "TRIALID 1",
+        "!V TRIAL_VAR condition bright",
+    ]
+    assert log.notes[5].t_ns == 2154559 * ms
+    screen = log.header.screen
+    assert (screen.screen_width_px, screen.screen_height_px) == (1280, 1024)
+    assert log.header.tracker["serial"] == "CLU-DAB50"
+    assert log.header.tracker["rate_hz"] == 500.0
+    assert log.header.tracker["model"].startswith("EYELINK II CL v6.12")
+
+
+def test_eyelink_binocular_2000hz_fractional_times() -> None:
+    log = read_eyelink_asc(DATA / "eyelink_bino.asc")
+    assert approx_rows(xyv(log)) == approx_rows([
+        (5_000_001_000_000, 956.0, 542.0, True),  # mean of both eyes
+        (5_000_001_500_000, 956.5, 542.5, True),  # '.5' ms kept exactly
+        (5_000_002_000_000, 963.0, 545.0, True),  # left lost: the right eye alone
+        (5_000_002_500_000, None, None, False),  # both lost
+        (5_000_003_000_000, 957.25, 543.25, True),
+        (5_000_004_000_000, None, None, False),
+    ])  # fmt: skip
+    s = log.samples[2]
+    assert math.isnan(s.left.x) and (s.right.x, s.right.y) == (963.0, 545.0)
+    assert (log.samples[0].left, log.samples[0].right) == (
+        EyeSample(950.0, 540.0),
+        EyeSample(962.0, 544.0),
+    )
+    # edf2asc -nse: no SFIX lines; the starts come from the EFIX lines' <stime>
+    assert events(log) == [
+        ("fixation_start", 1, 5_000_001_000_000, None, None, None, "left"),
+        ("fixation_start", 2, 5_000_001_000_000, None, None, None, "right"),
+        ("fixation_end", 1, 5_000_001_500_000, 950.3, 540.3, 1_000_000, "left"),
+        ("fixation_end", 2, 5_000_003_000_000, 962.9, 544.9, 2_500_000, "right"),
+    ]
+    assert log.header.screen.screen_width_px == 1920
+    assert log.header.tracker["eyes"] == ["left", "right"]
+
+
+def test_eyelink_gaze_coords_offset_and_prescaler(tmp_path: Path) -> None:
+    text = (
+        "MSG\t100 GAZE_COORDS 10.00 20.00 1289.00 1043.00\n"
+        "START\t100 \tLEFT\tSAMPLES\tEVENTS\n"
+        "PRESCALER\t10\n"
+        "SAMPLES\tGAZE\tLEFT\tRATE\t1000.00\tTRACKING\tCR\tFILTER\t2\n"
+        "101\t 6500\t 5200\t 900.0\t...\n"
+    )
+    path = tmp_path / "p.asc"
+    path.write_text(text)
+    log = read_eyelink_asc(path)
+    assert (log.samples[0].x, log.samples[0].y) == (640.0, 500.0)
+    assert log.header.screen.screen_width_px == 1280
+
+
+@pytest.mark.parametrize(
+    ("line", "text", "field", "reason"),
+    [
+        (25, "2154558\t  640.6\t  abc\t 1012.0\t...", "yp", "expected a number or '.'"),
+        (25, "2154558\t  640.6", "yp", "this line has 2 fields"),
+        (25, "21545x8\t  640.6\t  512.0\t 1012.0\t...", None, None),  # not a sample: skipped
+        (25, "2154550\t  640.6\t  512.0\t 1012.0\t...", "time", "goes back"),
+        (22, "SAMPLES\tHREF\tLEFT\tRATE\t 500.00", "data type", "edf2asc -sg"),
+        (22, "SAMPLES\tGAZE\tRATE\t 500.00", "eyes", "neither LEFT nor RIGHT"),
+        (28, "EFIX L   2154556\t2154560", "dur", "this line has 4 fields"),
+        (28, "EFIX X   2154556\t2154560\t6\t  640.6\t  512.1\t   1012", "eye", "L or R"),
+        (41, "EBLINK L 2154570\tsoon\t4", "etime", "expected a time"),
+        (15, "MSG\t2154555 GAZE_COORDS 0.00 0.00 wide 1023.00", "GAZE_COORDS", "four numbers"),
+    ],
+)
+def test_eyelink_malformed_lines_name_line_and_field(
+    tmp_path: Path, line: int, text: str, field: str | None, reason: str | None
+) -> None:
+    path = corrupt(tmp_path, "eyelink_mono.asc", line, text)
+    if reason is None:  # a line starting with a digit but not a number is a sample: error
+        with pytest.raises(FormatError) as info:
+            read_eyelink_asc(path)
+        assert_names(info.value, path, line, "time")
+        return
+    with pytest.raises(FormatError, match=reason) as info:
+        read_eyelink_asc(path)
+    assert_names(info.value, path, line, field)
+
+
+def test_eyelink_sample_before_samples_line_and_no_screen(tmp_path: Path) -> None:
+    path = tmp_path / "a.asc"
+    path.write_text("START\t1 \tLEFT\tSAMPLES\n2\t  1.0\t  2.0\t 3.0\t...\n")
+    with pytest.raises(FormatError, match="before any SAMPLES line") as info:
+        read_eyelink_asc(path)
+    assert_names(info.value, path, 2, "time")
+    path.write_text("SAMPLES\tGAZE\tLEFT\tRATE\t1000.00\n2\t  1.0\t  2.0\t 3.0\t...\n")
+    with pytest.raises(FormatError, match="--screen") as info:
+        read_eyelink_asc(path)
+    assert_names(info.value, path, None, "DISPLAY_COORDS")
+    log = read_eyelink_asc(path, geometry=ScreenGeometry(0.5, 800, 600, 0.7))
+    assert log.header.screen == ScreenGeometry(0.5, 800, 600, 0.7)
+
+
+# --- Pupil Player -----------------------------------------------------------------------------
+
+
+def test_pupil_gaze_positions_flip_and_confidence() -> None:
+    log = read_pupil_gaze_csv(DATA / "gaze_positions.csv", geometry=ScreenGeometry(0.6, 1280, 720))
+    assert approx_rows(xyv(log)) == approx_rows([
+        (329_378_961_000, 640.0, 360.0, True),
+        (329_383_123_000, 320.0, 180.0, True),  # norm y 0.75 → 25 % from the top
+        (329_387_289_000, None, None, False),  # confidence 0.42 < 0.6
+        (329_391_455_000, 0.0, 720.0, True),  # (0, 0) is the bottom-left corner
+        (329_395_621_000, 1280.0, 0.0, True),  # (1, 1) the top-right
+        (329_399_787_000, -64.0, -14.4, True),  # off the image: kept
+        (329_403_953_000, 768.0, 432.0, True),  # monocular row, empty 3d fields
+        (329_408_119_000, None, None, False),  # confidence 0
+    ])  # fmt: skip
+    assert log.header.tracker["min_confidence"] == 0.6
+    assert log.header.screen.screen_width_px == 1280
+    stricter = read_pupil_gaze_csv(DATA / "gaze_positions.csv", min_confidence=0.9)
+    assert [s.valid for s in stricter.samples] == [
+        True,
+        True,
+        False,
+        False,
+        False,
+        True,
+        True,
+        False,
+    ]
+    assert stricter.header.screen == ScreenGeometry()  # no geometry: the defaults
+
+
+@pytest.mark.parametrize(
+    ("line", "text", "field", "reason"),
+    [
+        (1, "gaze_timestamp,world_index,norm_pos_x,norm_pos_y", "confidence", "missing column"),
+        (3, "329.383123,12,0.97,0.25,high,x,,,,,,,,,,,,,,,", "norm_pos_y", "expected a number"),
+        (3, "329.383123,12,1.7,0.25,0.75,x,,,,,,,,,,,,,,,", "confidence", "[0, 1]"),
+        (3, "t+1,12,0.97,0.25,0.75,x,,,,,,,,,,,,,,,", "gaze_timestamp", "seconds"),
+        (3, "329.0,12,0.97,0.25,0.75,x,,,,,,,,,,,,,,,", "gaze_timestamp", "goes back"),
+        (3, "329.383123,12,0.97,0.25", None, "4 fields; the header names 21"),
+    ],
+)
+def test_pupil_malformed_rows_name_line_and_field(
+    tmp_path: Path, line: int, text: str, field: str | None, reason: str
+) -> None:
+    path = corrupt(tmp_path, "gaze_positions.csv", line, text)
+    with pytest.raises(FormatError, match=reason) as info:
+        read_pupil_gaze_csv(path)
+    assert_names(info.value, path, line, field)
+
+
+def test_pupil_old_timestamp_column(tmp_path: Path) -> None:
+    path = tmp_path / "gaze_positions.csv"
+    path.write_text("timestamp,index,confidence,norm_pos_x,norm_pos_y\n1.5,0,0.9,0.5,0.25\n")
+    log = read_pupil_gaze_csv(path)
+    assert xyv(log) == [(1_500_000_000, 960.0, 810.0, True)]
+
+
+# --- Tobii TSV --------------------------------------------------------------------------------
+
+
+def test_tobii_pygaze() -> None:
+    log = read_tobii_tsv(DATA / "tobii_pygaze.tsv")
+    ms = 1_000_000
+    assert approx_rows(xyv(log)) == approx_rows([
+        (0, 960.4, 532.2, True),
+        (16_700_000, 961.0, 533.0, True),
+        (33_300_000, 972.0, 536.0, True),  # left code 4 (-1.0): the right eye (code 1)
+        (50_000_000, None, None, False),  # both 4
+        (66_700_000, None, None, False),  # both 2: Tobii says drop codes >= 2
+        (83_300_000, 958.0, 530.0, True),
+        (100 * ms, 510.0, 305.0, True),  # block 2 restarts at 0: placed 16.7 ms on
+        (116_700_000, 511.0, 306.0, True),
+    ])  # fmt: skip
+    assert math.isnan(log.samples[2].left.x) and log.samples[2].right == EyeSample(972.0, 536.0)
+    assert [n.t_ns for n in log.notes] == [20_100_000, 70_500_000, 100 * ms, 105_200_000]
+    assert [n.text for n in log.notes[:2]] == ["trial 1 start", "key space"]
+    assert log.notes[3].text == "trial 2 start"
+    assert "block 2 restarts its clock at 0" in log.notes[2].text
+    screen = log.header.screen
+    assert (screen.screen_width_px, screen.screen_height_px) == (1920, 1080)
+    assert screen.screen_diagonal_m == pytest.approx(math.hypot(0.53, 0.30))
+    assert screen.viewing_distance_m == pytest.approx(0.57)
+    assert log.header.tracker["writer"] == "PyGaze libtobii"
+
+
+def test_tobii_psychopy_controller_height_units() -> None:
+    log = read_tobii_tsv(DATA / "tobii_ptc.tsv", units="height")
+    assert approx_rows(xyv(log)) == approx_rows([
+        (0, 960.0, 529.2, True),
+        (8_300_000, 957.84, 531.36, True),
+        (16_700_000, 970.8, 538.92, True),
+        (25_000_000, None, None, False),
+        (33_300_000, 1186.8, 658.8, True),
+    ])  # fmt: skip
+    first = log.samples[0]
+    assert (first.left.x, first.left.y, first.left.pupil_mm) == pytest.approx((949.2, 518.4, 3.12))
+    assert (first.right.x, first.right.y, first.right.pupil_mm) == pytest.approx(
+        (970.8, 540.0, 3.08)
+    )
+    assert log.samples[2].left.pupil_mm is None and math.isnan(log.samples[2].left.x)
+    assert log.notes == [Note(12_500_000, "space")]
+    assert log.header.tracker["units"] == "height"
+
+
+@pytest.mark.parametrize(
+    ("units", "x", "y"), [("pix", -10.0, 20.0), ("norm", -0.5, 0.5), ("height", 0.25, -0.25)]
+)
+def test_tobii_psychopy_units_and_embedded_events(
+    tmp_path: Path, units: str, x: float, y: float
+) -> None:
+    header = (
+        "TimeStamp\tGazePointXLeft\tGazePointYLeft\tPupilLeft\tValidityLeft\tGazePointXRight"
+        "\tGazePointYRight\tPupilRight\tValidityRight\tGazePointX\tGazePointY\tEvent"
+    )
+    row = f"{x:.4f}\t{y:.4f}\t3.0000\t1\tnan\tnan\tnan\t0\t{x:.4f}\t{y:.4f}"
+    path = tmp_path / "e.tsv"
+    path.write_text(
+        "Recording date:\t2024/03/06\nRecording time:\t10:01:02\n"
+        "Recording resolution:\t800 x 600\nEvent recording mode:\tEmbedded\n\n"
+        f"Session Start\n{header}\n0.0\t{row}\t\n5.0\t{row}\tflash on\n10.0\t{row}\t\n"
+        "Session End\n\n"
+    )
+    log = read_tobii_tsv(path, units=units)
+    want = {"pix": (390.0, 280.0), "norm": (200.0, 150.0), "height": (550.0, 450.0)}[units]
+    assert [(s.t_ns, s.x, s.y) for s in log.samples] == [
+        (0, *want),
+        (10_000_000, *want),  # the event row's interpolated gaze is not a sample
+    ]
+    assert log.notes == [Note(5_000_000, "flash on")]
+
+
+@pytest.mark.parametrize(
+    ("name", "line", "text", "field", "reason"),
+    [
+        ("tobii_pygaze.tsv", 24, "16.7\t951.0\t531.0\t7\t971.0\t535.0\t0\t0.5\t0.4\t",
+         "ValidityLeft", "validity code 0-4"),
+        ("tobii_pygaze.tsv", 24, "16.7\t951.0\tmiddle\t0\t971.0\t535.0\t0\t0.5\t0.4\t",
+         "GazePointYLeft", "expected a number"),
+        ("tobii_pygaze.tsv", 24, "16,7\t951.0\t531.0\t0\t971.0\t535.0\t0\t0.5\t0.4\t", "TimeStamp",
+         "expected a time in ms"),
+        ("tobii_pygaze.tsv", 24, "16.7\t951.0\t531.0\t0", None, "4 fields; the header names 10"),
+        ("tobii_pygaze.tsv", 26, "10.0\t-1.0\t-1.0\t4\t-1.0\t-1.0\t4\t-1.0\t-1.0\t", "TimeStamp",
+         "goes back"),
+        ("tobii_pygaze.tsv", 22, "TimeStamp\tLeftX\tLeftY", "TimeStamp", "unrecognised columns"),
+        ("tobii_ptc.tsv", 10, "16.7\tnan\tnan\tnan\t0\t0.0100\t0.0010\t3.1000\t2\t0.0100\t0.0010",
+         "ValidityRight", "validity code 0-1"),
+    ],
+)  # fmt: skip
+def test_tobii_malformed_rows_name_line_and_field(
+    tmp_path: Path, name: str, line: int, text: str, field: str | None, reason: str
+) -> None:
+    path = corrupt(tmp_path, name, line, text)
+    with pytest.raises(FormatError, match=reason) as info:
+        read_tobii_tsv(path, units="height")
+    assert_names(info.value, path, line, field)
+
+
+def test_tobii_psychopy_needs_units() -> None:
+    path = DATA / "tobii_ptc.tsv"
+    with pytest.raises(FormatError, match="--units pix") as info:
+        read_tobii_tsv(path)
+    assert_names(info.value, path, 8, "GazePointXLeft")
+
+
+# --- BIDS -------------------------------------------------------------------------------------
+
+
+def bids_copy(tmp_path: Path, edit: tuple[str, int, str] | None = None) -> Path:
+    """The BIDS fixture with its TSVs gzipped, as BIDS requires (the repo keeps them as text).
+
+    `edit` = (file, line, text) replaces one line of a TSV first.
+    """
+    root = tmp_path / "bids"
+    shutil.copytree(DATA / "bids", root)
+    if edit:
+        target, line, text = edit
+        lines = (root / target).read_text().splitlines()
+        lines[line - 1] = text
+        (root / target).write_text("\n".join(lines) + "\n")
+    for tsv in root.rglob("*.tsv"):
+        with tsv.open("rb") as src, gzip.open(f"{tsv}.gz", "wb") as dst:
+            dst.write(src.read())
+        tsv.unlink()
+    return root
+
+
+EYE1 = "sub-01/beh/sub-01_task-freeview_recording-eye1_physio"
+EYE2 = "sub-01/beh/sub-01_task-freeview_recording-eye2_physio"
+
+
+def test_bids_binocular_eyelink_style_dataset(tmp_path: Path) -> None:
+    root = bids_copy(tmp_path)
+    log = read_bids(root / f"{EYE2}.tsv.gz")  # any file of the set names the set
+    ms = 1_000_000
+    assert approx_rows(xyv(log)) == approx_rows([
+        (7186799 * ms, 423.195, 268.695, True),  # mean of the two recordings
+        (7186801 * ms, 423.1, 270.0, True),
+        (7186803 * ms, 431.0, 272.0, True),  # left n/a: the right eye
+        (7186805 * ms, 415.79, 264.6, True),  # right n/a: the left eye
+        (7186807 * ms, 424.145, 269.1, True),
+    ])  # fmt: skip
+    s = log.samples[2]
+    assert math.isnan(s.left.x) and s.right == EyeSample(431.0, 272.0)
+    assert s.right.pupil_mm is None  # pupil_size in a.u.: not millimetres, not kept
+    assert events(log) == [
+        ("fixation_start", 1, 7186799 * ms, None, None, None, "left"),
+        ("fixation_start", 2, 7186799 * ms, None, None, None, "right"),
+        ("fixation_end", 1, 7186803 * ms, None, None, 4 * ms, "left"),
+        ("blink_start", 1, 7186803 * ms, None, None, None, "left"),  # saccade with blink = 1
+        ("fixation_end", 2, 7186805 * ms, None, None, 6 * ms, "right"),
+        ("blink_end", 1, 7186805 * ms, None, None, 2 * ms, "left"),
+        ("fixation_start", 3, 7186805 * ms, None, None, None, "left"),
+        ("fixation_end", 3, 7186809 * ms, None, None, 4 * ms, "left"),
+    ]
+    # the two eyes' files repeat the device messages: kept once, quotes removed
+    assert log.notes == [
+        Note(7184392 * ms, "RECCFG CR 500 2 1 LR"),
+        Note(7186771 * ms, "First task trigger"),
+    ]
+    screen = log.header.screen  # from task-freeview_events.json, inherited from the root
+    assert (screen.screen_width_px, screen.screen_height_px) == (1280, 1024)
+    assert screen.screen_diagonal_m == pytest.approx(math.hypot(0.376, 0.301))
+    assert screen.viewing_distance_m == pytest.approx(0.6)  # "60": centimetres
+    assert log.header.tracker["DeviceSerialNumber"] == "CLG-BAF38"  # root sidecar, inherited
+    assert log.header.tracker["eyes"] == ["left", "right"]
+    assert read_bids(root / "sub-01" / "beh").samples == log.samples  # the directory works too
+
+
+def test_bids_timestamp_unit_inferred_and_bottom_left(tmp_path: Path) -> None:
+    root = bids_copy(tmp_path)
+    side = root / "task-freeview_physio.json"
+    data = json.loads(side.read_text())
+    del data["timestamp"]["Units"]  # eye2bids writes none: 2-unit steps at 500 Hz are ms
+    data["EnvironmentCoordinates"] = "bottom-left"
+    side.write_text(json.dumps(data))
+    log = read_bids(root / f"{EYE1}.tsv.gz")
+    assert log.samples[0].t_ns == 7186799 * 1_000_000
+    assert log.samples[0].left.y == pytest.approx(1024 - 267.39)
+    data["SamplingFrequency"] = 7
+    side.write_text(json.dumps(data))
+    with pytest.raises(FormatError, match="fits none of s, ms, us, ns") as info:
+        read_bids(root / f"{EYE1}.tsv.gz")
+    assert info.value.field == "timestamp.Units"
+
+
+@pytest.mark.parametrize(
+    ("target", "line", "text", "field", "reason"),
+    [
+        (f"{EYE1}.tsv", 2, "7186801\t416.20\tabc\t4623.0", "y_coordinate", "number or n/a"),
+        (f"{EYE1}.tsv", 2, "7186801\t416.20\t269.00", None, "3 fields; the sidecar's Columns"),
+        (f"{EYE1}.tsv", 2, "soon\t416.20\t269.00\t4623.0", "timestamp", "expected a number"),
+        (f"{EYE1}.tsv", 3, "7186790\t416.20\t269.00\t4623.0", "timestamp", "goes back"),
+        (f"{EYE1}events.tsv", 3, "7186799\tlong\tfixation\t0\tn/a", "duration", "number or n/a"),
+        (f"{EYE1}events.tsv", 3, "first\t4\tfixation\t0\tn/a", "onset", "expected a number"),
+    ],
+)
+def test_bids_malformed_rows_name_file_line_and_field(
+    tmp_path: Path, target: str, line: int, text: str, field: str | None, reason: str
+) -> None:
+    root = bids_copy(tmp_path, (target, line, text))
+    with pytest.raises(FormatError, match=reason) as info:
+        read_bids(root / f"{EYE1}.tsv.gz")
+    assert_names(info.value, root / f"{target}.gz", line, field)
+
+
+@pytest.mark.parametrize(
+    ("change", "field", "reason"),
+    [
+        ({"Columns": None}, "Columns", "required"),
+        ({"Columns": ["timestamp", "x", "y", "p"]}, "Columns", "no 'x_coordinate'"),
+        ({"PhysioType": "generic"}, "PhysioType", "expected 'eyetrack'"),
+        ({"SampleCoordinateUnits": "deg"}, "SampleCoordinateUnits", "screen pixels"),
+        ({"timestamp": {"Units": "fortnight"}}, "timestamp.Units", "supported"),
+        ({"RecordedEye": "both"}, "RecordedEye", "left, right or cyclopean"),
+    ],
+)
+def test_bids_sidecar_errors_name_the_field(
+    tmp_path: Path, change: dict, field: str, reason: str
+) -> None:
+    root = bids_copy(tmp_path)
+    side = root / f"{EYE1}.json"
+    side.write_text(json.dumps({**json.loads(side.read_text()), **change}))
+    with pytest.raises(FormatError, match=reason) as info:
+        read_bids(root / f"{EYE1}.tsv.gz")
+    assert info.value.field == field
+    assert info.value.path == str(side)
+
+
+def native_log() -> SessionLog:
+    """A log with everything BIDS can carry: both eyes, pupils, events, notes, settings."""
+    header = SessionHeader(
+        tracker={"name": "hid eye tracker", "model": "ET-1", "manufacturer": "Acme"},
+        screen=ScreenGeometry(0.55, 1920, 1080, 0.65),
+        clock=ClockInfo("monotonic_ns", -12_345, 800),
+        created="2024-06-01T08:00:00.000+00:00",
+    )
+    log = SessionLog(header)
+    t0 = 1_234_567_890_123
+    for i in range(12):
+        t = t0 + i * 4_166_667  # 240 Hz, not a whole number of µs
+        if i in (5, 6):
+            log.add(GazeSample(t, NAN, NAN, False, EyeSample(NAN, NAN), EyeSample(NAN, NAN)))
+        elif i == 8:
+            log.add(
+                GazeSample(
+                    t, 800.5, 400.25, True, EyeSample(NAN, NAN), EyeSample(800.5, 400.25, 3.75)
+                )
+            )
+        else:
+            left = EyeSample(790.0 + i / 3, 395.0 - i / 7, 3.5 + i / 100)
+            right = EyeSample(810.0 + i / 3, 405.0 - i / 7, 3.6 + i / 100)
+            log.add(GazeSample(t, 800.0 + i / 3, 400.0 - i / 7, True, left, right))  # fmt: skip
+    for e in [
+        GazeEvent("fixation_start", 1, t0, 790.0, 395.0, 0, 0.0),
+        GazeEvent("fixation_update", 1, t0 + 8_333_334, 800.1, 400.1, 8_333_334, 0.05),
+        GazeEvent("fixation_end", 1, t0 + 16_666_668, 800.2, 399.9, 16_666_668, 0.07),
+        GazeEvent("blink_start", 2, t0 + 5 * 4_166_667, duration_ns=8_333_334),
+        GazeEvent("blink_end", 2, t0 + 7 * 4_166_667, duration_ns=8_333_334),
+        GazeEvent("fixation_start", 3, t0 + 30_000_000, eye="right"),
+        GazeEvent("fixation_end", 3, t0 + 40_000_000, 801.0, 402.0, 10_000_000, 0.1, "right"),
+        GazeEvent("fixation_start", 4, t0 + 45_000_000),  # still going when the log ends
+    ]:
+        log.add(e)
+    log.add(SceneChange(t0 - 1_000, "checker-night"))
+    log.add(ParamsChange(t0 - 1_000, {"a1": 0.25, "preset": "paper"}))
+    log.add(Note(t0 + 1, 'said "now"\tand\nwaited'))
+    log.add(ClockUpdate(t0 + 2, -12_300, 600))
+    return log
+
+
+def comparable(log: SessionLog) -> dict:
+    def eye(e: EyeSample | None) -> tuple | None:
+        return None if e is None else (repr(e.x), repr(e.y), e.pupil_mm)
+
+    return {
+        "header": log.header,
+        "samples": [
+            (s.t_ns, repr(s.x), repr(s.y), s.valid, eye(s.left), eye(s.right)) for s in log.samples
+        ],
+        "scenes": log.scenes,
+        "params": log.params,
+        "notes": log.notes,
+        "clocks": log.clocks,
+    }
+
+
+def test_native_bids_native_round_trip(tmp_path: Path) -> None:
+    log = native_log()
+    written = write_bids(log, tmp_path / "out", prefix="sub-07_ses-1_task-hdr")
+    names = sorted(p.name for p in written)
+    assert names == sorted(
+        f"sub-07_ses-1_task-hdr_recording-{eye}_{kind}{ext}"
+        for eye in ("eye1", "eye2", "eye3")
+        for kind in ("physio", "physioevents")
+        for ext in (".tsv.gz", ".json")
+    )
+    side = json.loads(
+        (tmp_path / "out/sub-07_ses-1_task-hdr_recording-eye1_physio.json").read_text()
+    )
+    assert side["RecordedEye"] == "left" and side["Columns"][:3] == [
+        "timestamp",
+        "x_coordinate",
+        "y_coordinate",
+    ]
+    assert side["SamplingFrequency"] == pytest.approx(240, rel=1e-6)
+    assert side["Manufacturer"] == "Acme"
+    with gzip.open(tmp_path / "out/sub-07_ses-1_task-hdr_recording-eye3_physio.tsv.gz", "rt") as f:
+        first = f.readline().rstrip("\n").split("\t")
+    assert first == ["1234567890123", "800.0", "400.0"]  # header-less, cyclopean, ns
+
+    back = read_bids(tmp_path / "out/sub-07_ses-1_task-hdr_recording-eye2_physio.tsv.gz")
+    assert comparable(back) == comparable(log)
+    # fixations and blinks come back as start/end pairs; updates and start positions do not
+    assert events(back) == [
+        ("fixation_start", 1, log.events[0].t_ns, None, None, None, None),
+        ("fixation_end", 1, log.events[2].t_ns, 800.2, 399.9, 16_666_668, None),
+        ("blink_start", 1, log.events[3].t_ns, None, None, None, None),
+        ("blink_end", 1, log.events[4].t_ns, None, None, 8_333_334, None),
+        ("fixation_start", 2, log.events[5].t_ns, None, None, None, "right"),
+        ("fixation_end", 2, log.events[6].t_ns, 801.0, 402.0, 10_000_000, "right"),
+        ("fixation_start", 3, log.events[7].t_ns, None, None, None, None),
+    ]
+    assert [e.dispersion_deg for e in back.events if e.kind == "fixation_end"] == [0.07, 0.1]
+
+
+def test_round_trip_without_per_eye_data_and_reproducible_gzip(tmp_path: Path) -> None:
+    log = native_log()
+    log.samples = [GazeSample(s.t_ns, s.x, s.y, s.valid) for s in log.samples]
+    log.events = [e for e in log.events if e.eye is None]
+    first = write_bids(log, tmp_path / "a")
+    assert [p.name for p in first][:2] == [
+        "sub-01_task-gazehdr_recording-eye1_physio.tsv.gz",
+        "sub-01_task-gazehdr_recording-eye1_physio.json",
+    ]
+    assert len(first) == 4
+    back = read_bids(first[0])
+    assert comparable(back) == comparable(log)
+    second = write_bids(log, tmp_path / "b")
+    assert [p.read_bytes() for p in first] == [p.read_bytes() for p in second]
+    with pytest.raises(FileExistsError):
+        write_bids(log, tmp_path / "a")
+    write_bids(log, tmp_path / "a", overwrite=True)
+    with pytest.raises(ValueError, match="recording entity"):
+        write_bids(log, tmp_path / "c", prefix="sub-01_recording-x")
+    with pytest.raises(ValueError, match="BIDS entities"):
+        write_bids(log, tmp_path / "c", prefix="subject one")
+
+
+# --- dispatch and the command lines -----------------------------------------------------------
+
+
+def test_detect_format(tmp_path: Path) -> None:
+    assert detect_format(DATA / "eyelink_mono.asc") == "eyelink"
+    assert detect_format(DATA / "gaze_positions.csv") == "pupil"
+    assert detect_format(DATA / "tobii_pygaze.tsv") == "tobii"
+    assert detect_format(DATA / "tobii_ptc.tsv") == "tobii"
+    assert detect_format(Path("x/sub-01_task-a_recording-eye1_physio.tsv.gz")) == "bids"
+    assert detect_format(DATA / "bids") == "bids"
+    other = tmp_path / "other.tsv"
+    other.write_text("a\tb\n")
+    with pytest.raises(ValueError, match="--format"):
+        detect_format(other)
+    with pytest.raises(ValueError, match="unknown format"):
+        import_recording(DATA / "eyelink_mono.asc", "edf")
+
+
+def test_import_and_export_command_lines(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "s01.jsonl"
+    assert (
+        import_main([str(DATA / "eyelink_mono.asc"), "--out", str(out), "--distance", "0.7"]) == 0
+    )
+    assert "15 samples (4 invalid), 8 events, 7 notes, screen 1280x1024" in capsys.readouterr().out
+    log = read_session_log(out)
+    assert log.header.screen == ScreenGeometry(0.6, 1280, 1024, 0.7)
+    assert len(log.samples) == 15 and log.samples[0].t_ns == 2_154_556_000_000
+    assert log.track().at(0.0) == (640.2 / 1280, 512.4 / 1024, True)
+    with pytest.raises(FileExistsError):
+        import_main([str(DATA / "eyelink_mono.asc"), "--out", str(out)])
+    assert import_main([str(DATA / "tobii_ptc.tsv"), "--out", str(out), "--overwrite",
+                        "--units", "pix"]) == 0  # fmt: skip
+    pupil = tmp_path / "p.jsonl"
+    assert import_main([str(DATA / "gaze_positions.csv"), "--out", str(pupil), "--screen",
+                        "1280x720", "--min-confidence", "0.9"]) == 0  # fmt: skip
+    assert sum(s.valid for s in read_session_log(pupil).samples) == 4
+    with pytest.raises(SystemExit):
+        import_main([str(DATA / "gaze_positions.csv"), "--out", str(pupil), "--screen", "big"])
+
+    assert (
+        export_main([str(out), "--out", str(tmp_path / "bids"), "--prefix", "sub-02_task-x"]) == 0
+    )
+    printed = capsys.readouterr().out
+    assert "wrote 12 files" in printed
+    back = import_recording(tmp_path / "bids" / "sub-02_task-x_recording-eye3_physio.tsv.gz")
+    assert len(back.samples) == len(read_session_log(out).samples)

@@ -1,0 +1,417 @@
+"""The native session log: round trip, crash safety, errors that name file/line/field, replay."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from drivers.sessionlog import (
+    ClockInfo,
+    ClockUpdate,
+    FormatError,
+    GazeEvent,
+    Note,
+    ParamsChange,
+    SceneChange,
+    SessionHeader,
+    SessionLog,
+    SessionLogReader,
+    SessionLogWriter,
+    read_session_log,
+    read_session_track,
+    write_session_log,
+)
+
+SCREEN = ScreenGeometry(0.6, 1000, 500, 0.8)
+
+
+def header() -> SessionHeader:
+    return SessionHeader(
+        tracker={"name": "test tracker", "serial": "T-1"},
+        screen=SCREEN,
+        clock=ClockInfo("monotonic_ns", 1_500, 250),
+        created="2024-05-01T12:00:00.000+00:00",
+    )
+
+
+def same_sample(a: GazeSample, b: GazeSample) -> bool:
+    """Equality that treats NaN as equal to NaN (invalid samples, lost eyes)."""
+
+    def eq(u: object, v: object) -> bool:
+        if isinstance(u, float) and isinstance(v, float) and math.isnan(u) and math.isnan(v):
+            return True
+        return u == v
+
+    def eye_eq(u: EyeSample | None, v: EyeSample | None) -> bool:
+        if u is None or v is None:
+            return u is v
+        return eq(u.x, v.x) and eq(u.y, v.y) and eq(u.pupil_mm, v.pupil_mm)
+
+    return (
+        a.t_ns == b.t_ns
+        and a.valid == b.valid
+        and eq(a.x, b.x)
+        and eq(a.y, b.y)
+        and eye_eq(a.left, b.left)
+        and eye_eq(a.right, b.right)
+    )
+
+
+def same_event(a: GazeEvent, b: GazeEvent) -> bool:
+    return (
+        (a.kind, a.id, a.t_ns, a.duration_ns, a.dispersion_deg, a.eye)
+        == (b.kind, b.id, b.t_ns, b.duration_ns, b.dispersion_deg, b.eye)
+        and (a.x == b.x or (math.isnan(a.x) and math.isnan(b.x)))
+        and (a.y == b.y or (math.isnan(a.y) and math.isnan(b.y)))
+    )
+
+
+SAMPLES = [
+    GazeSample(1_000_000_000, 500.25, 250.125),
+    GazeSample(1_016_666_667, 501.0, 251.5, left=EyeSample(490.0, 250.0, 3.25),
+               right=EyeSample(512.0, 253.0, 3.5)),
+    GazeSample(1_033_333_333, math.nan, math.nan, False),
+    GazeSample(1_050_000_000, 620.0, 100.0, left=EyeSample(math.nan, math.nan),
+               right=EyeSample(620.0, 100.0)),
+    GazeSample(1_066_666_667, 0.1 + 0.2, 1e-300),  # floats survive exactly
+]  # fmt: skip
+EVENTS = [
+    GazeEvent("fixation_start", 1, 1_000_000_000, 500.0, 250.0, 0, 0.0),
+    GazeEvent("fixation_update", 1, 1_016_666_667, 500.5, 250.5, 16_666_667, 0.01),
+    GazeEvent("fixation_end", 1, 1_016_666_667, 500.5, 250.75, 16_666_667, 0.0125),
+    GazeEvent("blink_start", 2, 1_033_333_333),
+    GazeEvent("blink_end", 2, 1_050_000_000, duration_ns=16_666_667, eye="left"),
+]
+
+
+def write_example(path: Path) -> None:
+    with SessionLogWriter(path, header()) as w:
+        w.scene(999_000_000, "lamp")
+        w.params(999_000_000, {"a1": 0.2, "preset": "paper", "nested": {"n": [1, 2]}})
+        for s, e in zip(SAMPLES, EVENTS, strict=True):
+            w.write(s)
+            w.write(e)
+        w.note(1_070_000_000, 'subject blinked \u2014 twice "quoted"\nsecond line')
+        w.clock(1_070_000_001, 1_600, 200)
+
+
+def test_round_trip_every_record_kind(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    log = read_session_log(path)
+    assert log.header == header()
+    assert not log.truncated and log.truncated_line is None
+    assert len(log.samples) == len(SAMPLES)
+    assert all(same_sample(a, b) for a, b in zip(log.samples, SAMPLES, strict=True))
+    assert all(same_event(a, b) for a, b in zip(log.events, EVENTS, strict=True))
+    assert log.scenes == [SceneChange(999_000_000, "lamp")]
+    assert log.params == [
+        ParamsChange(999_000_000, {"a1": 0.2, "preset": "paper", "nested": {"n": [1, 2]}})
+    ]
+    assert log.notes == [Note(1_070_000_000, 'subject blinked \u2014 twice "quoted"\nsecond line')]
+    assert log.clocks == [ClockUpdate(1_070_000_001, 1_600, 200)]
+    # and in memory → file → memory again gives the same file
+    again = tmp_path / "again.jsonl"
+    write_session_log(again, log)
+    log2 = read_session_log(again)
+    assert all(same_sample(a, b) for a, b in zip(log2.samples, SAMPLES, strict=True))
+    assert [r.t_ns for r in log2.records()] == sorted(r.t_ns for r in log.records())
+
+
+def test_file_layout_is_the_documented_one(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    assert json.loads(lines[0]) == {
+        "format": "gazehdr-session",
+        "version": 1,
+        "created": "2024-05-01T12:00:00.000+00:00",
+        "tracker": {"name": "test tracker", "serial": "T-1"},
+        "screen": {
+            "screen_diagonal_m": 0.6,
+            "screen_width_px": 1000,
+            "screen_height_px": 500,
+            "viewing_distance_m": 0.8,
+        },
+        "clock": {"source": "monotonic_ns", "offset_ns": 1500, "offset_uncertainty_ns": 250},
+    }
+    records = [json.loads(line) for line in lines[1:]]
+    assert records[2] == {"k": "s", "t": 1_000_000_000, "v": 1, "x": 500.25, "y": 250.125}
+    assert records[4] == {
+        "k": "s",
+        "t": 1_016_666_667,
+        "v": 1,
+        "x": 501.0,
+        "y": 251.5,
+        "l": [490.0, 250.0, 3.25],
+        "r": [512.0, 253.0, 3.5],
+    }
+    assert records[6] == {"k": "s", "t": 1_033_333_333, "v": 0}
+    assert records[8]["l"] is None  # a lost eye
+    assert records[9] == {"k": "blink_start", "id": 2, "t": 1_033_333_333}
+    assert records[7]["k"] == "fixation_end" and records[7]["dispersion"] == 0.0125
+    assert records[5]["k"] == "fixation_update"
+    assert all(line.count("\n") == 0 for line in lines)  # one record per line
+
+
+def test_writer_accepts_the_detectors_events(tmp_path: Path) -> None:
+    fixations = pytest.importorskip("drivers.fixations")
+    event = fixations.Event("fixation_end", 4, 2_000, 10.0, 20.0, 1_500, 0.3)
+    blink = fixations.Event("blink_start", 5, 3_000, math.nan, math.nan, 100)
+    path = tmp_path / "s.jsonl"
+    with SessionLogWriter(path, header()) as w:
+        w.write(event)
+        w.write(blink)
+    log = read_session_log(path)
+    assert same_event(log.events[0], GazeEvent("fixation_end", 4, 2_000, 10.0, 20.0, 1_500, 0.3))
+    assert same_event(log.events[1], GazeEvent("blink_start", 5, 3_000, duration_ns=100))
+
+
+def test_each_record_is_flushed_before_close(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    w = SessionLogWriter(path, header())
+    w.write(SAMPLES[0])
+    w.write(EVENTS[0])
+    # another reader sees both while the writer is still open (no buffering in the writer)
+    with SessionLogReader(path) as reader:
+        assert len(list(reader)) == 2
+    w.close()
+    w.close()  # idempotent
+    with pytest.raises(ValueError, match="closed"):
+        w.write(SAMPLES[1])
+
+
+def test_fsync_every_n_records_and_on_close(tmp_path: Path, monkeypatch) -> None:
+    calls = []
+    monkeypatch.setattr("drivers.sessionlog.os.fsync", lambda fd: calls.append(fd))
+    with SessionLogWriter(tmp_path / "s.jsonl", header(), fsync_every=2) as w:
+        assert len(calls) == 1  # the header
+        for s in SAMPLES:
+            w.write(s)
+        assert len(calls) == 1 + len(SAMPLES) // 2
+    assert len(calls) == 2 + len(SAMPLES) // 2  # and on close
+    with pytest.raises(ValueError, match="fsync_every"):
+        SessionLogWriter(tmp_path / "t.jsonl", header(), fsync_every=0)
+
+
+def test_refuses_to_overwrite_unless_asked(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    before = path.read_bytes()
+    with pytest.raises(FileExistsError, match="already exists"):
+        SessionLogWriter(path, header())
+    assert path.read_bytes() == before
+    with SessionLogWriter(path, header(), overwrite=True) as w:
+        w.write(SAMPLES[0])
+    assert len(read_session_log(path).samples) == 1
+
+
+def test_sample_times_must_not_go_back(tmp_path: Path) -> None:
+    with SessionLogWriter(tmp_path / "s.jsonl", header()) as w:
+        w.write(GazeSample(10, 1.0, 1.0))
+        w.write(GazeEvent("fixation_end", 1, 5, 1.0, 1.0))  # events may lag behind samples
+        with pytest.raises(ValueError, match="goes back"):
+            w.write(GazeSample(9, 1.0, 1.0))
+
+
+# --- crash safety -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cut", [1, 7, -2])
+def test_crash_mid_line_keeps_everything_before(tmp_path: Path, cut: int) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    data = path.read_bytes()
+    lines = data.splitlines(keepends=True)
+    # cut the file inside line 9 (an event), as a crash mid-write would
+    offset = sum(len(line) for line in lines[:8]) + (cut if cut > 0 else len(lines[8]) + cut)
+    path.write_bytes(data[:offset])
+    log = read_session_log(path)
+    assert log.truncated and log.truncated_line == 9
+    whole = [json.loads(line) for line in lines[1:8]]  # lines 2-8 read back, nothing else
+    assert [r.t_ns for r in log.records()] == sorted(r["t"] for r in whole)
+    assert len(log.samples) == 3 and same_sample(log.samples[2], SAMPLES[2])
+
+
+def test_crash_leaving_nul_bytes_is_a_truncation(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    with path.open("ab") as f:
+        f.write(b'{"k":"s","t":2000000000,"v"' + b"\x00" * 300)
+    log = read_session_log(path)
+    assert log.truncated and len(log.samples) == len(SAMPLES)
+    path.write_bytes(path.read_bytes().split(b'{"k":"s","t":2000000000')[0] + b"\x00" * 64 + b"\n")
+    assert read_session_log(path).truncated
+
+
+def test_cut_at_a_line_end_is_not_a_truncation(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    path.write_bytes(path.read_bytes()[:-1])  # the last newline only
+    log = read_session_log(path)
+    assert not log.truncated and log.clocks == [ClockUpdate(1_070_000_001, 1_600, 200)]
+
+
+def test_a_cut_header_is_a_clear_error(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    path.write_bytes(b'{"format":"gazehdr-session","vers')
+    with pytest.raises(FormatError, match=r"s\.jsonl:1: header is not JSON \(cut short"):
+        read_session_log(path)
+    path.write_bytes(b"")
+    with pytest.raises(FormatError, match="empty file"):
+        read_session_log(path)
+
+
+# --- malformed input --------------------------------------------------------------------------
+
+
+def replace_line(path: Path, number: int, text: str) -> None:
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+    lines[number - 1] = text + "\n"
+    path.write_text("".join(lines), encoding="utf-8")
+
+
+@pytest.mark.parametrize(
+    ("line", "text", "field", "reason"),
+    [
+        (4, '{"k":"s","t":1000000000,"v":1,"x":"500","y":1}', "x", "must be a number"),
+        (4, '{"k":"s","t":1.5,"v":1,"x":1,"y":1}', "t", "must be an integer"),
+        (4, '{"k":"s","t":1000000000,"v":true,"x":1,"y":1}', "v", "must be 1"),
+        (4, '{"k":"s","t":1000000000,"v":1,"y":1}', "x", "missing"),
+        (4, '{"k":"s","t":1000000000,"v":0,"x":1,"y":1}', "x", "invalid sample"),
+        (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"l":[1]}', "l", "[x, y]"),
+        (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"z":0}', "z", "unknown field"),
+        (4, '{"k":"saccade","t":1000000000}', "k", "unknown record kind"),
+        (5, '{"k":"fixation_start","id":-1,"t":1}', "id", "at least 0"),
+        (5, '{"k":"fixation_end","id":1,"t":1,"x":2}', "y", "both x and y"),
+        (5, '{"k":"blink_end","id":1,"t":1,"eye":"both"}', "eye", "'left' or 'right'"),
+        (2, '{"k":"scene","t":1,"name":7}', "name", "must be a string"),
+        (3, '{"k":"params","t":1,"values":[1]}', "values", "must be an object"),
+        (4, '{"k":"s","t":1000000000,"v":1,"x":NaN,"y":1}', None, "not a JSON record"),
+        (4, '{"k":"s","t":1000000000,"v":1,', None, "not a JSON record"),
+        (4, "[1, 2]", None, "a record is a JSON object"),
+        (6, '{"k":"s","t":5,"v":1,"x":1,"y":1}', "t", "goes back"),
+    ],
+)
+def test_malformed_line_in_the_middle_names_file_line_and_field(
+    tmp_path: Path, line: int, text: str, field: str | None, reason: str
+) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    replace_line(path, line, text)
+    with pytest.raises(FormatError) as info:
+        read_session_log(path)
+    err = info.value
+    assert (err.path, err.line, err.field) == (str(path), line, field)
+    assert str(err).startswith(f"{path}:{line}: ")
+    assert reason in str(err)
+    if field:
+        assert f"field '{field}'" in str(err)
+
+
+def test_a_whole_but_malformed_last_line_is_an_error_not_a_truncation(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    with path.open("a", encoding="utf-8") as f:
+        f.write('{"k":"s","t":2000000000,"v":1,"x":1\n')
+    with pytest.raises(FormatError, match=r":16: not a JSON record"):
+        read_session_log(path)
+
+
+@pytest.mark.parametrize(
+    ("change", "field", "reason"),
+    [
+        ({"format": "other"}, "format", "not a gazehdr session log"),
+        ({"version": 2}, "version", "this reader reads version 1"),
+        ({"screen": {"screen_width_px": 10}}, "screen", "exactly"),
+        ({"clock": {"source": "x", "offset_ns": "1"}}, "clock.offset_ns", "integer"),
+        ({"extra": 1}, "extra", "unknown field"),
+    ],
+)
+def test_header_errors_name_the_field(
+    tmp_path: Path, change: dict, field: str, reason: str
+) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    head = {**header().to_json(), **change}
+    replace_line(path, 1, json.dumps(head))
+    with pytest.raises(FormatError, match=reason) as info:
+        read_session_log(path)
+    assert (info.value.line, info.value.field) == (1, field)
+
+
+# --- replay as a gaze track -------------------------------------------------------------------
+
+
+def test_track_steps_normalises_and_closes_the_eyes(tmp_path: Path) -> None:
+    log = SessionLog(header())
+    for s in [
+        GazeSample(5_000_000_000, 100.0, 50.0),
+        GazeSample(5_010_000_000, 200.0, 100.0),
+        GazeSample(5_020_000_000, math.nan, math.nan, False),
+        GazeSample(5_030_000_000, 300.0, 150.0),
+        GazeSample(5_040_000_000, 400.0, 200.0),
+        GazeSample(5_050_000_000, 500.0, 250.0),
+    ]:
+        log.add(s)
+    log.add(GazeEvent("blink_start", 9, 5_035_000_000))
+    log.add(GazeEvent("blink_end", 9, 5_045_000_000, duration_ns=10_000_000))
+    path = tmp_path / "s.jsonl"
+    write_session_log(path, log)
+    track = read_session_track(path)
+    assert track.at(0.0) == (0.1, 0.1, True)
+    assert track.at(0.0099) == (0.1, 0.1, True)  # step: no interpolation
+    assert track.at(0.010) == (0.2, 0.2, True)
+    assert track.at(0.025) == (0.2, 0.2, False)  # invalid: closed, position held
+    assert track.at(0.031) == (0.3, 0.3, True)
+    assert track.at(0.036) == (0.3, 0.3, False)  # inside the blink
+    assert track.at(0.044) == (0.4, 0.4, False)
+    assert track.at(0.045) == (0.4, 0.4, True)  # blink over
+    assert track.at(-1.0) == (0.1, 0.1, True)  # before the start: the first sample
+    assert track.at(99.0) == (0.5, 0.5, True)  # after the end: the last
+    times = [0.036, 0.0, 0.025, 99.0, 0.010, 0.036]
+    assert [track.at(t) for t in times] == [track.at(t) for t in reversed(times)][::-1]
+    assert track.duration == pytest.approx(0.05)
+    with pytest.raises(ValueError, match="finite"):
+        track.at(math.nan)
+
+
+def test_track_of_an_unfinished_blink_and_an_invalid_start() -> None:
+    log = SessionLog(header())
+    log.add(GazeSample(0, math.nan, math.nan, False))
+    log.add(GazeSample(10, 250.0, 125.0))
+    log.add(GazeSample(20, 500.0, 250.0))
+    log.add(GazeEvent("blink_start", 1, 15))
+    track = log.track()
+    assert track.at(0.0) == (0.25, 0.25, False)  # the first valid position, eyes closed
+    assert track.at(10e-9) == (0.25, 0.25, True)
+    assert track.at(20e-9) == (0.5, 0.5, False)  # the blink never ended
+    with pytest.raises(ValueError, match="no samples"):
+        SessionLog(header()).track()
+
+
+def test_render_can_open_a_log_through_file_tracks(tmp_path: Path, monkeypatch) -> None:
+    """The one line the lead adds to drivers/tracks.py, exercised here through open_track."""
+    from drivers import tracks
+    from drivers.synthetic import SyntheticScanPath
+
+    monkeypatch.setitem(tracks.FILE_TRACKS, ".jsonl", read_session_track)
+    path = SyntheticScanPath(seed=3, duration=2.0, geometry=SCREEN)
+    log = SessionLog(header())
+    for s in path.samples(120):
+        log.add(s)
+    file = tmp_path / "scan.jsonl"
+    write_session_log(file, log)
+    track = tracks.open_track(str(file))
+    for i in range(0, 241, 7):
+        t = i / 120
+        want = path.at(t)
+        got = track.at(t)
+        assert got.eyes_open == want.eyes_open
+        if want.eyes_open:
+            assert got.x == pytest.approx(want.x, abs=1e-12)
+            assert got.y == pytest.approx(want.y, abs=1e-12)
