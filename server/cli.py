@@ -225,6 +225,12 @@ def _export(args: argparse.Namespace, extra: list[str]) -> int:
     return export_main(extra)
 
 
+def _devices(args: argparse.Namespace, extra: list[str]) -> int:
+    from drivers.hid import devices_main
+
+    return devices_main(extra)
+
+
 # --- scenes -----------------------------------------------------------------------------------
 
 
@@ -282,6 +288,12 @@ COMMANDS: dict[str, Command] = {
     "export": Command(
         "write a session log as BIDS eye-tracking physio (see 'gazehdr export --help')",
         _export,
+        passthrough=True,
+    ),
+    "devices": Command(
+        "list HID eye trackers (usage page 0x12) and why other devices are skipped "
+        "(arguments pass through; see 'gazehdr devices --help')",
+        _devices,
         passthrough=True,
     ),
     "scenes": Command("list the built-in scenes", _scenes),

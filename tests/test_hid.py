@@ -1,0 +1,747 @@
+"""The HID eye-tracker source (usage page 0x12), without hardware.
+
+Report descriptors are written here item by item from the HID 1.11 item encoding and the
+Eye and Head Trackers usage table; reports are packed byte by byte with `struct`. The device is a
+fake with the hidapi device interface (`open_path`, `get_report_descriptor`,
+`get_feature_report`, `send_feature_report`, `read`, `close`), since this kernel has no uhid.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import struct
+from collections.abc import Iterable
+from typing import Any
+
+import pytest
+
+from drivers import hid
+from drivers.samples import ScreenGeometry
+from drivers.sources import Source, open_source
+
+# --- HID 1.11 short items ---------------------------------------------------------------------
+
+
+def item(prefix: int, value: int | None = None, nbytes: int | None = None) -> bytes:
+    """One short item: prefix (tag and type, size bits 0) and a little-endian payload."""
+    if value is None:
+        return bytes([prefix])
+    if nbytes is None:
+        nbytes = 1 if -128 <= value <= 255 else 2 if -32768 <= value <= 0xFFFF else 4
+    size_code = {1: 1, 2: 2, 4: 3}[nbytes]
+    payload = (value & ((1 << (8 * nbytes)) - 1)).to_bytes(nbytes, "little")
+    return bytes([prefix | size_code]) + payload
+
+
+def usage_page(p: int) -> bytes:
+    return item(0x04, p)
+
+
+def usage(u: int) -> bytes:
+    return item(0x08, u & 0xFFFF)
+
+
+def logical(lo: int, hi: int, nbytes: int | None = None) -> bytes:
+    return item(0x14, lo, nbytes) + item(0x24, hi, nbytes)
+
+
+def physical(lo: int, hi: int, nbytes: int | None = None) -> bytes:
+    return item(0x34, lo, nbytes) + item(0x44, hi, nbytes)
+
+
+def unit(u: int) -> bytes:
+    return item(0x64, u)
+
+
+def unit_exponent(e: int, nibble: bool = True) -> bytes:
+    return item(0x54, e & 0xF if nibble else e & 0xFF, 1)
+
+
+def size(bits: int) -> bytes:
+    return item(0x74, bits)
+
+
+def count(n: int) -> bytes:
+    return item(0x94, n)
+
+
+def report_id(r: int) -> bytes:
+    return item(0x84, r)
+
+
+def collection(kind: int) -> bytes:  # 0 physical, 1 application, 2 logical
+    return item(0xA0, kind, 1)
+
+
+END = bytes([0xC0])
+PUSH, POP = bytes([0xA4]), bytes([0xB4])
+DATA, CONST = 0x02, 0x03  # Data,Var,Abs / Const,Var,Abs
+PADDING = 0x01  # Const,Array,Abs
+
+
+def input_(flags: int) -> bytes:
+    return item(0x80, flags, 1)
+
+
+def feature(flags: int) -> bytes:
+    return item(0xB0, flags, 1)
+
+
+# Units: system nibble 1 (SI linear); length nibble 1 = cm; time nibble 1 = s, F (−1) = 1/s.
+UNIT_CM, UNIT_S, UNIT_HZ = 0x11, 0x1001, 0xF001
+
+
+def tracker_descriptor(*, gaze_flags: int = DATA) -> bytes:
+    """An eye tracker as the usage table describes it, with the awkward parts on purpose.
+
+    Input report 0x10 (Tracking Data): 3 padding bytes; Sensor Timestamp, u32 in s·10⁻⁶ (µs);
+    Left Eye Position X/Y/Z, i16 in cm·10⁻¹ (mm) *before* the Gaze Point; Gaze Point X/Y, i32 in
+    cm·10⁻⁴ (µm), logical range ±1 000 000; a 1-bit flag and 7 bits padding after the Gaze Point
+    collection closed. Feature reports 0x11 Capabilities (Constant), 0x12 Configuration
+    (Constant, calibrated screen in µm without a Unit item), 0x13 Status (Sampling Frequency in
+    Hz), 0x14 Control (Device Mode Request).
+    """
+    return b"".join(
+        [
+            usage_page(0x12),
+            usage(0x01),
+            collection(1),
+            usage(0x10),
+            collection(0),
+            report_id(0x10),
+            size(8),
+            count(3),
+            input_(PADDING),
+            usage(0x20),
+            logical(0, 0xFFFFFFFF, 4),
+            unit(UNIT_S),
+            unit_exponent(-6),
+            size(32),
+            count(1),
+            input_(DATA),
+            usage(0x25),
+            collection(0),
+            usage(0x21),
+            usage(0x22),
+            usage(0x23),
+            logical(-32767, 32767),
+            unit(UNIT_CM),
+            unit_exponent(-1),
+            size(16),
+            count(3),
+            input_(DATA),
+            END,
+            usage(0x24),
+            collection(0),
+            usage(0x21),
+            usage(0x22),
+            logical(-1_000_000, 1_000_000, 4),
+            unit(UNIT_CM),
+            unit_exponent(-4),
+            size(32),
+            count(2),
+            input_(gaze_flags),
+            END,
+            usage(0x23),  # a Position Z outside every eye/gaze collection
+            logical(0, 1),
+            unit(0),
+            unit_exponent(0),
+            size(1),
+            count(1),
+            input_(DATA),
+            size(7),
+            input_(PADDING),
+            END,
+            # Capabilities: Tracker Quality, Maximum Screen Plane Width/Height, Constant-flagged
+            usage(0x11),
+            collection(2),
+            report_id(0x11),
+            usage(0x100),
+            logical(0, 4),
+            size(8),
+            count(1),
+            feature(CONST),
+            usage(0x104),
+            usage(0x105),
+            logical(0, 0x7FFFFFFF, 4),
+            size(32),
+            count(2),
+            feature(CONST),
+            END,
+            # Configuration: calibrated screen in µm (the usage's own unit, no Unit item)
+            usage(0x12),
+            collection(2),
+            report_id(0x12),
+            size(8),
+            count(1),
+            feature(PADDING),
+            usage(0x204),
+            usage(0x205),
+            logical(0, 0x7FFFFFFF, 4),
+            size(32),
+            count(2),
+            feature(CONST),
+            END,
+            # Status: Configuration Status, Sampling Frequency in Hz
+            usage(0x13),
+            collection(2),
+            report_id(0x13),
+            usage(0x301),
+            logical(0, 4),
+            size(8),
+            count(1),
+            feature(DATA),
+            usage(0x300),
+            logical(0, 0x7FFF),
+            unit(UNIT_HZ),
+            unit_exponent(0),
+            size(16),
+            feature(DATA),
+            unit(0),
+            END,
+            # Control: Device Mode Request
+            usage(0x14),
+            collection(2),
+            report_id(0x14),
+            usage(0x400),
+            logical(0, 7),
+            size(8),
+            count(1),
+            feature(DATA),
+            END,
+            END,
+        ]
+    )
+
+
+def tracking_report(ts_us: int, left_mm: tuple[int, int, int], gaze_um: tuple[int, int]) -> bytes:
+    """Input report 0x10 of `tracker_descriptor`, packed by hand."""
+    return (
+        bytes([0x10, 0xAA, 0xBB, 0xCC])  # report id, 3 bytes of padding (any content)
+        + struct.pack("<I", ts_us)
+        + struct.pack("<3h", *left_mm)
+        + struct.pack("<2i", *gaze_um)
+        + bytes([0x01])  # the flag bit set, padding zero
+    )
+
+
+FEATURES = {
+    0x11: bytes([0x11, 2]) + struct.pack("<2I", 600_000, 340_000),
+    0x12: bytes([0x12, 0]) + struct.pack("<2I", 527_040, 296_460),
+    0x13: bytes([0x13, 1]) + struct.pack("<H", 120),
+    0x14: bytes([0x14, 0]),
+}
+
+
+def microsoft_style_descriptor() -> bytes:
+    """The Microsoft reference driver's layout: an 8 × 8-bit timestamp under one usage, 32-bit
+    signed gaze without units, one report id; plus a Push/Pop around a unit and a Unit Exponent
+    written as a whole byte (0xFC), both of which hid-tools needs help with."""
+    return b"".join(
+        [
+            usage_page(0x12),
+            usage(0x01),
+            collection(1),
+            collection(2),
+            report_id(0x10),
+            logical(0, 0xFF),
+            size(8),
+            count(3),
+            input_(CONST),  # padding
+            usage(0x20),
+            count(8),
+            input_(DATA),
+            count(1),
+            size(32),
+            logical(-0x80000000, 0x7FFFFFFF, 4),
+            usage(0x24),
+            collection(0),
+            count(2),
+            usage(0x21),
+            usage(0x22),
+            input_(DATA),
+            END,
+            unit(UNIT_CM),
+            unit_exponent(-4, nibble=False),
+            PUSH,
+            usage(0x25),
+            collection(0),
+            count(3),
+            usage(0x21),
+            usage(0x22),
+            usage(0x23),
+            input_(DATA),
+            END,
+            POP,
+            END,
+            END,
+        ]
+    )
+
+
+# --- descriptor and decoding ------------------------------------------------------------------
+
+
+def test_descriptor_layout_comes_from_the_descriptor() -> None:
+    d = hid.Descriptor(tracker_descriptor())
+    assert d.numbered
+    assert sorted(d.report_ids(hid.INPUT)) == [0x10]
+    assert sorted(d.report_ids(hid.FEATURE)) == [0x11, 0x12, 0x13, 0x14]
+    # 1 id + 3 pad + 4 ts + 6 left eye + 8 gaze + 1 flag/pad
+    assert d.report_bytes(hid.INPUT, 0x10) == 23
+    assert d.report_bytes(hid.FEATURE, 0x12) == 10
+    rid, fx = d.find(hid.INPUT, hid.POSITION_X, inside=hid.GAZE_POINT)
+    assert rid == 0x10
+    assert (fx.logical_min, fx.logical_max, fx.size) == (-1_000_000, 1_000_000, 32)
+    assert fx.unit_exp == -4
+    _, lx = d.find(hid.INPUT, hid.POSITION_X, inside=hid.LEFT_EYE_POSITION)
+    assert lx is not fx and lx.start < fx.start  # the left eye comes first in the report
+
+
+def test_input_report_decodes_to_micrometres_and_microseconds() -> None:
+    d = hid.Descriptor(tracker_descriptor())
+    report = tracking_report(4_000_000_123, (-31, 12, 654), (263_520, -1_500))
+    decoded = d.decode(hid.INPUT, report)
+    assert decoded.report_id == 0x10
+    ts = decoded.find(hid.SENSOR_TIMESTAMP)
+    assert ts is not None and ts.raw == 4_000_000_123  # u32 above 2³¹ stays unsigned
+    assert ts.value == pytest.approx(4_000_000_123.0)  # s·10⁻⁶ → µs
+    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
+    gy = decoded.find(hid.POSITION_Y, inside=hid.GAZE_POINT)
+    assert gx is not None and gy is not None
+    assert (gx.raw, gy.raw) == (263_520, -1_500)  # signed
+    assert gx.value == pytest.approx(263_520.0) and gy.value == pytest.approx(-1_500.0)
+    # Left eye: i16 in mm (cm·10⁻¹) → µm
+    lx = decoded.find(hid.POSITION_X, inside=hid.LEFT_EYE_POSITION)
+    lz = decoded.find(hid.POSITION_Z, inside=hid.LEFT_EYE_POSITION)
+    assert lx is not None and lz is not None
+    assert lx.raw == -31 and lx.value == pytest.approx(-31_000.0)
+    assert lz.value == pytest.approx(654_000.0)
+    # The Position Z after the Gaze Point collection closed is in no eye/gaze collection.
+    flags = [v for v in decoded.values if v.usage == hid.POSITION_Z]
+    assert len(flags) == 2
+    assert flags[1].raw == 1
+    assert hid.GAZE_POINT not in flags[1].path and hid.LEFT_EYE_POSITION not in flags[1].path
+    assert hid.TRACKING_DATA in flags[1].path
+
+
+def test_constant_flagged_gaze_is_data_not_padding() -> None:
+    d = hid.Descriptor(tracker_descriptor(gaze_flags=CONST))
+    decoded = d.decode(hid.INPUT, tracking_report(7, (0, 0, 0), (1000, 2000)))
+    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
+    assert gx is not None and gx.constant and gx.value == pytest.approx(1000.0)
+
+
+def test_feature_reports_constant_fields_and_units() -> None:
+    d = hid.Descriptor(tracker_descriptor())
+    conf = d.decode(hid.FEATURE, FEATURES[0x12])
+    w = conf.find(hid.CALIBRATED_SCREEN_WIDTH)
+    h = conf.find(hid.CALIBRATED_SCREEN_HEIGHT)
+    assert w is not None and h is not None and w.constant
+    assert (w.value, h.value) == (527_040.0, 296_460.0)
+    caps = d.decode(hid.FEATURE, FEATURES[0x11])
+    assert caps.find(hid.TRACKER_QUALITY).raw == 2  # type: ignore[union-attr]
+    status = d.decode(hid.FEATURE, FEATURES[0x13])
+    assert status.find(hid.SAMPLING_FREQUENCY).value == pytest.approx(120.0)  # type: ignore[union-attr]
+
+
+def test_out_of_logical_range_means_no_data() -> None:
+    d = hid.Descriptor(tracker_descriptor())
+    decoded = d.decode(hid.INPUT, tracking_report(5, (0, 0, 0), (-0x80000000, 1_000_001)))
+    assert decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT).value is None  # type: ignore[union-attr]
+    assert decoded.find(hid.POSITION_Y, inside=hid.GAZE_POINT).value is None  # type: ignore[union-attr]
+
+
+def test_value_array_push_pop_and_byte_unit_exponent() -> None:
+    d = hid.Descriptor(microsoft_style_descriptor())
+    report = (
+        bytes([0x10, 0, 0, 0])
+        + struct.pack("<Q", 0x0123_4567_89AB_CDEF)
+        + struct.pack("<2i", -42, 100_000)
+        + struct.pack("<3i", 1, -2, 650_000)
+    )
+    assert d.report_bytes(hid.INPUT, 0x10) == len(report)
+    decoded = d.decode(hid.INPUT, report)
+    ts = decoded.find(hid.SENSOR_TIMESTAMP)
+    assert ts is not None and ts.raw == 0x0123_4567_89AB_CDEF and ts.bits == 64
+    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
+    assert gx is not None and gx.value == pytest.approx(-42.0)  # no Unit item: µm as tabled
+    # Unit cm with exponent 0xFC (−4) survives the Push: µm
+    rz = decoded.find(hid.POSITION_Z, inside=hid.LEFT_EYE_POSITION)
+    assert rz is not None and rz.value == pytest.approx(650_000.0)
+
+
+def test_signed_logical_maximum_and_physical_range() -> None:
+    desc = b"".join(
+        [
+            usage_page(0x12),
+            usage(0x01),
+            collection(1),
+            usage(0x24),
+            collection(0),
+            usage(0x21),
+            usage(0x22),
+            logical(-100, -1),  # Logical Maximum −1 is 0xFF on the wire
+            physical(-2000, -20),  # µm
+            size(8),
+            count(2),
+            input_(DATA),
+            END,
+            usage(0x23),  # a second main item with the same globals
+            count(1),
+            input_(DATA),
+            END,
+        ]
+    )
+    d = hid.Descriptor(desc)
+    assert not d.numbered
+    decoded = d.decode(hid.INPUT, bytes([0x9C, 0xFF, 0xFF]))  # −100, −1, −1
+    z = decoded.find(hid.POSITION_Z)
+    assert z is not None and z.raw == -1 and z.value == pytest.approx(-20.0)
+    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
+    gy = decoded.find(hid.POSITION_Y, inside=hid.GAZE_POINT)
+    assert gx is not None and gy is not None
+    assert gx.value == pytest.approx(-2000.0) and gy.value == pytest.approx(-20.0)
+    # 0 is above the logical maximum −1: no data
+    assert d.decode(hid.INPUT, bytes([0x9C, 0x00, 0xFF])).values[1].value is None
+
+
+def test_bad_inputs_are_errors() -> None:
+    d = hid.Descriptor(tracker_descriptor())
+    with pytest.raises(hid.ReportError, match="no Input report with id 99"):
+        d.decode(hid.INPUT, bytes([99, 0, 0]))
+    with pytest.raises(hid.ReportError, match="bytes"):
+        d.decode(hid.INPUT, tracking_report(1, (0, 0, 0), (0, 0))[:10])
+    with pytest.raises(hid.DescriptorError):
+        hid.Descriptor(b"\x05\x12\x09\x01\xa1\x01\xc0\xc0")  # one End Collection too many
+    no_gaze = b"".join([usage_page(1), usage(2), collection(1), END])
+    with pytest.raises(hid.DescriptorError, match="Gaze Point"):
+        hid._tracking_report(hid.Descriptor(no_gaze))
+    length_as_time = b"".join(
+        [
+            usage_page(0x12),
+            usage(0x20),
+            logical(0, 255),
+            unit(UNIT_CM),
+            size(8),
+            count(1),
+            input_(DATA),
+        ]
+    )
+    with pytest.raises(hid.DescriptorError, match="not convertible to µs"):
+        hid.Descriptor(length_as_time)
+
+
+# --- a fake hidapi ----------------------------------------------------------------------------
+
+
+class UnpluggedError(OSError):
+    pass
+
+
+class FakeTracker:
+    """The device side: descriptor, feature reports, and a queue of input reports."""
+
+    def __init__(self, path: bytes, descriptor: bytes, features: dict[int, bytes]) -> None:
+        self.path = path
+        self.descriptor = descriptor
+        self.features = dict(features)
+        self.sent: list[list[int]] = []
+        self.queue: list[bytes] = []
+        self.plugged = True
+        self.unplug_after: int | None = None  # unplug after this many more reads
+        self.reads = 0
+
+
+class FakeBus:
+    """What the source calls the backend module: `enumerate()` and `device()`."""
+
+    def __init__(self, *trackers: FakeTracker, others: Iterable[dict[str, Any]] = ()) -> None:
+        self.trackers = {t.path: t for t in trackers}
+        self.others = list(others)
+        self.opened = 0
+
+    def enumerate(self) -> list[dict[str, Any]]:
+        out = list(self.others)
+        for t in self.trackers.values():
+            if t.plugged:
+                out.append(
+                    {
+                        "path": t.path,
+                        "vendor_id": 0x2104,
+                        "product_id": 0x0127,
+                        "serial_number": "TT-1",
+                        "manufacturer_string": "Test Trackers",
+                        "product_string": "Gaze 120",
+                        "usage_page": 0x12,
+                        "usage": 0x01,
+                    }
+                )
+        return out
+
+    def device(self) -> FakeDevice:
+        return FakeDevice(self)
+
+
+class FakeDevice:
+    def __init__(self, bus: FakeBus) -> None:
+        self.bus = bus
+        self.t: FakeTracker | None = None
+
+    def _tracker(self) -> FakeTracker:
+        if self.t is None:
+            raise ValueError("not open")
+        if not self.t.plugged:
+            raise UnpluggedError("read error")
+        return self.t
+
+    def open_path(self, path: bytes) -> None:
+        t = self.bus.trackers.get(path)
+        if t is None or not t.plugged:
+            raise OSError("open failed")
+        self.t = t
+        self.bus.opened += 1
+
+    def get_report_descriptor(self) -> list[int]:
+        return list(self._tracker().descriptor)
+
+    def get_feature_report(self, report_num: int, max_length: int) -> list[int]:
+        return list(self._tracker().features[report_num][:max_length])
+
+    def send_feature_report(self, buff: Any) -> int:
+        t = self._tracker()
+        t.sent.append(list(buff))
+        rid = buff[0]
+        if rid in t.features:
+            t.features[rid] = bytes(buff)
+        return len(buff)
+
+    def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+        t = self._tracker()
+        if t.unplug_after is not None:
+            if t.unplug_after == 0:
+                t.plugged = False
+                t.unplug_after = None
+                t.queue.clear()  # whatever the device held is gone with it
+                raise UnpluggedError("read error")
+            t.unplug_after -= 1
+        t.reads += 1
+        if not t.queue:
+            return []
+        return list(t.queue.pop(0)[:max_length])
+
+    def close(self) -> None:
+        self.t = None
+
+
+PATH = b"/dev/hidraw-test-0"
+
+
+def make_tracker(descriptor: bytes | None = None) -> FakeTracker:
+    return FakeTracker(PATH, descriptor or tracker_descriptor(), FEATURES)
+
+
+def gaze_reports(n: int, t0_us: int = 1_000_000, step_us: int = 8_333) -> list[bytes]:
+    return [
+        tracking_report(t0_us + i * step_us, (0, 0, 0), (10_000 * (i + 1), 5_000 * (i + 1)))
+        for i in range(n)
+    ]
+
+
+# --- the source -------------------------------------------------------------------------------
+
+
+def test_source_reads_features_sets_mode_and_yields_pixels() -> None:
+    t = make_tracker()
+    t.queue = gaze_reports(3)
+    geometry = ScreenGeometry(screen_width_px=1920, screen_height_px=1080)
+    src = hid.HidGazeSource(geometry, backend=FakeBus(t))
+    samples = list(itertools.islice(src, 3))
+    info = src.tracker_info
+    assert info is not None
+    assert info.calibrated_screen_um == (527_040.0, 296_460.0)
+    assert info.sampling_hz == pytest.approx(120.0)
+    assert info.configuration_status == 1
+    assert (info.vendor_id, info.product_id, info.product) == (0x2104, 0x0127, "Gaze 120")
+    assert isinstance(src, Source)
+    assert src.info.name == "hid Test Trackers Gaze 120" and src.info.rate_hz == 120.0
+    assert src.info.geometry == geometry and src.info.tracker["calibrated_screen_um"] == [
+        527_040.0,
+        296_460.0,
+    ]
+    # Device Mode: gaze point | eye position (the tracker reports eye positions; max is 7)
+    assert t.sent == [[0x14, 3]]
+    assert info.device_mode == 3
+    assert [s.t_ns for s in samples] == [1_000_000_000, 1_008_333_000, 1_016_666_000]
+    s0 = samples[0]
+    assert s0.valid
+    assert s0.x == pytest.approx(10_000 / 527_040 * 1920)
+    assert s0.y == pytest.approx(5_000 / 296_460 * 1080)
+    src.close()
+
+
+def test_open_source_builds_the_hid_source() -> None:
+    t = make_tracker()
+    t.queue = gaze_reports(1)
+    src = open_source("hid:" + PATH.decode(), backend=FakeBus(t))
+    assert isinstance(src, hid.HidSource) and src.tracker_info is not None
+    assert src.tracker_info.path == PATH.decode()
+    (s,) = itertools.islice(src, 1)
+    assert s.t_ns == 1_000_000_000
+
+
+def test_no_gaze_gives_an_invalid_sample() -> None:
+    t = make_tracker()
+    t.queue = [tracking_report(10, (0, 0, 0), (2_000_000, 0))]
+    src = hid.HidGazeSource(backend=FakeBus(t))
+    (s,) = itertools.islice(src, 1)
+    assert not s.valid and math.isnan(s.x) and math.isnan(s.y) and s.t_ns == 10_000
+
+
+def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    t = make_tracker()
+    before = gaze_reports(5)
+    after = gaze_reports(4, t0_us=3_000_000)
+    t.queue = [*before, tracking_report(2_000_000, (0, 0, 0), (1, 1))]  # never read
+    t.unplug_after = 5  # five reads succeed, the sixth finds the tracker gone
+    bus = FakeBus(t)
+    now = [0.0]
+    sleeps: list[float] = []
+
+    def sleep(s: float) -> None:
+        sleeps.append(s)
+        now[0] += s
+        if len(sleeps) == 3:  # re-plugged during the third wait
+            t.plugged = True
+            t.queue = list(after)
+
+    src = hid.HidGazeSource(
+        backend=bus,
+        sleep=sleep,
+        clock=lambda: now[0],
+        backoff_initial_s=0.25,
+        backoff_max_s=0.75,
+    )
+    with caplog.at_level(logging.INFO, logger="drivers.hid"):
+        got = list(itertools.islice(src, 9))
+    expected_us = [1_000_000 + i * 8_333 for i in range(5)] + [
+        3_000_000 + i * 8_333 for i in range(4)
+    ]
+    assert [s.t_ns for s in got] == [us * 1000 for us in expected_us]  # once each, in order
+    assert [s.x for s in got[:5]] == pytest.approx(
+        [10_000 * (i + 1) / 527_040 * 1920 for i in range(5)]
+    )
+    assert sleeps == [0.25, 0.5, 0.75]  # doubling, capped
+    assert src.reconnects == 1 and bus.opened == 2
+    assert t.sent == [[0x14, 3], [0x14, 3]]  # the mode is set again after the re-plug
+    assert "5 samples recorded so far are kept" in caplog.text
+    src.close()
+
+
+def test_clock_restart_after_replug_stays_monotonic() -> None:
+    t = make_tracker()
+    t.queue = gaze_reports(2, t0_us=5_000_000)
+    t.unplug_after = 2
+    replugged = gaze_reports(2, t0_us=100)  # the tracker rebooted: its clock starts over
+
+    def sleep(s: float) -> None:
+        t.plugged = True
+        t.queue = list(replugged)
+
+    src = hid.HidGazeSource(backend=FakeBus(t), sleep=sleep)
+    ts = [s.t_ns for s in itertools.islice(src, 4)]
+    assert ts[:2] == [5_000_000_000, 5_008_333_000]
+    assert ts[2] == ts[1] + round(1e9 / 120)  # one sample period on, at 120 Hz
+    assert ts[3] - ts[2] == 8_333_000
+    src.close()
+
+
+def test_32_bit_timestamp_wraps_forward() -> None:
+    t = make_tracker()
+    t.queue = [
+        tracking_report(0xFFFF_FFF0, (0, 0, 0), (0, 0)),
+        tracking_report(0x0000_0010, (0, 0, 0), (0, 0)),
+    ]
+    src = hid.HidGazeSource(backend=FakeBus(t))
+    a, b = itertools.islice(src, 2)
+    assert b.t_ns - a.t_ns == 0x20 * 1000
+    src.close()
+
+
+def test_give_up_when_no_tracker() -> None:
+    now = [0.0]
+
+    def sleep(s: float) -> None:
+        now[0] += s
+
+    with pytest.raises(OSError, match="no HID eye tracker found"):
+        hid.HidGazeSource(backend=FakeBus())  # opened at once: nothing to wait for
+    src = hid.HidGazeSource(
+        backend=FakeBus(), sleep=sleep, clock=lambda: now[0], give_up_after_s=2, open_now=False
+    )
+    with pytest.raises(OSError, match=r"no HID eye tracker for 3\.8 s"):
+        next(iter(src))
+
+
+# --- gazehdr devices --------------------------------------------------------------------------
+
+KEYBOARD = {
+    "path": b"/dev/hidraw-test-kbd",
+    "vendor_id": 0x046D,
+    "product_id": 0xC31C,
+    "product_string": "Keyboard",
+    "usage_page": 0x01,
+    "usage": 0x06,
+}
+
+
+def test_list_devices_says_why(tmp_path: Any) -> None:
+    node = tmp_path / "hidraw9"
+    node.write_bytes(b"")
+    locked = {
+        "path": str(node).encode(),
+        "vendor_id": 0x2104,
+        "product_id": 0x0313,
+        "product_string": "Locked Tracker",
+        "usage_page": 0x12,
+        "usage": 0x01,
+    }
+    bus = FakeBus(make_tracker(), others=[KEYBOARD, locked])
+    found = {d.path: d for d in hid.list_devices(bus, access=lambda p, m: False)}
+    kbd = found["/dev/hidraw-test-kbd"]
+    assert not kbd.usable and "usage page 0x0001" in kbd.reason
+    lock = found[str(node)]
+    assert not lock.usable and "permission denied" in lock.reason
+    assert lock.udev_rule == (
+        'SUBSYSTEM=="hidraw", ATTRS{idVendor}=="2104", ATTRS{idProduct}=="0313", '
+        'MODE="0660", GROUP="plugdev"'
+    )
+    ok = found[PATH.decode()]
+    assert ok.usable and "527.0 × 296.5 mm" in ok.reason and "120 Hz" in ok.reason
+    assert bus.trackers[PATH].sent == []  # listing leaves the Device Mode alone
+
+
+def test_devices_main_prints_rule_and_status(capsys: pytest.CaptureFixture[str]) -> None:
+    bus = FakeBus(make_tracker(), others=[KEYBOARD])
+    assert hid.devices_main([], backend=bus) == 0
+    out = capsys.readouterr().out
+    assert "ok   /dev/hidraw-test-0 2104:0127 Gaze 120: eye tracker" in out
+    assert "skip /dev/hidraw-test-kbd 046d:c31c Keyboard: usage page 0x0001" in out
+    assert hid.devices_main(["--trackers-only"], backend=FakeBus(others=[KEYBOARD])) == 1
+    assert "no HID eye trackers found" in capsys.readouterr().out
+
+
+def test_drivers_hid_imports_neither_server_nor_pyopencl() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, drivers.hid; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('server', 'pyopencl')]; "
+        "sys.exit(1 if bad else 0)"
+    )
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
