@@ -67,6 +67,34 @@ class Echo:
 Message = Hello | Samples | Event | Echo
 
 
+# --- server -> daemon replies (the daemon validates what it receives, too) --------------------
+
+
+@dataclass(frozen=True)
+class Welcome:
+    """The server's answer to `hello`."""
+
+    protocol: int
+
+
+@dataclass(frozen=True)
+class EchoReply:
+    """The server's answer to `echo`: the sender's `t0` and the server clock when it answered."""
+
+    t0_ns: int
+    server_ns: int
+
+
+@dataclass(frozen=True)
+class Notice:
+    """An `error` from the server: a refused message or a rate-limit note; the link goes on."""
+
+    message: str
+
+
+Reply = Welcome | EchoReply | Notice
+
+
 def _refuse_constant(name: str) -> float:
     raise ValueError(f"{name} is not a number JSON allows")
 
@@ -127,6 +155,9 @@ def parse(data: str | bytes) -> Message:
         tracker, screen = msg.get("tracker", ""), msg.get("screen", {})
         if not isinstance(tracker, str) or not isinstance(screen, dict):
             raise WireError("hello: 'tracker' is a string and 'screen' an object")
+        for key, value in screen.items():
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise WireError(f"hello: 'screen.{key}' must be a number")
         return Hello(PROTOCOL, tracker[:200], screen)
     if kind == "samples":
         batch = msg.get("samples")
@@ -147,8 +178,35 @@ def parse(data: str | bytes) -> Message:
     raise WireError(f"unknown message type {kind!r}; known: hello, samples, event, echo")
 
 
-def dumps(message: Message) -> str:
-    """The JSON text of a message (the daemon's side of `parse`)."""
+def parse_reply(data: str | bytes) -> Reply:
+    """One text message from the server → a typed reply, or `WireError` naming what is wrong."""
+    try:
+        msg = load_typed_json(data, MAX_MESSAGE_BYTES)
+    except ValueError as e:
+        raise WireError(str(e)) from None
+    kind = msg["type"]
+    if kind == "welcome":
+        if msg.get("protocol") != PROTOCOL:
+            raise WireError(f"welcome: protocol {msg.get('protocol')!r}; this daemon speaks 1")
+        return Welcome(PROTOCOL)
+    if kind == "echo":
+        return EchoReply(_int(msg, "t0", "echo"), _int(msg, "server_ns", "echo"))
+    if kind == "error":
+        text = msg.get("message")
+        if not isinstance(text, str):
+            raise WireError("error: 'message' must be a string")
+        return Notice(text)
+    raise WireError(f"unknown reply type {kind!r}; known: welcome, echo, error")
+
+
+def dumps(message: Message | Reply) -> str:
+    """The JSON text of a message (the daemon's side of `parse`; replies: of `parse_reply`)."""
+    if isinstance(message, Welcome):
+        return json.dumps({"type": "welcome", "protocol": message.protocol})
+    if isinstance(message, EchoReply):
+        return json.dumps({"type": "echo", "t0": message.t0_ns, "server_ns": message.server_ns})
+    if isinstance(message, Notice):
+        return json.dumps({"type": "error", "message": message.message})
     if isinstance(message, Hello):
         body = {"protocol": message.protocol, "tracker": message.tracker, "screen": message.screen}
         return json.dumps({"type": "hello", **body})

@@ -307,18 +307,18 @@ class _GazeLink:
                 reply = self.handle(wire.parse(text), time.monotonic())
             except wire.WireError as e:
                 self.metrics.protocol_errors.inc()
-                reply = {"type": "error", "message": str(e)}
+                reply = wire.Notice(str(e))
             if reply:
-                await self.ws.send_json(reply)
+                await self.ws.send_text(wire.dumps(reply))
 
-    def handle(self, msg: wire.Message, now: float) -> dict[str, Any] | None:
+    def handle(self, msg: wire.Message, now: float) -> wire.Reply | None:
         remote = self.hub.remote
         if isinstance(msg, wire.Echo):
-            return {"type": "echo", "t0": msg.t0_ns, "server_ns": time.monotonic_ns()}
+            return wire.EchoReply(msg.t0_ns, time.monotonic_ns())
         if isinstance(msg, wire.Hello):
             remote.tracker = msg.tracker or "unnamed tracker"
             self.hub.broadcast(_tracker_note(self.hub))
-            return {"type": "welcome", "protocol": wire.PROTOCOL}
+            return wire.Welcome(wire.PROTOCOL)
         if isinstance(msg, wire.Event):
             self.uses_events = True
             if msg.kind in ("fixation_start", "fixation_update"):
@@ -339,9 +339,8 @@ class _GazeLink:
             self.metrics.gaze_rate_limited.inc(dropped)
             if now - self.warned_at > 1.0:
                 self.warned_at = now
-                return {
-                    "type": "error",
-                    "message": f"rate limit: {dropped} samples dropped; at most "
-                    f"{GAZE_RATE_HZ:g} samples/s are accepted",
-                }
+                return wire.Notice(
+                    f"rate limit: {dropped} samples dropped; at most "
+                    f"{GAZE_RATE_HZ:g} samples/s are accepted"
+                )
         return None

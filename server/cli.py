@@ -225,6 +225,12 @@ def _export(args: argparse.Namespace, extra: list[str]) -> int:
     return export_main(extra)
 
 
+def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
+    from drivers.daemon import daemon_main
+
+    return daemon_main(extra)
+
+
 def _devices(args: argparse.Namespace, extra: list[str]) -> int:
     from drivers.hid import devices_main
 
@@ -288,6 +294,12 @@ COMMANDS: dict[str, Command] = {
     "export": Command(
         "write a session log as BIDS eye-tracking physio (see 'gazehdr export --help')",
         _export,
+        passthrough=True,
+    ),
+    "daemon": Command(
+        "stream gaze (hid, replay:FILE[@SPEED], synthetic[:SEED]) to a server's /ws/gaze "
+        "(arguments pass through; see 'gazehdr daemon --help')",
+        _daemon,
         passthrough=True,
     ),
     "devices": Command(

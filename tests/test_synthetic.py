@@ -205,4 +205,4 @@ def test_open_track_specs(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="not found"):
         open_track(str(tmp_path / "missing.csv"))
     with pytest.raises(ValueError, match="expected synthetic, fixed, X,Y"):
-        open_track("session.jsonl")
+        open_track("session.edf")

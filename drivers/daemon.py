@@ -1,0 +1,829 @@
+"""`gazehdr daemon`: stream a gaze source to a gazehdr server's `/ws/gaze`, losing nothing quietly.
+
+The source runs in a thread (tracker reads and real-time pacing block); everything else runs on
+one asyncio loop:
+
+- every sample goes first to the local session log (`record=`), then through the fixation
+  detector, and samples and events join the send buffer in the order they were emitted;
+- the send buffer is bounded (`buffer` items). While the server is unreachable a live source
+  keeps producing: when the buffer is full its oldest never-sent item is dropped, counted,
+  logged, and noted in the session log. A source that is not live (a replay) is made to wait
+  instead, and loses nothing;
+- sending is paced by a token bucket below the server's limit (1900 samples/s, burst 1000,
+  against the server's 2000/s, burst 4000), in batches of at most `batch` samples every
+  `flush_interval` seconds (sooner when a batch is full or an event is waiting);
+- delivery is acknowledged by the clock echo: the server handles one connection's messages in
+  order, so its reply to an `echo` sent after a batch proves the batch was handled. Items sent
+  but not yet acknowledged when a connection dies are sent again on the next one (at least
+  once: a sample may arrive twice across a reconnect, never not at all unless counted dropped);
+- the same echoes estimate the clock offset to the server: offset = server_ns − (t0 + t1)/2 with
+  uncertainty RTT/2, keeping the estimate with the smallest RTT among the last `clock_window`
+  echoes; it is reported in `stats` and written to the session log as `clock` records;
+- a lost connection is retried with exponential back-off (`backoff`); a refused token (close
+  code 4401) is fatal: `UnauthorizedError`, no retry.
+
+`run_daemon(source, server_url, token, ...)` runs until the source ends (and the buffer is
+delivered, or `drain_timeout` passes) or `Daemon.stop()` is called. `daemon_main(argv)` is the
+command line. Nothing here imports `server` or pyopencl.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import math
+import os
+import random
+import re
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit, urlunsplit
+
+from drivers import wire
+from drivers.fixations import DETECTORS, make_detector
+from drivers.samples import GazeSample
+from drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
+from drivers.sources import SourceInfo, SourceUnavailableError, open_source, records_of
+
+log = logging.getLogger("gazehdr.daemon")
+
+CLOSE_UNAUTHORIZED = 4401
+SERVER_RATE_HZ = 2000.0  # the server's sustained limit per connection (server.app.GAZE_RATE_HZ)
+DEFAULT_RATE_HZ = 1900.0  # what the daemon sends at most: below the limit, with margin
+DEFAULT_BURST = 1000.0  # below the server's burst of 4000
+DEFAULT_BUFFER = 20_000  # items (samples and events): 10 s of a 2000 Hz tracker
+_RATE_NOTE = re.compile(r"rate limit: (\d+) samples dropped")
+
+
+class DaemonError(RuntimeError):
+    """The daemon cannot go on; the text says why."""
+
+
+class UnauthorizedError(DaemonError):
+    """The server refused the bearer token (close code 4401)."""
+
+
+# --- clock offset ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ClockEstimate:
+    """server clock ≈ daemon clock + `offset_ns`, give or take `uncertainty_ns` (= RTT/2)."""
+
+    offset_ns: int
+    uncertainty_ns: int
+    rtt_ns: int
+    at_ns: int  # daemon clock when the echo came back
+
+
+class ClockEstimator:
+    """Round-trip echo estimates; the best is the smallest RTT among the last `window`."""
+
+    def __init__(self, window: int = 32) -> None:
+        self.window: deque[ClockEstimate] = deque(maxlen=window)
+
+    def add(self, t0_ns: int, server_ns: int, t1_ns: int) -> ClockEstimate | None:
+        rtt = t1_ns - t0_ns
+        if rtt < 0:
+            return None
+        offset = server_ns - (t0_ns + t1_ns) // 2
+        self.window.append(ClockEstimate(offset, (rtt + 1) // 2, rtt, t1_ns))
+        return self.best
+
+    @property
+    def best(self) -> ClockEstimate | None:
+        return min(self.window, key=lambda e: e.rtt_ns) if self.window else None
+
+
+# --- pacing ----------------------------------------------------------------------------------
+
+
+class TokenBucket:
+    """`rate` items per second on average, at most `burst` at once; starts full."""
+
+    def __init__(self, rate: float, burst: float, clock: Any = time.monotonic) -> None:
+        if not (rate > 0 and burst >= 1):
+            raise ValueError(f"rate must be positive and burst at least 1, got {rate}, {burst}")
+        self.rate, self.burst, self.clock = rate, burst, clock
+        self.level, self.at = burst, clock()
+
+    def available(self) -> int:
+        now = self.clock()
+        self.level = min(self.burst, self.level + (now - self.at) * self.rate)
+        self.at = now
+        return int(self.level)
+
+    def take(self, n: int) -> None:
+        self.level -= n
+
+
+# --- statistics ------------------------------------------------------------------------------
+
+
+@dataclass
+class DaemonStats:
+    samples_produced: int = 0  # from the source
+    events_produced: int = 0  # from the detector (or the replayed log)
+    samples_recorded: int = 0  # written to the local session log
+    events_recorded: int = 0
+    samples_sent: int = 0  # messages handed to the socket, resends included
+    samples_delivered: int = 0  # acknowledged by the server
+    events_delivered: int = 0
+    samples_dropped: int = 0  # buffer full while disconnected (a live source)
+    events_dropped: int = 0
+    samples_undelivered: int = 0  # still buffered when the daemon gave up draining
+    events_undelivered: int = 0
+    resent: int = 0  # items sent again after a connection died unacknowledged
+    events_unsendable: int = 0  # fixation events without a position (some imports)
+    server_rate_limited: int = 0  # samples the server said it dropped (should stay 0)
+    connects: int = 0
+    disconnects: int = 0
+    clock: ClockEstimate | None = None
+    last_error: str | None = None
+    source_error: str | None = None
+    sent_times: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=4096))
+
+    def summary(self) -> str:
+        clock = (
+            f"clock offset {self.clock.offset_ns / 1e6:+.3f} ms "
+            f"± {self.clock.uncertainty_ns / 1e3:.0f} µs"
+            if self.clock
+            else "clock offset unknown"
+        )
+        return (
+            f"{self.samples_produced} samples, {self.events_produced} events from the source; "
+            f"delivered {self.samples_delivered} samples, {self.events_delivered} events; "
+            f"dropped {self.samples_dropped} samples, {self.events_dropped} events "
+            f"(buffer full){self._undelivered()}; {self.connects} connection(s); {clock}"
+        )
+
+    def _undelivered(self) -> str:
+        if not (self.samples_undelivered or self.events_undelivered):
+            return ""
+        return (
+            f"; {self.samples_undelivered} samples, {self.events_undelivered} events "
+            "never delivered"
+        )
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+def gaze_url(server: str) -> str:
+    """`ws://HOST:PORT` (or http://, or a bare HOST:PORT) → the `/ws/gaze` endpoint's URL."""
+    text = server.strip()
+    if "://" not in text:
+        text = "ws://" + text
+    parts = urlsplit(text)
+    scheme = {"http": "ws", "https": "wss", "ws": "ws", "wss": "wss"}.get(parts.scheme)
+    if scheme is None or not parts.netloc:
+        raise ValueError(f"server {server!r}: expected ws://HOST:PORT")
+    path = parts.path if parts.path not in ("", "/") else "/ws/gaze"
+    return urlunsplit((scheme, parts.netloc, path, parts.query, ""))
+
+
+def _is_event(item: Any) -> bool:
+    return getattr(item, "kind", None) in EVENT_KINDS
+
+
+def _fraction(value: float, size: int) -> float:
+    return min(4.0, max(-3.0, value / size))
+
+
+def _to_wire(item: Any, info: SourceInfo) -> wire.Sample | wire.Event | None:
+    w, h = info.geometry.screen_width_px, info.geometry.screen_height_px
+    if isinstance(item, GazeSample):
+        if item.valid:
+            return wire.Sample(int(item.t_ns), _fraction(item.x, w), _fraction(item.y, h), True)
+        return wire.Sample(int(item.t_ns), math.nan, math.nan, False)
+    if item.kind.startswith("fixation"):
+        if not (math.isfinite(item.x) and math.isfinite(item.y)):
+            return None
+        return wire.Event(
+            item.kind, int(item.id), int(item.t_ns), _fraction(item.x, w), _fraction(item.y, h)
+        )
+    return wire.Event(item.kind, int(item.id), int(item.t_ns), math.nan, math.nan)
+
+
+class _ClosedError(Exception):
+    """The connection ended; `code` and `reason` say how."""
+
+    def __init__(self, code: int | None, reason: str) -> None:
+        super().__init__(f"connection closed ({code}: {reason})" if code else "connection lost")
+        self.code, self.reason = code, reason
+
+
+# --- the daemon ------------------------------------------------------------------------------
+
+
+class Daemon:
+    """One source, one server. `await run()`; `stop()` (on the loop) ends it cleanly."""
+
+    def __init__(
+        self,
+        source: Any,
+        server_url: str,
+        token: str,
+        *,
+        record: str | Path | None = None,
+        overwrite: bool = False,
+        detector: str | None = "ivt",
+        buffer: int = DEFAULT_BUFFER,
+        batch: int = 50,
+        flush_interval: float = 0.02,
+        max_rate: float = DEFAULT_RATE_HZ,
+        burst: float = DEFAULT_BURST,
+        max_inflight: int = 2000,
+        backoff: tuple[float, float] = (0.1, 5.0),
+        drain_timeout: float = 10.0,
+        welcome_timeout: float = 5.0,
+        echo_interval: float = 1.0,
+        clock_window: int = 32,
+        status_interval: float | None = None,
+    ) -> None:
+        if buffer < 1 or batch < 1 or max_inflight < batch:
+            raise ValueError("buffer and batch must be positive, max_inflight at least batch")
+        if max_rate > SERVER_RATE_HZ:
+            raise ValueError(f"max_rate {max_rate} is over the server's {SERVER_RATE_HZ:g}/s")
+        if detector is not None and detector not in DETECTORS:
+            raise ValueError(f"unknown detector {detector!r}; known: {', '.join(DETECTORS)}")
+        self.source = source
+        self.info: SourceInfo = source.info
+        self.url = gaze_url(server_url)
+        self.token = token
+        self.record_path = Path(record) if record is not None else None
+        self.overwrite = overwrite
+        self.buffer, self.batch, self.flush_interval = buffer, batch, flush_interval
+        self.max_rate, self.burst, self.max_inflight = max_rate, burst, max_inflight
+        self.backoff, self.drain_timeout = backoff, drain_timeout
+        self.welcome_timeout, self.echo_interval = welcome_timeout, echo_interval
+        self.status_interval = status_interval
+        self.stats = DaemonStats()
+        self.clock = ClockEstimator(clock_window)
+        # The source's own events (a replayed log) pass through; otherwise the detector runs.
+        self.detector = (
+            make_detector(detector, self.info.geometry)
+            if detector is not None and not self.info.has_events
+            else None
+        )
+        self._unsent: deque[Any] = deque()
+        self._retry: deque[Any] = deque()
+        self._inflight: deque[tuple[int, Any]] = deque()
+        self._marks: dict[int, int] = {}  # echo t0 -> last seq sent before it
+        self._seq = 0
+        self._pending_samples = 0
+        self._handed = 0  # records the thread handed over (written by the thread only)
+        self._ingested = 0  # records the loop took in (written by the loop only)
+        self._stop_flag = threading.Event()
+        self._accepting = True
+        self._source_done_at: float | None = None
+        self._writer: SessionLogWriter | None = None
+        self._last_t = 0
+        self._drop_note = [0, 0]  # samples, events dropped since the last note
+        self._clock_written: tuple[float, ClockEstimate] | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake: asyncio.Event | None = None
+        self.connected = False
+
+    # --- source side (thread) ------------------------------------------------------------------
+
+    def _produce(self) -> None:
+        loop = self._loop
+        assert loop is not None
+        try:
+            for record in records_of(self.source):
+                if self._stop_flag.is_set():
+                    break
+                if not self.info.live:  # a replay waits for room instead of losing samples
+                    while (
+                        len(self._unsent) + self._handed - self._ingested >= self.buffer
+                        and not self._stop_flag.is_set()
+                    ):
+                        time.sleep(0.002)
+                self._handed += 1
+                loop.call_soon_threadsafe(self._ingest, record)
+        except Exception as e:  # a broken source ends the run; what it gave is delivered
+            log.error("source failed: %s", e)
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self._source_failed, f"{type(e).__name__}: {e}")
+        finally:
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self._end_of_source)
+
+    def _source_failed(self, text: str) -> None:
+        self.stats.source_error = text
+
+    # --- intake (loop) -------------------------------------------------------------------------
+
+    def _ingest(self, record: Any) -> None:
+        self._ingested += 1
+        if not self._accepting:
+            return
+        if isinstance(record, GazeSample):
+            self.stats.samples_produced += 1
+            self._last_t = max(self._last_t, record.t_ns)
+            self._write(record)
+            self._enqueue(record)
+            if self.detector is not None:
+                for event in self.detector.feed(record):
+                    self._event(event)
+        elif _is_event(record):
+            self._event(record)
+        else:  # scene, params, note, clock records of a replayed log: recorded only
+            self._write(record)
+
+    def _event(self, event: Any) -> None:
+        self.stats.events_produced += 1
+        self._write(event)
+        self._enqueue(event)
+
+    def _write(self, record: Any) -> None:
+        if self._writer is None:
+            return
+        self._writer.write(record)
+        if isinstance(record, GazeSample):
+            self.stats.samples_recorded += 1
+        elif _is_event(record):
+            self.stats.events_recorded += 1
+
+    def _enqueue(self, item: Any) -> None:
+        sample = isinstance(item, GazeSample)
+        if self.info.live and len(self._unsent) >= self.buffer:
+            old = self._unsent.popleft()
+            if isinstance(old, GazeSample):
+                self._pending_samples -= 1
+                self.stats.samples_dropped += 1
+                self._drop_note[0] += 1
+            else:
+                self.stats.events_dropped += 1
+                self._drop_note[1] += 1
+            if sum(self._drop_note) == 1:
+                log.warning("send buffer full (%d items): dropping the oldest", self.buffer)
+        self._unsent.append(item)
+        if sample:
+            self._pending_samples += 1
+        if not sample or self._pending_samples >= self.batch:
+            self._wake_sender()
+
+    def _end_of_source(self) -> None:
+        if self._source_done_at is not None and not self._accepting:
+            return
+        if self.detector is not None and self._accepting:
+            for event in self.detector.flush():
+                self._event(event)
+        self._accepting = False
+        if self._source_done_at is None:
+            self._source_done_at = time.monotonic()
+        self._wake_sender()
+
+    def stop(self) -> None:
+        """End the run: the source stops, what is buffered is delivered (up to drain_timeout)."""
+        self._stop_flag.set()
+        if self._loop is not None:
+            self._end_of_source()
+
+    def stop_threadsafe(self) -> None:
+        self._stop_flag.set()
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._end_of_source)
+
+    def _wake_sender(self) -> None:
+        if self._wake is not None:
+            self._wake.set()
+
+    def _note_drops(self, why: str) -> None:
+        samples, events = self._drop_note
+        if not (samples or events):
+            return
+        self._drop_note = [0, 0]
+        text = (
+            f"send buffer full ({self.buffer} items) {why}: "
+            f"dropped {samples} samples, {events} events"
+        )
+        log.warning(text)
+        if self._writer is not None:
+            self._writer.note(self._last_t, text)
+
+    @property
+    def backlog(self) -> int:
+        return len(self._unsent) + len(self._retry) + len(self._inflight)
+
+    def _drained(self) -> bool:
+        return self._source_done_at is not None and not self._accepting and self.backlog == 0
+
+    # --- network side --------------------------------------------------------------------------
+
+    async def run(self) -> DaemonStats:
+        self._loop = asyncio.get_running_loop()
+        self._wake = asyncio.Event()
+        if self.record_path is not None:
+            header = SessionHeader(
+                tracker=self.info.header_tracker(),
+                screen=self.info.geometry,
+                clock=ClockInfo("monotonic_ns" if self.info.live else "replayed"),
+            )
+            self._writer = SessionLogWriter(self.record_path, header, overwrite=self.overwrite)
+        thread = threading.Thread(target=self._produce, name="gazehdr-source", daemon=True)
+        thread.start()
+        status = asyncio.create_task(self._status()) if self.status_interval else None
+        try:
+            await self._connect_loop()
+        finally:
+            self._stop_flag.set()
+            self._accepting = False
+            if status is not None:
+                status.cancel()
+            self._give_up()
+            self._note_drops("before the end")
+            if self._writer is not None:
+                self._writer.close()
+        return self.stats
+
+    def _give_up(self) -> None:
+        for item in (*self._retry, *(i for _, i in self._inflight), *self._unsent):
+            if isinstance(item, GazeSample):
+                self.stats.samples_undelivered += 1
+            else:
+                self.stats.events_undelivered += 1
+        self._retry.clear()
+        self._inflight.clear()
+        self._unsent.clear()
+        self._pending_samples = 0
+        if self.stats.samples_undelivered or self.stats.events_undelivered:
+            log.warning(
+                "gave up: %d samples and %d events were never delivered (they are in the "
+                "local recording if one was asked for)",
+                self.stats.samples_undelivered,
+                self.stats.events_undelivered,
+            )
+
+    def _draining_too_long(self) -> bool:
+        done = self._source_done_at
+        return done is not None and time.monotonic() - done > self.drain_timeout
+
+    async def _connect_loop(self) -> None:
+        from websockets.asyncio.client import connect
+        from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+
+        delay = self.backoff[0]
+        while not self._drained() and not self._draining_too_long():
+            welcomed = False
+            try:
+                async with connect(
+                    self.url,
+                    additional_headers={"Authorization": f"Bearer {self.token}"},
+                    proxy=None,
+                    open_timeout=self.welcome_timeout,
+                    close_timeout=1.0,
+                    max_size=wire.MAX_MESSAGE_BYTES,
+                    compression=None,
+                ) as ws:
+                    await self._hello(ws)
+                    welcomed = True
+                    delay = self.backoff[0]
+                    await self._session(ws)
+            except UnauthorizedError:
+                raise
+            except InvalidURI as e:
+                raise DaemonError(f"server URL {self.url}: {e}") from None
+            except (
+                OSError,
+                asyncio.TimeoutError,
+                InvalidHandshake,
+                ConnectionClosed,
+                _ClosedError,
+            ) as e:
+                self.stats.last_error = str(e) or type(e).__name__
+                if isinstance(e, _ClosedError) and e.code == CLOSE_UNAUTHORIZED:
+                    raise UnauthorizedError(self._refused(e.reason)) from None
+            finally:
+                if welcomed:
+                    self._connection_lost()
+            if self._drained() or self._draining_too_long():
+                break
+            log.info(
+                "server %s unreachable (%s); retrying in %.2g s",
+                self.url,
+                self.stats.last_error,
+                delay,
+            )
+            await self._sleep_or_done(delay * random.uniform(0.9, 1.1))
+            delay = min(delay * 2, self.backoff[1])
+
+    async def _sleep_or_done(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not self._draining_too_long():
+            await asyncio.sleep(min(0.05, max(0.0, deadline - time.monotonic())))
+
+    def _refused(self, reason: str) -> str:
+        return (
+            f"the server at {self.url} refused the token ({reason or 'close code 4401'}); "
+            "check --token or $GAZEHDR_TOKEN against the token 'gazehdr serve' printed"
+        )
+
+    async def _hello(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        screen = {k: float(v) for k, v in asdict(self.info.geometry).items()}
+        try:
+            await ws.send(wire.dumps(wire.Hello(wire.PROTOCOL, self.info.name, screen)))
+            while True:
+                text = await asyncio.wait_for(ws.recv(), self.welcome_timeout)
+                reply = wire.parse_reply(text)
+                if isinstance(reply, wire.Welcome):
+                    break
+                if isinstance(reply, wire.Notice):
+                    raise DaemonError(f"the server refused hello: {reply.message}")
+        except ConnectionClosed as e:
+            raise self._closed(e) from None
+        except wire.WireError as e:
+            raise DaemonError(f"the server's reply to hello: {e}") from None
+        self.stats.connects += 1
+        self.connected = True
+        self._marks.clear()
+        self._bucket = TokenBucket(self.max_rate, self.burst)
+        self._last_echo = 0.0
+        log.info("connected to %s as %r", self.url, self.info.name)
+        self._note_drops("while disconnected")
+
+    def _closed(self, e: Any) -> _ClosedError:
+        rcvd = getattr(e, "rcvd", None)
+        if rcvd is not None:
+            return _ClosedError(rcvd.code, rcvd.reason)
+        return _ClosedError(None, "")
+
+    def _connection_lost(self) -> None:
+        self.connected = False
+        self.stats.disconnects += 1
+        self._marks.clear()
+        if self._inflight:
+            self.stats.resent += len(self._inflight)
+            self._retry.extendleft(item for _, item in reversed(self._inflight))
+            self._inflight.clear()
+
+    async def _session(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        assert self._wake is not None
+        reader = asyncio.create_task(self._read(ws))
+        try:
+            while True:
+                if reader.done():
+                    reader.result()  # raises _ClosedError / DaemonError
+                    raise _ClosedError(None, "")
+                if self._drained():
+                    await ws.close()
+                    return
+                if self._draining_too_long():
+                    return
+                self._wake.clear()
+                limited = await self._send_round(ws)
+                if limited:
+                    await asyncio.sleep(self.flush_interval)
+                else:
+                    with contextlib.suppress(asyncio.TimeoutError):
+                        await asyncio.wait_for(self._wake.wait(), self.flush_interval)
+        except ConnectionClosed as e:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(asyncio.shield(reader), 0.5)
+            if reader.done() and not reader.cancelled() and reader.exception() is not None:
+                raise reader.exception() from None
+            raise self._closed(e) from None
+        finally:
+            reader.cancel()
+            with contextlib.suppress(BaseException):
+                await reader
+
+    async def _read(self, ws: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            async for text in ws:
+                t1 = time.monotonic_ns()
+                try:
+                    reply = wire.parse_reply(text)
+                except wire.WireError as e:
+                    log.warning("ignoring a reply from the server: %s", e)
+                    continue
+                if isinstance(reply, wire.EchoReply):
+                    self._echoed(reply, t1)
+                elif isinstance(reply, wire.Notice):
+                    m = _RATE_NOTE.search(reply.message)
+                    if m:
+                        self.stats.server_rate_limited += int(m.group(1))
+                    log.warning("server: %s", reply.message)
+        except ConnectionClosed as e:
+            raise self._closed(e) from None
+        raise _ClosedError(ws.close_code, ws.close_reason or "")
+
+    def _echoed(self, reply: wire.EchoReply, t1: int) -> None:
+        best = self.clock.add(reply.t0_ns, reply.server_ns, t1)
+        self.stats.clock = best
+        if best is not None:
+            self._write_clock(best)
+        mark = self._marks.pop(reply.t0_ns, None)
+        if mark is None:
+            return
+        for t0 in [t for t in self._marks if t < reply.t0_ns]:
+            del self._marks[t0]
+        while self._inflight and self._inflight[0][0] <= mark:
+            _, item = self._inflight.popleft()
+            if isinstance(item, GazeSample):
+                self.stats.samples_delivered += 1
+            else:
+                self.stats.events_delivered += 1
+        self._wake_sender()
+
+    def _write_clock(self, best: ClockEstimate) -> None:
+        if self._writer is None or not self.info.live:
+            return
+        now = time.monotonic()
+        last = self._clock_written
+        if last is not None and (last[1] == best or now - last[0] < 1.0):
+            return
+        self._clock_written = (now, best)
+        self._writer.clock(time.monotonic_ns(), best.offset_ns, best.uncertainty_ns)
+
+    def _next(self) -> deque[Any] | None:
+        if self._retry:
+            return self._retry
+        if self._unsent:
+            return self._unsent
+        return None
+
+    async def _send_round(self, ws: Any) -> bool:
+        """Send what the bucket and the in-flight window allow; True when the bucket held it."""
+        sent = False
+        limited = False
+        while (queue := self._next()) is not None:
+            room = self.max_inflight - len(self._inflight)
+            if room <= 0:
+                break
+            if isinstance(queue[0], GazeSample):
+                tokens = self._bucket.available()
+                n = min(self.batch, room, tokens)
+                if n <= 0:
+                    limited = True
+                    break
+                items = []
+                while queue and len(items) < n and isinstance(queue[0], GazeSample):
+                    items.append(queue.popleft())
+                if queue is self._unsent:
+                    self._pending_samples -= len(items)
+                self._bucket.take(len(items))
+                message = wire.Samples(tuple(_to_wire(s, self.info) for s in items))
+                self._track(items)
+                await ws.send(wire.dumps(message))
+                self.stats.samples_sent += len(items)
+                self.stats.sent_times.append((time.monotonic(), len(items)))
+            else:
+                item = queue.popleft()
+                message = _to_wire(item, self.info)
+                if message is None:
+                    self.stats.events_unsendable += 1
+                    continue
+                self._track([item])
+                await ws.send(wire.dumps(message))
+            sent = True
+        now = time.monotonic()
+        if (
+            sent
+            or (self._inflight and now - self._last_echo > 0.1)
+            or now - self._last_echo > self.echo_interval
+        ):
+            t0 = time.monotonic_ns()
+            self._marks[t0] = self._seq
+            self._last_echo = now
+            await ws.send(wire.dumps(wire.Echo(t0)))
+        return limited
+
+    def _track(self, items: list[Any]) -> None:
+        for item in items:
+            self._seq += 1
+            self._inflight.append((self._seq, item))
+
+    async def _status(self) -> None:
+        assert self.status_interval
+        while True:
+            await asyncio.sleep(self.status_interval)
+            state = "connected" if self.connected else "disconnected"
+            log.info("%s; %s; %d buffered", state, self.stats.summary(), self.backlog)
+
+
+async def run_daemon(
+    source: Any,
+    server_url: str,
+    token: str,
+    *,
+    record: str | Path | None = None,
+    detector: str | None = "ivt",
+    **options: Any,
+) -> DaemonStats:
+    """Stream `source` to the server until it ends; returns what happened (`DaemonStats`).
+
+    Raises `UnauthorizedError` when the server refuses the token. See `Daemon` for the options.
+    """
+    return await Daemon(
+        source, server_url, token, record=record, detector=detector, **options
+    ).run()
+
+
+# --- command line ----------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="gazehdr daemon",
+        description="Stream gaze from a tracker (or a recording, or a synthetic scan path) to a "
+        "gazehdr server; sessions with gaze source 'remote' follow its fixations.",
+        epilog="examples:\n"
+        "  gazehdr daemon --source synthetic --server ws://127.0.0.1:8000 --token T\n"
+        "  gazehdr daemon --source replay:session.jsonl@2 --server ws://HOST:8000\n"
+        "  gazehdr daemon --source hid --record today.jsonl   # token from $GAZEHDR_TOKEN",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--source",
+        default="synthetic",
+        help="hid[:PATH], replay:FILE[@SPEED] (SPEED a factor or max), or synthetic[:SEED] "
+        "(default: synthetic)",
+    )
+    p.add_argument(
+        "--server",
+        default=os.environ.get("GAZEHDR_SERVER"),
+        help="the server, ws://HOST:PORT (default: $GAZEHDR_SERVER)",
+    )
+    p.add_argument(
+        "--token",
+        default=os.environ.get("GAZEHDR_TOKEN"),
+        help="bearer token 'gazehdr serve' printed (default: $GAZEHDR_TOKEN)",
+    )
+    p.add_argument("--record", metavar="FILE", help="also write every sample and event here")
+    p.add_argument("--detector", choices=sorted(DETECTORS), default="ivt", help="default: ivt")
+    p.add_argument(
+        "--buffer",
+        type=int,
+        default=DEFAULT_BUFFER,
+        metavar="N",
+        help=f"items kept while the server is away (default: {DEFAULT_BUFFER})",
+    )
+    p.add_argument("--rate", type=float, metavar="HZ", help="synthetic source's sampling rate")
+    p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    return p
+
+
+def daemon_main(argv: Sequence[str] | None = None) -> int:
+    """`gazehdr daemon ...`: 0 when the source ended, 1 on a failing source, 2 on bad input or
+    a refused token, 130 on Ctrl-C."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    prog = "gazehdr daemon"
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
+    log.addHandler(handler)
+    log.setLevel(logging.WARNING if args.quiet else logging.INFO)
+    log.propagate = False
+    try:
+        if not args.server:
+            parser.error("--server (or $GAZEHDR_SERVER) is required")
+        if not args.token:
+            parser.error("--token (or $GAZEHDR_TOKEN) is required")
+        if args.buffer < 1:
+            parser.error(f"--buffer must be a positive number of items, got {args.buffer}")
+        source = open_source(args.source, rate_hz=args.rate)
+        daemon = Daemon(
+            source,
+            args.server,
+            args.token,
+            record=args.record,
+            detector=args.detector,
+            buffer=args.buffer,
+            status_interval=10.0,
+        )
+        stats = asyncio.run(daemon.run())
+    except UnauthorizedError as e:
+        sys.stderr.write(f"{prog}: error: {e}\n")
+        return 2
+    except (DaemonError, SourceUnavailableError, ValueError, OSError) as e:
+        what = f"{e.filename}: {e.strerror}" if isinstance(e, OSError) and e.strerror else str(e)
+        sys.stderr.write(f"{prog}: error: {what}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: interrupted\n")
+        return 130
+    finally:
+        log.removeHandler(handler)
+    log.info("%s", stats.summary())
+    sys.stderr.write(f"{prog}: {stats.summary()}\n")
+    if stats.source_error:
+        sys.stderr.write(f"{prog}: error: source failed: {stats.source_error}\n")
+        return 1
+    return 0

@@ -1,0 +1,229 @@
+"""Sources and replay: one interface, deterministic replays that emit what the live source did."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import pytest
+
+from drivers import sources
+from drivers.fixations import make_detector
+from drivers.formats import import_recording
+from drivers.replay import ReplaySource, is_session_log, replay
+from drivers.samples import GazeSample, ScreenGeometry
+from drivers.sessionlog import (
+    GazeEvent,
+    SessionHeader,
+    SessionLogWriter,
+    encode_record,
+    read_session_log,
+)
+from drivers.sources import (
+    Pacer,
+    Source,
+    SourceUnavailableError,
+    SyntheticSource,
+    open_source,
+    parse_speed,
+)
+
+DATA = Path(__file__).parent / "data" / "formats"
+
+
+class FakeClock:
+    """A monotonic clock that only moves when someone sleeps."""
+
+    def __init__(self, start_ns: int = 1_000_000_000) -> None:
+        self.now_ns = start_ns
+        self.slept: list[float] = []
+
+    def __call__(self) -> int:
+        return self.now_ns
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.now_ns += round(seconds * 1e9)
+
+
+def _live_records(source, detector: str = "ivt") -> list:
+    """What a live pipeline emits: each sample, then the events the detector gives for it."""
+    det = make_detector(detector, source.info.geometry)
+    out: list = []
+    for sample in source:
+        out.append(sample)
+        out.extend(det.feed(sample))
+    out.extend(det.flush())
+    return out
+
+
+def _record(path: Path, source, records: list) -> Path:
+    header = SessionHeader(tracker=source.info.header_tracker(), screen=source.info.geometry)
+    with SessionLogWriter(path, header) as writer:
+        writer.write_all(records)
+    return path
+
+
+def _keys(records: list) -> list[dict]:
+    return [encode_record(r) for r in records]
+
+
+def test_synthetic_source_is_a_source_with_ground_truth() -> None:
+    clock = FakeClock()
+    src = SyntheticSource(3, 200.0, duration=2.0, realtime=False, clock=clock)
+    assert isinstance(src, Source)
+    assert src.info.rate_hz == 200.0 and src.info.live and not src.info.has_events
+    samples = list(src)
+    assert len(samples) == 401
+    assert samples[0].t_ns == clock.now_ns  # stamped on the (monotonic) clock it was given
+    assert all(b.t_ns - a.t_ns == 5_000_000 for a, b in itertools.pairwise(samples))
+    assert clock.slept == []  # as fast as possible
+    assert src.paths[0].fixations  # ground truth
+    # the same seed gives the same samples, shifted to the start time
+    again = list(SyntheticSource(3, 200.0, duration=2.0, realtime=False, start_ns=0))
+    assert [(s.t_ns + samples[0].t_ns, s.x, s.valid) for s in again] == [
+        (s.t_ns, s.x, s.valid) for s in samples
+    ]
+
+
+def test_synthetic_source_paces_in_real_time_with_an_injected_clock() -> None:
+    clock = FakeClock()
+    src = SyntheticSource(0, 100.0, duration=1.0, clock=clock, sleep=clock.sleep)
+    start = clock.now_ns
+    samples = list(src)
+    assert len(samples) == 101
+    assert sum(clock.slept) == pytest.approx(1.0, abs=1e-6)
+    assert clock.now_ns - start == samples[-1].t_ns - samples[0].t_ns
+
+
+def test_endless_synthetic_source_chains_seeded_chunks(monkeypatch) -> None:
+    monkeypatch.setattr(sources, "SYNTHETIC_CHUNK_S", 1.0)
+    src = SyntheticSource(5, 100.0, realtime=False, start_ns=0)
+    it = iter(src)
+    samples = [next(it) for _ in range(350)]
+    assert [s.t_ns for s in samples] == [i * 10_000_000 for i in range(350)]
+    assert [p.seed for p in src.paths] == [5, 6, 7, 8]
+
+
+def test_pacer_maps_record_time_to_wall_time_at_a_speed() -> None:
+    clock = FakeClock()
+    pacer = Pacer(2.0, clock=clock, sleep=clock.sleep)
+    for t in (10_000_000_000, 11_000_000_000, 10_500_000_000, 13_000_000_000):
+        pacer.wait(t)
+    assert clock.slept == pytest.approx([0.5, 1.0])  # a time that goes back never waits
+    with pytest.raises(ValueError):
+        Pacer(0.0)
+
+
+def test_replay_of_a_recorded_synthetic_run_emits_exactly_what_was_live(tmp_path: Path) -> None:
+    src = SyntheticSource(1, 250.0, duration=6.0, realtime=False, start_ns=123)
+    live = _live_records(src)
+    assert any(isinstance(r, GazeSample) for r in live)
+    kinds = {r.kind for r in live if not isinstance(r, GazeSample)}
+    assert {"fixation_start", "fixation_end", "blink_start", "blink_end"} <= kinds
+    path = _record(tmp_path / "run.jsonl", src, live)
+    assert is_session_log(path)
+
+    rep = ReplaySource(path, speed=math.inf)
+    assert rep.info.has_events and not rep.info.live
+    assert rep.info.geometry == src.info.geometry
+    first, second = list(rep.records()), list(rep.records())
+    assert _keys(first) == _keys(second)  # deterministic
+    assert _keys(first) == _keys(live)  # same samples, same events, same order
+    assert list(rep) == [r for r in live if isinstance(r, GazeSample)]  # samples equal exactly
+    assert all(isinstance(r, GazeEvent) for r in first if not isinstance(r, GazeSample))
+
+
+def test_replay_paces_at_recorded_speed_times_k(tmp_path: Path) -> None:
+    src = SyntheticSource(2, 50.0, duration=2.0, realtime=False, start_ns=0)
+    path = _record(tmp_path / "r.jsonl", src, list(src))
+    for speed, expected in ((1.0, 2.0), (4.0, 0.5)):
+        clock = FakeClock()
+        out = list(ReplaySource(path, speed=speed, clock=clock, sleep=clock.sleep))
+        assert len(out) == 101
+        assert sum(clock.slept) == pytest.approx(expected, abs=1e-6)
+    clock = FakeClock()
+    assert len(replay(path, math.inf, clock=clock, sleep=clock.sleep)) == 101
+    assert clock.slept == []
+
+
+def test_replay_of_a_cut_log_stops_at_the_last_whole_line(tmp_path: Path) -> None:
+    src = SyntheticSource(2, 100.0, duration=1.0, realtime=False, start_ns=0)
+    path = _record(tmp_path / "cut.jsonl", src, list(src))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) - 7])
+    rep = ReplaySource(path, speed=math.inf)
+    out = list(rep)
+    assert len(out) == 100 and rep.truncated
+
+
+def test_replay_of_an_imported_recording_equals_its_import(tmp_path: Path) -> None:
+    fixture = DATA / "eyelink_mono.asc"
+    imported = import_recording(fixture)
+    rep = ReplaySource(fixture, speed=math.inf)
+    assert rep.info.geometry == imported.header.screen
+    out = list(rep.records())
+    expected = [r for r in imported.records() if isinstance(r, (GazeSample, GazeEvent))]
+    assert _keys(out) == _keys(expected)
+    assert _keys(list(rep.records())) == _keys(out)
+    # and replaying the imported log written natively gives the same stream
+    from drivers.sessionlog import write_session_log
+
+    native = write_session_log(tmp_path / "imported.jsonl", imported)
+    assert _keys(replay(native)) == _keys(out)
+
+
+def test_open_source_specs(tmp_path: Path) -> None:
+    src = open_source("synthetic:7", rate_hz=60.0, realtime=False)
+    assert isinstance(src, SyntheticSource) and src.seed == 7 and src.rate_hz == 60.0
+    assert open_source("synthetic").seed == 0
+    s = SyntheticSource(0, 50.0, duration=1.0, realtime=False, start_ns=0)
+    path = _record(tmp_path / "a@b.jsonl", s, list(s))
+    assert open_source(f"replay:{path}").speed == 1.0  # an @ in the name stays in it
+    assert open_source(f"replay:{path}@max").speed == math.inf
+    assert open_source(f"replay:{path}@2.5").speed == 2.5
+    assert open_source(f"replay:{path}@x3").speed == 3.0
+    assert parse_speed("0.5") == 0.5
+    with pytest.raises(ValueError, match="speed"):
+        parse_speed("-1")
+    with pytest.raises(ValueError, match="integer seed"):
+        open_source("synthetic:abc")
+    with pytest.raises(ValueError, match="known: synthetic"):
+        open_source("mouse")
+    with pytest.raises(FileNotFoundError):
+        open_source(f"replay:{tmp_path / 'missing.jsonl'}")
+    with pytest.raises(ValueError, match="replay needs a file"):
+        open_source("replay:")
+
+
+def test_hid_source_without_a_tracker_is_a_clear_error() -> None:
+    class NoDevices:  # the hidapi module interface, with nothing plugged in
+        def enumerate(self, *args):
+            return []
+
+    with pytest.raises(SourceUnavailableError, match="HID source unavailable"):
+        open_source("hid", backend=NoDevices())
+
+
+def test_hid_source_is_opened_lazily_with_a_clear_error(monkeypatch) -> None:
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_hid(name, *args, **kwargs):
+        if name == "drivers.hid":
+            raise ModuleNotFoundError("No module named 'drivers.hid'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_hid)
+    with pytest.raises(SourceUnavailableError, match="HID source unavailable"):
+        open_source("hid")
+
+
+def test_imported_geometry_passes_through(tmp_path: Path) -> None:
+    geometry = ScreenGeometry(0.5, 1280, 1024, 0.7)
+    rep = open_source(f"replay:{DATA / 'gaze_positions.csv'}", geometry=geometry)
+    assert rep.info.geometry.screen_width_px == 1280
+    log = read_session_log(_record(tmp_path / "g.jsonl", rep, list(rep.records())))
+    assert log.header.screen.screen_width_px == 1280
