@@ -155,23 +155,36 @@ class OpenCVPipeline:
         return cv2.pow(J, p.gamma)
 
 
-def _bench_size(width: int, height: int, frames: int, scene_name: str) -> dict:
+def _bench_size(
+    width: int,
+    height: int,
+    frames: int,
+    scene_name: str,
+    dt: float = 1 / 60,
+    opencv: bool = True,
+    half: bool = False,
+) -> dict:
     from server.scenes import open_scene
 
     sim = Simulator(width, height, backend="opencl", seed=0)
     scene = open_scene(scene_name).render(0.0, width, height)
     sim.load_scene(scene)
+    # A second eye for the live frames, so that `sim` stays in step with the OpenCV side.
+    live = Simulator(width, height, backend="opencl", seed=0)
+    live.load_scene(scene)
     b, lay, p = sim._backend, sim.layout, sim.params
-    cvp = OpenCVPipeline(lay, p)
-    cvp.A, cvp.state = sim.adaptation, np.ascontiguousarray(b.get("state").transpose(1, 2, 0))
+    cvp = OpenCVPipeline(lay, p) if opencv else None
+    if cvp is not None:
+        cvp.A = sim.adaptation
+        cvp.state = np.ascontiguousarray(b.get("state").transpose(1, 2, 0))
     fitted = np.ascontiguousarray(b.get("scene").transpose(1, 2, 0))
-    times: dict[str, list[float]] = {f"cl.{s}": [] for s in (*STAGES, "step")}
+    times: dict[str, list[float]] = {f"cl.{s}": [] for s in (*STAGES, "step", "live")}
     times.update({f"cv.{s}": [] for s in (*STAGES, "step")})
     gazes = [
         (width * (0.3 + 0.4 * (i % 3) / 2), height * (0.4 + 0.2 * (i % 2)))
         for i in range(frames + 2)
     ]
-    dt = 1 / 60
+    out_dtype = np.float16 if half else np.float32
 
     def timed(key: str, fn) -> None:
         t0 = time.perf_counter()
@@ -186,9 +199,13 @@ def _bench_size(width: int, height: int, frames: int, scene_name: str) -> dict:
         timed("cl.adapt", lambda g=gaze: b.adapt(g, dt, False))
         timed("cl.retina", lambda g=gaze: b.retina(g, dt, False))
         timed("cl.acuity", lambda n=noise: b.acuity(n))
-        timed("cl.compose", lambda g=gaze: b.compose(g, 1.0))
+        timed("cl.compose", lambda g=gaze: b.compose(g, 1.0, out_dtype))
         sim._prepared_for = None  # make step() redo the scene maps, as the stage loop did
         timed("cl.step", lambda g=gaze: sim.step(dt, gaze=g))
+        # A live frame: the scene maps are kept (they change only with the scene).
+        timed("cl.live", lambda g=gaze: live.step(dt, gaze=g))
+        if cvp is None:
+            continue
         t_all = time.perf_counter()
         for stage, fn in (
             ("prepare", lambda: cvp.prepare(fitted)),
@@ -202,10 +219,11 @@ def _bench_size(width: int, height: int, frames: int, scene_name: str) -> dict:
             times[f"cv.{stage}"].append(time.perf_counter() - t0)
         times["cv.step"].append(time.perf_counter() - t_all)
     # The first two frames warm caches and JITs; medians of the rest.
-    return {k: statistics.median(v[2:]) * 1000 for k, v in times.items()} | {
-        "device": sim.device,
-        "check": float(np.abs(cvp.compose(gazes[-1]) - b.compose(gazes[-1], 1.0)).mean()),
-    }
+    result = {k: statistics.median(v[2:]) * 1000 for k, v in times.items() if v}
+    result["device"] = sim.device
+    if cvp is not None:
+        result["check"] = float(np.abs(cvp.compose(gazes[-1]) - b.compose(gazes[-1], 1.0)).mean())
+    return result
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -213,20 +231,40 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=10, help="timed frames per size (default 10)")
     ap.add_argument("--scene", default="lamp", help="built-in scene (default lamp: 1e-1..1e6)")
     ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES))
+    ap.add_argument("--dt", type=float, default=1 / 60, help="seconds per frame (default 1/60)")
+    ap.add_argument(
+        "--opencl-only", action="store_true", help="time the kernels only, without OpenCV"
+    )
+    ap.add_argument(
+        "--half", action="store_true", help="compose to float16, as frames sent as f16 are"
+    )
     args = ap.parse_args(argv)
-    try:
-        import cv2  # noqa: F401
-    except ImportError:
-        ap.error("the OpenCV side needs opencv: pip install -e '.[bench]'")
+    if not args.opencl_only:
+        try:
+            import cv2  # noqa: F401
+        except ImportError:
+            ap.error("the OpenCV side needs opencv: pip install -e '.[bench]'")
     if args.frames < 1:
         ap.error("--frames must be at least 1")
+    if not 0 < args.dt <= 60:
+        ap.error("--dt must be in (0, 60] seconds")
     try:
         sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     except ValueError:
         ap.error(f"--sizes must look like 640x360,1280x720, got {args.sizes!r}")
     for width, height in sizes:
-        r = _bench_size(width, height, args.frames, args.scene)
+        r = _bench_size(
+            width, height, args.frames, args.scene, args.dt, not args.opencl_only, args.half
+        )
         print(f"\n{width}x{height}  scene={args.scene}  OpenCL device: {r['device']}")
+        if args.opencl_only:
+            print(f"  {'stage':<10}{'OpenCL ms':>12}")
+            for stage in STAGES:
+                print(f"  {stage:<10}{r[f'cl.{stage}']:>12.2f}")
+            print(f"  {'pipeline':<10}{r['cl.step']:>12.2f}")
+            live = r["cl.live"]
+            print(f"  live step {live:.2f} ms ({1000 / live:.1f} fps): scene maps kept")
+            continue
         print(f"  {'stage':<10}{'OpenCL ms':>12}{'OpenCV ms':>12}{'CL/CV':>9}")
         for stage in (*STAGES, "step"):
             cl_ms, cv_ms = r[f"cl.{stage}"], r[f"cv.{stage}"]
@@ -234,5 +272,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {name:<10}{cl_ms:>12.2f}{cv_ms:>12.2f}{cl_ms / max(cv_ms, 1e-9):>9.2f}")
         fps_cl, fps_cv = 1000 / r["cl.step"], 1000 / r["cv.step"]
         print(f"  pipeline: {fps_cl:.1f} fps OpenCL, {fps_cv:.1f} fps OpenCV;")
+        live = r["cl.live"]
+        print(f"  live step {live:.2f} ms ({1000 / live:.1f} fps): scene maps kept;")
         print(f"  same work: mean |v_OpenCL - v_OpenCV| = {r['check']:.2e}")
     return 0

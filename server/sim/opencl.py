@@ -2,6 +2,12 @@
 
 A GPU is used when one exists, otherwise the CPU (PoCL from PyPI). Set GAZEHDR_CL_DEVICE to a
 substring of a device name to pick one. Kernel files live in `kernels/`, one per paper section.
+
+Written for speed on PoCL (see kernels/common.cl): the per-pixel kernels make 8 pixels per
+work-item; the acuity bank runs all its levels per screen tile in local memory (GPUs, or
+GAZEHDR_CL_ACUITY=levels, use the level-by-level bank instead); the afterimage maps are made
+only where the screen shows them, the rest of the grid on demand (get("maps"), or a compose at
+another gaze); rho at every pixel is kept from the last scene load.
 """
 
 from __future__ import annotations
@@ -34,8 +40,16 @@ KERNEL_FILES = (
 )
 MAX_BANDS = 8
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
-VEC = 8  # pixels per work-item in the blurs (VEC in kernels/common.cl)
+VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
+ACUITY_TILE = (128, 64)  # screen pixels per work-item of the tiled acuity bank (x: VEC multiple)
+
+# compose's outputs: kernel, buffer, shape
+COMPOSE_OUTPUTS = {
+    np.dtype(np.float32): ("compose", "v", lambda lay: (lay.height, lay.width, 3)),
+    np.dtype(np.float16): ("compose_half", "v16", lambda lay: (lay.height, lay.width, 3)),
+    np.dtype(np.uint32): ("compose_rgb10", "v10", lambda lay: (lay.height, lay.width)),
+}
 
 PARAMS_DTYPE = np.dtype(
     [
@@ -90,10 +104,14 @@ def pick_device() -> cl.Device:
 @cache
 def _context_and_program() -> tuple[cl.Context, cl.Program]:
     """One context and one built program per process: building takes seconds on PoCL."""
-    ctx = cl.Context([pick_device()])
+    device = pick_device()
+    ctx = cl.Context([device])
     pkg = resources.files("server.sim") / "kernels"
     source = "\n".join((pkg / name).read_text() for name in KERNEL_FILES)
-    return ctx, cl.Program(ctx, source).build(options=["-cl-fast-relaxed-math"])
+    options = ["-cl-fast-relaxed-math"]
+    if "Portable Computing Language" in device.platform.name:
+        options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
+    return ctx, cl.Program(ctx, source).build(options=options)
 
 
 def _round_up(n: int, m: int) -> int:
@@ -124,25 +142,40 @@ class OpenCLBackend:
             "d": (lay.height, lay.width),
             "G": (3, lay.height, lay.width),
             "v": (lay.height, lay.width, 3),
+            "rho_full": (lay.height, lay.width),
         }
+        self._bank = self._acuity_bank_setup()
         sizes = {
             "scene": 3 * full, "down": 5 * low, "rho": low, "A": 1, "state": 6 * grid,
-            "maps": 6 * grid, "G": 3 * full, "v": 3 * full, "d_max": 1,
-            "grid_a": 6 * grid, "grid_b": 6 * grid, "low_yp": low, "low_blur": low, "low_tmp": low,
-            "lvl_a": 3 * full, "lvl_b": 3 * full, "lvl_tmp": 3 * full,
+            "maps": 6 * grid, "G": 3 * full, "v": 3 * full, "d_max": 1, "rho_full": full,
+            "grid_a": 6 * grid, "low_yp": low, "low_blur": low, "low_tmp": low,
+            "fovea": lay.width + lay.height,
         }  # fmt: skip
+        if self._bank is None:  # the level-by-level bank's whole-frame levels
+            sizes.update({"lvl_a": 3 * full, "lvl_b": 3 * full, "lvl_tmp": 3 * full})
         mf = cl.mem_flags
         self.buf = {n: cl.Buffer(self.ctx, mf.READ_WRITE, 4 * s) for n, s in sizes.items()}
         self.buf["d"] = cl.Buffer(self.ctx, mf.READ_WRITE, full)
+        self.buf["v16"] = cl.Buffer(self.ctx, mf.READ_WRITE, 2 * 3 * full)
+        self.buf["v10"] = cl.Buffer(self.ctx, mf.READ_WRITE, 4 * full)
+        for buf in self.buf.values():  # never read uninitialised memory (NaN patterns)
+            cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, buf.size)
+        # rho at every pixel (from "rho"), remade when rho changes
+        self._rho_full_stale = True
+        # The afterimage maps are made only where the screen shows them; this is the gaze of
+        # the last retina step when the rest of the grid is still to be made (_full_maps).
+        self._maps_partial: tuple[float, float] | None = None
         self.P = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(params))
         self._taps: dict[float, tuple[cl.Buffer, int]] = {}
-        self._noise_bufs: tuple[cl.Buffer, cl.Buffer] | None = None
+        self._noise_buf: cl.Buffer | None = None
         self._acuity_taps = [self._taps_for(s) for s in acuity_increments(params, lay.ppd)]
         self._rho_taps = self._taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
 
     # --- host access (tests, adaptation readout) ----------------------------------------------
 
     def get(self, name: str) -> np.ndarray:
+        if name == "maps":
+            self._full_maps()
         dtype = np.uint8 if name == "d" else np.float32
         out = np.empty(self.shapes[name], dtype)
         cl.enqueue_copy(self.queue, out, self.buf[name])
@@ -152,6 +185,10 @@ class OpenCLBackend:
         dtype = np.uint8 if name == "d" else np.float32
         arr = np.ascontiguousarray(np.asarray(value, dtype).reshape(self.shapes[name]))
         cl.enqueue_copy(self.queue, self.buf[name], arr)
+        if name == "rho":
+            self._rho_full_stale = True
+        if name == "maps":
+            self._maps_partial = None
 
     @property
     def A(self) -> float:
@@ -176,6 +213,51 @@ class OpenCLBackend:
         self.k["blur_h"](self.queue, size, None, src, tmp, tbuf, *dims)
         extra = (self.buf["d"], self.buf["G"], np.int32(level))
         self.k["blur_v"](self.queue, size, None, tmp, dst, tbuf, *dims, *extra)
+
+    def _acuity_bank_setup(self) -> dict | None:
+        """Taps and work sizes of the tiled bank (kernel acuity_bank), or None where the
+        level-by-level bank is used instead: on GPUs (one work-item per tile suits a CPU only),
+        when the tile's local memory would not fit, or GAZEHDR_CL_ACUITY=levels."""
+        dev = self.ctx.devices[0]
+        mode = os.environ.get("GAZEHDR_CL_ACUITY", "")
+        if mode not in ("", "tiles", "levels"):
+            raise RuntimeError(f"GAZEHDR_CL_ACUITY must be tiles or levels, got {mode!r}")
+        if mode == "levels" or (not mode and dev.type & cl.device_type.GPU):
+            return None
+        taps = [gaussian_taps(s) for s in acuity_increments(self.p, self.lay.ppd)]
+        levels = np.zeros(2 * MAX_BANDS, np.int32)
+        offsets = np.cumsum([0] + [len(t) for t in taps])
+        for i, t in enumerate(taps):
+            levels[2 * i], levels[2 * i + 1] = len(t) // 2, offsets[i]
+        halo = int(sum(len(t) // 2 for t in taps))
+        tx, ty = ACUITY_TILE
+        pad_x = (-(-halo // VEC) + 1) * VEC
+        floats = 2 * (tx + 2 * pad_x) * (ty + 2 * halo) + tx * ty
+        if 4 * floats > dev.local_mem_size:
+            return None
+        mf = cl.mem_flags
+        flat = np.concatenate(taps).astype(np.float32)
+        return {
+            "taps": cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=flat),
+            "levels": cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=levels),
+            "local": cl.LocalMemory(4 * floats),
+            "size": (-(-self.lay.width // tx), -(-self.lay.height // ty), 3),
+            "tile": (np.int32(tx), np.int32(ty)),
+        }
+
+    def _rows8(self) -> tuple[int, int]:
+        """Global size of the kernels that make 8 neighbouring pixels of a row per work-item."""
+        return (-(-self.lay.width // VEC), self.lay.height)
+
+    def _ensure_rho_full(self) -> None:
+        if self._rho_full_stale:
+            lay, b = self.lay, self.buf
+            self.k["rho_upsample"](
+                self.queue, self._rows8(), None, b["rho"], b["rho_full"],
+                np.int32(lay.low_w), np.int32(lay.low_h), np.int32(lay.cell),
+                np.int32(lay.width), np.int32(lay.height),
+            )  # fmt: skip
+            self._rho_full_stale = False
 
     def _grid_args(self, gaze):
         lay = self.lay
@@ -208,6 +290,8 @@ class OpenCLBackend:
             self.queue, (_round_up(low, ROW_GROUP),), None, self.P, blurred, b["rho"],
             np.int32(low),
         )  # fmt: skip
+        self._rho_full_stale = True
+        self._ensure_rho_full()
 
     def adapt(self, gaze, dt: float, reset: bool) -> None:
         lay, b = self.lay, self.buf
@@ -222,37 +306,83 @@ class OpenCLBackend:
 
     def retina(self, gaze, dt: float, reset: bool) -> None:
         lay, b, p = self.lay, self.buf, self.p
-        grid = (_round_up(lay.grid_w, ROW_GROUP), lay.grid_h)
+        grid = (-(-lay.grid_w // VEC), lay.grid_h)
         args = self._grid_args(gaze)
         sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
         blurred = not reset and sigma > 0
         target = b["grid_a"] if blurred else b["state"]
+        decay = [math.exp(-k * dt) for k in (*p.b2, p.c2)]
         self.k["retina_update"](
             self.queue, grid, None, self.P, b["down"], b["state"], target, b["A"],
-            *args, np.float32(dt), np.int32(reset),
+            *args, np.float32(dt), np.int32(reset), *(np.float32(v) for v in decay),
         )  # fmt: skip
+        # Maps only for the cells the screen shows at this gaze; the rest waits for get("maps")
+        # or a compose at another gaze (_full_maps).
+        window = self._screen_window(gaze)
         if blurred:
-            taps = self._taps_for(sigma)
-            self._blur(b["grid_a"], b["state"], b["grid_b"], taps, lay.grid_w, lay.grid_h, 6)
+            tbuf, r = self._taps_for(sigma)
+            self.k["retina_blur_maps"](
+                self.queue, grid, None, self.P, b["down"], b["grid_a"], b["state"], b["maps"],
+                b["A"], tbuf, np.int32(r), *args, *(np.int32(v) for v in window),
+            )  # fmt: skip
+            self._maps_partial = tuple(gaze)
+        else:
+            self._maps(gaze, window)
+
+    def _screen_window(self, gaze) -> tuple[int, int, int, int]:
+        """Retina cells (j0, i0, j1, i1), inclusive, that compose reads at this gaze."""
+        lay = self.lay
+
+        def span(g: float, n_px: int, n_grid: int) -> tuple[int, int]:
+            lo = math.floor((0.5 - g) / lay.cell + n_grid / 2 - 0.5) - 1  # a cell of margin
+            hi = math.floor((n_px - 0.5 - g) / lay.cell + n_grid / 2 - 0.5) + 2
+            return min(max(lo, 0), n_grid - 1), min(max(hi, 0), n_grid - 1)
+
+        (j0, j1) = span(gaze[0], lay.width, lay.grid_w)
+        (i0, i1) = span(gaze[1], lay.height, lay.grid_h)
+        return j0, i0, j1, i1
+
+    def _maps(self, gaze, window) -> None:
+        b = self.buf
+        j0, i0, j1, i1 = window
         self.k["afterimage_maps"](
-            self.queue, grid, None, self.P, b["down"], b["state"], b["maps"], b["A"], *args
-        )
+            self.queue, (-(-(j1 - j0 + 1) // VEC), i1 - i0 + 1), None, self.P, b["down"],
+            b["state"], b["maps"], b["A"], *self._grid_args(gaze), np.int32(j0), np.int32(i0),
+        )  # fmt: skip
+        full = window == (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
+        self._maps_partial = None if full else tuple(gaze)
+
+    def _full_maps(self) -> None:
+        """Complete the afterimage maps of the last retina step (all of the grid)."""
+        if self._maps_partial is not None:
+            lay = self.lay
+            self._maps(self._maps_partial, (0, 0, lay.grid_w - 1, lay.grid_h - 1))
 
     def acuity(self, noise: NoiseFrame) -> None:
         lay, b = self.lay, self.buf
         self._upload_noise(noise)
-        cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
-        k0, k1 = self._noise_bufs
+        self._ensure_rho_full()
+        if self._bank is None:
+            cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
         self.k["acuity_levels"](
-            self.queue, (_round_up(lay.width, ROW_GROUP), lay.height), None,
-            self.P, b["rho"], k0, k1, np.float32(noise.frac), np.float32(noise.spacing),
-            np.int32(noise.key0.shape[1]), np.int32(lay.low_w), np.int32(lay.low_h),
-            np.int32(lay.cell), np.int32(lay.width), np.int32(lay.height),
-            b["scene"], b["G"], b["d"], b["d_max"],
+            self.queue, self._rows8(), None, self.P, b["rho_full"], self._noise_buf,
+            np.float32(noise.spacing), np.int32(noise.key0.shape[1]),
+            np.int32(lay.width), np.int32(lay.height), b["d"], b["d_max"],
+            np.int32(self._bank is None),
         )  # fmt: skip
+        if self._bank is not None:
+            bank = self._bank
+            self.k["acuity_bank"](
+                self.queue, bank["size"], (1, 1, 1), b["scene"], b["d"], b["G"], bank["taps"],
+                bank["levels"], np.int32(lay.width), np.int32(lay.height), *bank["tile"],
+                bank["local"],
+            )  # fmt: skip
+            return
+        # Level by level over the whole frame (GPUs): G starts as the scene (d = 0), each level
+        # fills its pixels; levels no pixel needs are skipped, so a photopic frame costs no blur.
+        cl.enqueue_copy(self.queue, b["G"], b["scene"])
         d_max = np.empty(1, np.int32)
         cl.enqueue_copy(self.queue, d_max, b["d_max"])
-        # Levels no pixel needs are skipped: a photopic frame costs no blur at all.
         src, dst = b["scene"], b["lvl_a"]
         for level in range(int(d_max[0])):
             taps = self._acuity_taps[level]
@@ -260,22 +390,42 @@ class OpenCLBackend:
             src, dst = dst, (b["lvl_b"] if dst is b["lvl_a"] else b["lvl_a"])
 
     def _upload_noise(self, noise: NoiseFrame) -> None:
-        if self._noise_bufs is None:
-            mf = cl.mem_flags
-            self._noise_bufs = tuple(
-                cl.Buffer(self.ctx, mf.READ_ONLY, noise.key0.nbytes) for _ in range(2)
-            )
-        for buf, key in zip(self._noise_bufs, (noise.key0, noise.key1), strict=True):
-            cl.enqueue_copy(self.queue, buf, np.ascontiguousarray(key, np.float32))
+        """The two key frames mixed in time, X = ((1-f) key0 + f key1) / sqrt((1-f)^2 + f^2):
+        interpolation is linear, so this is the same field the kernel would mix per pixel."""
+        f = noise.frac
+        mixed = (1 - f) * noise.key0.astype(np.float64) + f * noise.key1.astype(np.float64)
+        mixed = np.ascontiguousarray(mixed / math.sqrt((1 - f) ** 2 + f * f), np.float32)
+        if self._noise_buf is None:
+            self._noise_buf = cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY, mixed.nbytes)
+        cl.enqueue_copy(self.queue, self._noise_buf, mixed)
 
-    def compose(self, gaze, eyes: float) -> np.ndarray:
+    def compose(self, gaze, eyes: float, out_dtype=np.float32) -> np.ndarray:
+        """H×W×3 `v` as float32, or made ready to send without a pass over it in NumPy:
+        out_dtype float16 gives H×W×3 half floats (round to nearest even, the same as
+        `v.astype(np.float16)`), uint32 gives H×W RGB10_A2 words (`r | g << 10 | b << 20` of
+        round(1023 v), the same as server.protocol's rgb10a2 encoding)."""
         lay, b = self.lay, self.buf
-        self.k["compose"](
-            self.queue, (_round_up(lay.width, ROW_GROUP), lay.height), None,
-            self.P, b["G"], b["rho"], b["maps"], b["A"], b["v"],
-            np.int32(lay.width), np.int32(lay.height), np.int32(lay.low_w), np.int32(lay.low_h),
-            np.int32(lay.cell), np.int32(lay.grid_w), np.int32(lay.grid_h),
-            np.float32(gaze[0]), np.float32(gaze[1]), np.float32(eyes),
-            np.float32(lay.px(self.p.fovea_sigma_deg)),
+        kind = np.dtype(out_dtype)
+        if kind not in COMPOSE_OUTPUTS:
+            raise ValueError(f"out_dtype must be float32, float16 or uint32, got {out_dtype!r}")
+        kernel, buf_name, shape = COMPOSE_OUTPUTS[kind]
+        self._ensure_rho_full()
+        if self._maps_partial is not None and self._maps_partial != tuple(gaze):
+            self._full_maps()
+        # The foveal fall-off exp(-|x - gaze|^2 / 2 sigma^2) = f(x) f(y): W + H factors.
+        sig = lay.px(self.p.fovea_sigma_deg)
+        xs = np.concatenate(
+            [np.arange(lay.width) + 0.5 - gaze[0], np.arange(lay.height) + 0.5 - gaze[1]]
+        )
+        fovea = np.exp(-(xs * xs) / (2.0 * sig * sig)).astype(np.float32)
+        cl.enqueue_copy(self.queue, b["fovea"], fovea)
+        self.k[kernel](
+            self.queue, self._rows8(), None,
+            self.P, b["G"], b["rho_full"], b["maps"], b["A"],
+            np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
+            np.int32(lay.grid_w), np.int32(lay.grid_h),
+            np.float32(gaze[0]), np.float32(gaze[1]), np.float32(eyes), b["fovea"], b[buf_name],
         )  # fmt: skip
-        return self.get("v")
+        v = np.empty(shape(lay), kind)
+        cl.enqueue_copy(self.queue, v, b[buf_name])
+        return v

@@ -1,5 +1,59 @@
 // Shared by every stage: the parameter block, sampling and the separable Gaussian blur.
 // Maps are planar (channel, row, column); pixel i has its centre at coordinate i + 0.5.
+//
+// Speed on the CPU (PoCL). Two things matter:
+// - PoCL vectorises across work-items only for simple straight-line kernels, and none of the
+//   model's per-pixel kernels qualifies (calls, branches, float3). So the per-pixel kernels
+//   make 8 neighbouring pixels of a row per work-item as float8 (one AVX register). On a GPU the
+//   same code runs with 8 pixels per thread, which costs little.
+// - PoCL's builtin library (vload8, min, clamp, select, floor, convert_*, exp, ...) is compiled
+//   for a generic CPU (target "haswell" in the PyPI build), and LLVM will not inline it into
+//   kernels compiled for the host CPU (e.g. znver3: "conflicting attributes"). Every builtin is
+//   then a function call, which also spills all vector registers. So the hot code uses
+//   operators, the macros below (clang builtins under PoCL, GAZEHDR_POCL) and its own exp8 and
+//   log8, all of which compile to plain instructions. Build with POCL_LEAVE_KERNEL_COMPILER_
+//   TEMP_FILES=1 and `objdump -d` the kernel .so in the PoCL cache to check: no `call`s.
+
+#ifdef GAZEHDR_POCL  // operators and clang builtins, which compile to single instructions
+typedef float8 float8_u __attribute__((aligned(4)));  // float8 at any float address
+typedef uchar8 uchar8_u __attribute__((aligned(1)));
+#define LOAD8_G(p) (*(__global const float8_u *)(p))
+#define LOAD8_L(p) (*(__local const float8_u *)(p))
+#define STORE8_G(p, v) (*(__global float8_u *)(p) = (v))
+#define STORE8_L(p, v) (*(__local float8_u *)(p) = (v))
+#define LOAD8_D(p) (*(__global const uchar8_u *)(p))
+#define STORE8_D(p, v) (*(__global uchar8_u *)(p) = (v))
+#define TO_INT8(x) __builtin_convertvector(x, int8)  // toward zero, as convert_int8
+#define TO_FLOAT8(x) __builtin_convertvector(x, float8)
+#define TO_UCHAR8(x) __builtin_convertvector(x, uchar8)
+#define AS_INT8(x) __builtin_astype(x, int8)
+#define AS_FLOAT8(x) __builtin_astype(x, float8)
+#else  // other implementations inline their builtins
+#define LOAD8_G(p) vload8(0, p)
+#define LOAD8_L(p) vload8(0, p)
+#define STORE8_G(p, v) vstore8(v, 0, p)
+#define STORE8_L(p, v) vstore8(v, 0, p)
+#define LOAD8_D(p) vload8(0, p)
+#define STORE8_D(p, v) vstore8(v, 0, p)
+#define TO_INT8(x) convert_int8(x)
+#define TO_FLOAT8(x) convert_float8(x)
+#define TO_UCHAR8(x) convert_uchar8(x)
+#define AS_INT8(x) as_int8(x)
+#define AS_FLOAT8(x) as_float8(x)
+#endif
+#define MIN(a, b) ((a) < (b) ? (a) : (b))
+#define MAX(a, b) ((a) > (b) ? (a) : (b))
+#define CLAMP(x, lo, hi) MIN(MAX(x, lo), hi)
+
+inline float8 floor8(float8 x) {
+    float8 t = TO_FLOAT8(TO_INT8(x));
+    return t + TO_FLOAT8(t > x);  // a true comparison is -1
+}
+
+inline float floor1(float x) {
+    float t = (float)(int)x;
+    return t > x ? t - 1.0f : t;
+}
 
 typedef struct {
     float gamma, n, a1, a2;
@@ -20,6 +74,31 @@ typedef struct {
 } params_t;
 
 #define LN10 2.302585093f
+#define VEC 8  // pixels per work-item in the vectorised kernels
+#define LANE_I ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+#define LANE_F ((float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f))
+
+inline float8 gather8(__global const float *p, int8 i) {
+    return (float8)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]);
+}
+
+// Pixels x .. x+7 of a row of n; lanes past the end repeat the last pixel (never read beyond).
+inline float8 load8_row(__global const float *row, int x, int n) {
+    if (x + VEC <= n) return LOAD8_G(row + x);
+    return gather8(row, MIN(x + LANE_I, n - 1));
+}
+
+// Stores lanes 0 .. n-1 of v (n <= 8; n < 8 at the end of a row).
+inline void store8_part(__global float *p, float8 v, int n) {
+    if (n > 0) p[0] = v.s0;
+    if (n > 1) p[1] = v.s1;
+    if (n > 2) p[2] = v.s2;
+    if (n > 3) p[3] = v.s3;
+    if (n > 4) p[4] = v.s4;
+    if (n > 5) p[5] = v.s5;
+    if (n > 6) p[6] = v.s6;
+    if (n > 7) p[7] = v.s7;
+}
 
 inline float3 mat3_mul(__constant const float *m, float3 v) {
     return (float3)(m[0] * v.x + m[1] * v.y + m[2] * v.z,
@@ -35,58 +114,129 @@ inline float3 load3(__global const float *img, int plane, int i) {
     return (float3)(img[i], img[plane + i], img[2 * plane + i]);
 }
 
-// Bilinear taps at continuous (x, y) on a w×h map. Taps outside the map are clamped to the
-// edge, or (border mode) get weight 0 and the missing weight goes to a border value.
-// Branch-free, so PoCL vectorises the per-pixel kernels that call it.
+// One axis of a bilinear lookup: the two taps (clamped indices) and their weights, which in
+// border mode are 0 for taps outside [0, n) so that the missing weight can go to a border value.
 typedef struct {
-    int i00, i01, i10, i11;
-    float w00, w01, w10, w11, w_out;
-} bilinear_t;
+    int8 x0;  // first tap, unclamped
+    int8 a, b;
+    float8 wa, wb;
+} lerp8_t;
 
-inline bilinear_t bilinear_at(int w, int h, float x, float y, int clamp_edges) {
-    float u = x - 0.5f, v = y - 0.5f;
-    float fu = floor(u), fv = floor(v);
-    int x0 = (int)fu, y0 = (int)fv;
-    float fx = u - fu, fy = v - fv;
-    int xa = clamp(x0, 0, w - 1), xb = clamp(x0 + 1, 0, w - 1);
-    int ya = clamp(y0, 0, h - 1), yb = clamp(y0 + 1, 0, h - 1);
-    float ina = 1.0f, inb = 1.0f, jna = 1.0f, jnb = 1.0f;
+typedef struct {
+    int a, b;
+    float wa, wb;
+} lerp1_t;
+
+inline lerp8_t lerp8_at(int n, float8 x, int clamp_edges) {
+    float8 u = x - 0.5f;
+    float8 fu = floor8(u);
+    int8 x0 = TO_INT8(fu);
+    float8 f = u - fu;
+    lerp8_t t;
+    t.x0 = x0;
+    t.a = CLAMP(x0, 0, n - 1);
+    t.b = CLAMP(x0 + 1, 0, n - 1);
+    t.wa = 1.0f - f;
+    t.wb = f;
     if (!clamp_edges) {
-        ina = (x0 >= 0 && x0 < w) ? 1.0f : 0.0f;
-        inb = (x0 + 1 >= 0 && x0 + 1 < w) ? 1.0f : 0.0f;
-        jna = (y0 >= 0 && y0 < h) ? 1.0f : 0.0f;
-        jnb = (y0 + 1 >= 0 && y0 + 1 < h) ? 1.0f : 0.0f;
+        t.wa = (x0 >= 0 && x0 < n) ? t.wa : 0.0f;
+        t.wb = (x0 >= -1 && x0 < n - 1) ? t.wb : 0.0f;
     }
-    bilinear_t t;
-    t.i00 = ya * w + xa; t.i01 = ya * w + xb; t.i10 = yb * w + xa; t.i11 = yb * w + xb;
-    t.w00 = (1.0f - fx) * (1.0f - fy) * ina * jna;
-    t.w01 = fx * (1.0f - fy) * inb * jna;
-    t.w10 = (1.0f - fx) * fy * ina * jnb;
-    t.w11 = fx * fy * inb * jnb;
-    t.w_out = 1.0f - (t.w00 + t.w01 + t.w10 + t.w11);
     return t;
 }
 
-inline float bilinear_get(__global const float *img, bilinear_t t, float border) {
-    return t.w00 * img[t.i00] + t.w01 * img[t.i01] + t.w10 * img[t.i10] + t.w11 * img[t.i11]
-           + t.w_out * border;
+inline lerp1_t lerp1_at(int n, float x, int clamp_edges) {
+    float u = x - 0.5f;
+    float fu = floor1(u);
+    int x0 = (int)fu;
+    float f = u - fu;
+    lerp1_t t;
+    t.a = CLAMP(x0, 0, n - 1);
+    t.b = CLAMP(x0 + 1, 0, n - 1);
+    t.wa = 1.0f - f;
+    t.wb = f;
+    if (!clamp_edges) {
+        t.wa = (x0 >= 0 && x0 < n) ? t.wa : 0.0f;
+        t.wb = (x0 >= -1 && x0 < n - 1) ? t.wb : 0.0f;
+    }
+    return t;
 }
 
-inline float sample_plane(__global const float *img, int w, int h, float x, float y,
-                          int clamp_edges, float border) {
-    return bilinear_get(img, bilinear_at(w, h, x, y, clamp_edges), border);
+// Bilinear value of a w-wide map at 8 x positions on one row position; `border` takes the
+// weight of taps outside the map (border mode).
+inline float8 bilinear8_get(__global const float *img, int w, lerp8_t tx, lerp1_t ty,
+                            float border) {
+    __global const float *ra = img + ty.a * w, *rb = img + ty.b * w;
+    float8 top = tx.wa * gather8(ra, tx.a) + tx.wb * gather8(ra, tx.b);
+    float8 bot = tx.wa * gather8(rb, tx.a) + tx.wb * gather8(rb, tx.b);
+    float8 w_in = (ty.wa + ty.wb) * (tx.wa + tx.wb);
+    return ty.wa * top + ty.wb * bot + (1.0f - w_in) * border;
 }
 
-// x^y for x >= 0 as exp(y log x): PoCL vectorises exp and log, but not pow (30x slower).
-inline float3 pow_pos(float3 x, float y) {
-    return select((float3)(0.0f), exp(y * log(x)), isgreater(x, (float3)(0.0f)));
+// The x part of a lookup as weights per source column: lane i takes wa at column x0_i and wb
+// at x0_i + 1, and m[k] is the weight of column x0_0 + k (k < K). When the 8 positions are
+// less than a column apart (cell >= 2), K <= 6 columns serve them all, and a lookup costs K
+// broadcast loads and FMAs per row instead of 16 gathered loads. Returns K, 0 if K > 8.
+inline int xmix8(lerp8_t t, float8 *m) {
+    int K = t.x0.s7 - t.x0.s0 + 2;
+    if (K > 8) return 0;
+    int8 o = t.x0 - t.x0.s0;
+    for (int k = 0; k < K; ++k) m[k] = (o == k ? t.wa : 0.0f) + (o == k - 1 ? t.wb : 0.0f);
+    return K;
+}
+
+// The taps x0 + lane of a row of n, 0 outside it: for 8 neighbouring retina cells, which are
+// whole low-res cells apart, so that their bilinear taps are consecutive (border value 0).
+inline float8 row_taps8(__global const float *row, int x0, int n) {
+    if (x0 >= 0 && x0 + VEC <= n) return LOAD8_G(row + x0);
+    int8 x = x0 + LANE_I;
+    float8 v = gather8(row, CLAMP(x, 0, n - 1));
+    return (x >= 0 && x < n) ? v : 0.0f;
+}
+
+// exp and log of float8, inline (the library's are calls, see the top), within a few ulp.
+// exp8 is Cephes' expf (S. L. Moshier) and takes x in [-87, 88] (clamped: e^-87 = 1.6e-38
+// stands for 0); log8 takes x > 0 (normal numbers).
+inline float8 exp8(float8 x) {
+    x = CLAMP(x, -87.0f, 88.0f);
+    float8 n = floor8(x * 1.44269504088896341f + 0.5f);
+    x = x - n * 0.693359375f + n * 2.12194440e-4f;
+    float8 z = x * x;
+    float8 y = 1.9875691500e-4f;
+    y = y * x + 1.3981999507e-3f;
+    y = y * x + 8.3334519073e-3f;
+    y = y * x + 4.1665795894e-2f;
+    y = y * x + 1.6666665459e-1f;
+    y = y * x + 5.0000001201e-1f;
+    y = y * z + x + 1.0f;
+    return y * AS_FLOAT8((TO_INT8(n) + 127) << 23);
+}
+
+inline float8 log8(float8 x) {
+    // x = m 2^e with m in [sqrt(1/2), sqrt(2)); ln m = 2 atanh(t), t = (m - 1) / (m + 1),
+    // |t| < 0.172: the series to t^7 is within 1e-7 relative.
+    int8 bits = AS_INT8(x);
+    int8 e = ((bits - 0x3f3504f3) >> 23);  // exponent after moving m into [sqrt(1/2), sqrt(2))
+    float8 m = AS_FLOAT8(bits - (e << 23));
+    float8 t = (m - 1.0f) / (m + 1.0f);
+    float8 u = t * t;
+    float8 p = u * (1.0f / 7.0f) + 1.0f / 5.0f;
+    p = p * u + 1.0f / 3.0f;
+    p = p * u * t + t;
+    float8 fe = TO_FLOAT8(e);
+    return (p + p) + fe * 0.693359375f - fe * 2.12194440e-4f;
+}
+
+// x^y for x >= 0.
+inline float8 pow8_pos(float8 x, float y) {
+    return x > 0.0f ? exp8(y * log8(MAX(x, FLT_MIN))) : 0.0f;
 }
 
 // Naka-Rushton response (Eq. 1-2) with sigma^n = I_bar^(n-m) K^m, in logs: finite everywhere;
 // no light gives exactly 0 so that black stays black.
-inline float tone(__constant const params_t *P, float ln_sigma_n, float I) {
-    if (!(I > 0.0f)) return 0.0f;
-    return 1.0f / (1.0f + exp(fmin(ln_sigma_n - P->n * log(I), 80.0f)));
+inline float8 tone8(__constant const params_t *P, float ln_sigma_n, float8 I) {
+    float8 e = exp8(MIN(ln_sigma_n - P->n * log8(MAX(I, FLT_MIN)), 80.0f));
+    return I > 0.0f ? 1.0f / (1.0f + e) : 0.0f;
 }
 
 inline float ln_sigma_n_of(__constant const params_t *P, float A) {
@@ -94,10 +244,7 @@ inline float ln_sigma_n_of(__constant const params_t *P, float A) {
 }
 
 // Separable Gaussian with edge clamping. Each work-item filters 8 neighbouring pixels of a
-// row as one float8: PoCL's implicit vectoriser does poorly on strided loops, explicit vectors
-// run 3-5x faster on the CPU and cost nothing on a GPU. Global size (ceil(w / 8), h, channels).
-#define VEC 8
-
+// row as one float8. Global size (ceil(w / 8), h, channels).
 __kernel void blur_h(__global const float *src, __global float *dst, __constant float *taps,
                      int radius, int w, int h) {
     int x = get_global_id(0) * VEC, y = get_global_id(1), c = get_global_id(2);
@@ -106,19 +253,19 @@ __kernel void blur_h(__global const float *src, __global float *dst, __constant 
     __global const float *row = src + row0;
     if (x >= radius && x + VEC + radius <= w) {
         float8 acc = (float8)(0.0f);
-        for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * vload8(0, row + x + k);
-        vstore8(acc, 0, dst + row0 + x);
+        for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * LOAD8_G(row + x + k);
+        STORE8_G(dst + row0 + x, acc);
         return;
     }
-    for (int i = x; i < min(x + VEC, w); ++i) {
+    for (int i = x; i < MIN(x + VEC, w); ++i) {
         float acc = 0.0f;
-        for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * row[clamp(i + k, 0, w - 1)];
+        for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * row[CLAMP(i + k, 0, w - 1)];
         dst[row0 + i] = acc;
     }
 }
 
-// Vertical pass. With level >= 0 it also serves the acuity bank (Eq. 14): pixels whose
-// number of dropped bands d equals level + 1 copy this level into G.
+// Vertical pass. With level >= 0 it also serves the level-by-level acuity bank (Eq. 14):
+// pixels whose number of dropped bands d equals level + 1 copy this level into G.
 __kernel void blur_v(__global const float *src, __global float *dst, __constant float *taps,
                      int radius, int w, int h, __global const uchar *d_map, __global float *G,
                      int level) {
@@ -129,17 +276,17 @@ __kernel void blur_v(__global const float *src, __global float *dst, __constant 
     if (x + VEC <= w) {
         float8 acc = (float8)(0.0f);
         for (int k = -radius; k <= radius; ++k)
-            acc += taps[k + radius] * vload8(0, plane + clamp(y + k, 0, h - 1) * w + x);
-        vstore8(acc, 0, dst + out0 + x);
+            acc += taps[k + radius] * LOAD8_G(plane + CLAMP(y + k, 0, h - 1) * w + x);
+        STORE8_G(dst + out0 + x, acc);
         if (level >= 0) {
-            int8 hit = convert_int8(vload8(0, d_map + y * w + x) == (uchar8)(level + 1));
-            vstore8(select(vload8(0, G + out0 + x), acc, hit), 0, G + out0 + x);
+            int8 hit = TO_INT8(LOAD8_D(d_map + y * w + x) == (uchar8)(level + 1));
+            STORE8_G(G + out0 + x, hit ? acc : LOAD8_G(G + out0 + x));
         }
         return;
     }
     for (int i = x; i < w; ++i) {
         float acc = 0.0f;
-        for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * plane[clamp(y + k, 0, h - 1) * w + i];
+        for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * plane[CLAMP(y + k, 0, h - 1) * w + i];
         dst[out0 + i] = acc;
         if (level >= 0 && d_map[y * w + i] == level + 1) G[out0 + i] = acc;
     }

@@ -1,67 +1,182 @@
 // Sec. 2.2, afterimages: bleaching (Eq. 4-6) and calcium (Eq. 8-11) per cone on the retina
 // grid, which is centred on the gaze and spans twice the screen. Calcium is stored normalised,
-// c = C / C_max, so c_inf = 1 - R (Eq. 10 over C_max).
+// c = C / C_max, so c_inf = 1 - R (Eq. 10 over C_max). One work-item makes 8 neighbouring
+// cells of a grid row; global size (ceil(grid_w / 8), grid_h).
 
-// Cone input at a retina cell: the low-res scene at gaze + offset; the room off screen is dark.
-inline float3 retina_input(__global const float *down, int low_w, int low_h, int cell,
-                           int grid_w, int grid_h, float gx, float gy, int j, int i) {
-    float sx = (gx + (j + 0.5f - 0.5f * grid_w) * cell) / cell;
-    float sy = (gy + (i + 0.5f - 0.5f * grid_h) * cell) / cell;
+typedef struct {
+    float8 l, m, s;
+} cone8_t;
+
+// Cone input at 8 retina cells: the low-res scene at gaze + offset (bilinear); the room off
+// screen is dark. Neighbouring cells are whole low-res cells apart (same cell size), so the
+// bilinear weights are the same for all of them and the taps are consecutive.
+inline cone8_t retina_input8(__global const float *down, int low_w, int low_h, float gx, float gy,
+                             int cell, int grid_w, int grid_h, int j, int i) {
+    float gxc = gx / cell, gyc = gy / cell;
+    float fxc = floor1(gxc), fyc = floor1(gyc);
+    float fx = gxc - fxc, fy = gyc - fyc;
+    int x0 = (int)fxc + j - grid_w / 2, y0 = (int)fyc + i - grid_h / 2;
     int plane = low_w * low_h;
-    bilinear_t t = bilinear_at(low_w, low_h, sx, sy, 0);
-    return (float3)(bilinear_get(down, t, 0.0f), bilinear_get(down + plane, t, 0.0f),
-                    bilinear_get(down + 2 * plane, t, 0.0f));
+    float wya = (y0 >= 0 && y0 < low_h) ? 1.0f - fy : 0.0f;
+    float wyb = (y0 + 1 >= 0 && y0 + 1 < low_h) ? fy : 0.0f;
+    int ya = CLAMP(y0, 0, low_h - 1), yb = CLAMP(y0 + 1, 0, low_h - 1);
+    float8 v[3];
+    for (int c = 0; c < 3; ++c) {
+        __global const float *ra = down + c * plane + ya * low_w;
+        __global const float *rb = down + c * plane + yb * low_w;
+        float8 top = (1.0f - fx) * row_taps8(ra, x0, low_w) + fx * row_taps8(ra, x0 + 1, low_w);
+        float8 bot = (1.0f - fx) * row_taps8(rb, x0, low_w) + fx * row_taps8(rb, x0 + 1, low_w);
+        v[c] = wya * top + wyb * bot;
+    }
+    cone8_t I = {v[0], v[1], v[2]};
+    return I;
 }
 
-inline float3 bleach_inf(__constant const params_t *P, float3 I) {
-    float3 b1I = (float3)(P->b1[0], P->b1[1], P->b1[2]) * I;
-    return b1I / (b1I + (float3)(P->b2[0], P->b2[1], P->b2[2]));  // Eq. 6
+inline float8 bleach_inf8(__constant const params_t *P, int c, float8 I) {
+    float8 b1I = P->b1[c] * I;
+    return b1I / (b1I + P->b2[c]);  // Eq. 6
 }
 
-inline float3 calcium_inf(__constant const params_t *P, float lsn, float3 I) {
-    return (float3)(1.0f - tone(P, lsn, I.x), 1.0f - tone(P, lsn, I.y), 1.0f - tone(P, lsn, I.z));
+inline float8 load_cell8(__global const float *p, int j, int n) { return load8_row(p, j, n); }
+
+inline void store_cell8(__global float *p, float8 v, int j, int n) {
+    if (j + VEC <= n) STORE8_G(p + j, v);
+    else store8_part(p + j, v, n - j);
 }
 
-// One time step of the state; with reset, the equilibrium for the current input.
+// True when none of the 8 cells' bilinear taps falls on the screen: their input is 0.
+inline int off_screen8(int low_w, int low_h, float gx, float gy, int cell, int grid_w,
+                       int grid_h, int j, int i) {
+    int x0 = (int)floor1(gx / cell) + j - grid_w / 2, y0 = (int)floor1(gy / cell) + i - grid_h / 2;
+    return x0 + VEC < 0 || x0 >= low_w || y0 + 1 < 0 || y0 >= low_h;
+}
+
+// One time step of the state; with reset, the equilibrium for the current input. decay_* are
+// exp(-b2 dt) per cone and exp(-c2 dt): the step where the retina sees nothing (off screen).
 __kernel void retina_update(__constant const params_t *P, __global const float *down,
                             __global const float *state, __global float *out,
                             __global const float *A, int low_w, int low_h, int cell, int grid_w,
-                            int grid_h, float gx, float gy, float dt, int reset) {
-    int j = get_global_id(0), i = get_global_id(1);
+                            int grid_h, float gx, float gy, float dt, int reset, float decay_l,
+                            float decay_m, float decay_s, float decay_c) {
+    int j = get_global_id(0) * VEC, i = get_global_id(1);
     if (j >= grid_w) return;
-    int plane = grid_w * grid_h, k = i * grid_w + j;
-    float3 I = retina_input(down, low_w, low_h, cell, grid_w, grid_h, gx, gy, j, i);
-    float lsn = ln_sigma_n_of(P, A[0]);
-    float3 B_inf = bleach_inf(P, I);
-    float3 c_inf = calcium_inf(P, lsn, I);
-    float3 B = B_inf, c = c_inf;
-    if (!reset) {
-        float3 rate = (float3)(P->b1[0], P->b1[1], P->b1[2]) * I
-                      + (float3)(P->b2[0], P->b2[1], P->b2[2]);
-        B = (load3(state, plane, k) - B_inf) * exp(-rate * dt) + B_inf;  // Eq. 5
-        c = (load3(state + 3 * plane, plane, k) - c_inf) * exp(-P->c2 * dt) + c_inf;  // Eq. 9
-        B = clamp(B, 0.0f, 1.0f);
-        c = clamp(c, 0.0f, 1.0f);
+    int plane = grid_w * grid_h;
+    size_t row = (size_t)i * grid_w;
+    if (off_screen8(low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i)) {
+        // I = 0: B_inf = 0 and c_inf = 1 (no response), Eq. 5 and 9 with constant factors.
+        float decay_b[3] = {decay_l, decay_m, decay_s};
+        for (int c = 0; c < 3; ++c) {
+            float8 B = 0.0f, ca = 1.0f;
+            if (!reset) {
+                B = CLAMP(load_cell8(state + c * plane + row, j, grid_w) * decay_b[c], 0.0f, 1.0f);
+                ca = (load_cell8(state + (3 + c) * plane + row, j, grid_w) - 1.0f) * decay_c + 1.0f;
+                ca = CLAMP(ca, 0.0f, 1.0f);
+            }
+            store_cell8(out + c * plane + row, B, j, grid_w);
+            store_cell8(out + (3 + c) * plane + row, ca, j, grid_w);
+        }
+        return;
     }
-    out[k] = B.x; out[plane + k] = B.y; out[2 * plane + k] = B.z;
-    out[3 * plane + k] = c.x; out[4 * plane + k] = c.y; out[5 * plane + k] = c.z;
+    cone8_t I = retina_input8(down, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    float8 In[3] = {I.l, I.m, I.s};
+    float lsn = ln_sigma_n_of(P, A[0]);
+    for (int c = 0; c < 3; ++c) {
+        float8 B_inf = bleach_inf8(P, c, In[c]);
+        float8 c_inf = 1.0f - tone8(P, lsn, In[c]);
+        float8 B = B_inf, ca = c_inf;
+        if (!reset) {
+            float8 rate = P->b1[c] * In[c] + P->b2[c];
+            B = (load_cell8(state + c * plane + row, j, grid_w) - B_inf) * exp8(-rate * dt) + B_inf;
+            ca = (load_cell8(state + (3 + c) * plane + row, j, grid_w) - c_inf) * decay_c + c_inf;
+            B = CLAMP(B, 0.0f, 1.0f);
+            ca = CLAMP(ca, 0.0f, 1.0f);
+        }
+        store_cell8(out + c * plane + row, B, j, grid_w);
+        store_cell8(out + (3 + c) * plane + row, ca, j, grid_w);
+    }
 }
 
 // Gain alpha^j2 (Eq. 11, guarded by alpha_eps so darkness gives 1, not 0/0) and the
-// bleaching term j1 c max(B - B_inf, 0) of Eq. 12, per cone, from the blurred state.
+// bleaching term j1 c max(B - B_inf, 0) of Eq. 12, per cone, of 8 cells from their state.
+inline void maps8(__constant const params_t *P, __global const float *down, float8 *st,
+                  __global float *maps, float lsn, int low_w, int low_h, int cell, int grid_w,
+                  int grid_h, float gx, float gy, int j, int i) {
+    int plane = grid_w * grid_h;
+    size_t row = (size_t)i * grid_w;
+    cone8_t I = retina_input8(down, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    float8 In[3] = {I.l, I.m, I.s};
+    for (int c = 0; c < 3; ++c) {
+        float8 B = st[c], ca = st[3 + c];
+        float8 c_inf = 1.0f - tone8(P, lsn, In[c]);
+        float8 alpha = (1.0f - c_inf + P->alpha_eps) / (1.0f - ca + P->alpha_eps);
+        float8 gain = pow8_pos(alpha, P->j2);
+        float8 bleach = P->j1 * ca * MAX(B - bleach_inf8(P, c, In[c]), 0.0f);
+        store_cell8(maps + c * plane + row, gain, j, grid_w);
+        store_cell8(maps + (3 + c) * plane + row, bleach, j, grid_w);
+    }
+}
+
+// The maps of the cells from (j0, i0) on (global size: the window that the screen reads at
+// this gaze), from the current state.
 __kernel void afterimage_maps(__constant const params_t *P, __global const float *down,
                               __global const float *state, __global float *maps,
                               __global const float *A, int low_w, int low_h, int cell,
-                              int grid_w, int grid_h, float gx, float gy) {
-    int j = get_global_id(0), i = get_global_id(1);
+                              int grid_w, int grid_h, float gx, float gy, int j0, int i0) {
+    int j = j0 + get_global_id(0) * VEC, i = i0 + get_global_id(1);
+    if (j >= grid_w || i >= grid_h) return;
+    int plane = grid_w * grid_h;
+    size_t row = (size_t)i * grid_w;
+    float8 st[6];
+    for (int c = 0; c < 6; ++c) st[c] = load_cell8(state + c * plane + row, j, grid_w);
+    maps8(P, down, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h, gx,
+          gy, j, i);
+}
+
+// The map blur of Sec. 2.4 (separable Gaussian, edges clamped, as blur_h then blur_v) of all
+// six state planes in one pass, src -> state; cells inside the window [j0, j1] x [i0, i1] also
+// get their maps, from the blurred state still in registers.
+__kernel void retina_blur_maps(__constant const params_t *P, __global const float *down,
+                               __global const float *src, __global float *state,
+                               __global float *maps, __global const float *A,
+                               __constant const float *taps, int radius, int low_w, int low_h,
+                               int cell, int grid_w, int grid_h, float gx, float gy, int j0,
+                               int i0, int j1, int i1) {
+    int j = get_global_id(0) * VEC, i = get_global_id(1);
     if (j >= grid_w) return;
-    int plane = grid_w * grid_h, k = i * grid_w + j;
-    float3 I = retina_input(down, low_w, low_h, cell, grid_w, grid_h, gx, gy, j, i);
-    float lsn = ln_sigma_n_of(P, A[0]);
-    float3 B = load3(state, plane, k), c = load3(state + 3 * plane, plane, k);
-    float3 alpha = (1.0f - calcium_inf(P, lsn, I) + P->alpha_eps) / (1.0f - c + P->alpha_eps);
-    float3 gain = pow_pos(alpha, P->j2);
-    float3 bleach = P->j1 * c * fmax(B - bleach_inf(P, I), 0.0f);
-    maps[k] = gain.x; maps[plane + k] = gain.y; maps[2 * plane + k] = gain.z;
-    maps[3 * plane + k] = bleach.x; maps[4 * plane + k] = bleach.y; maps[5 * plane + k] = bleach.z;
+    int plane = grid_w * grid_h;
+    size_t row = (size_t)i * grid_w;
+    int inner = j >= radius && j + VEC + radius <= grid_w;
+    float8 st[6];
+    if (radius == 1 && inner && i >= 1 && i + 1 < grid_h) {  // the usual 3-tap blur, unrolled
+        float t0 = taps[0], t1 = taps[1], t2 = taps[2];
+        for (int c = 0; c < 6; ++c) {
+            __global const float *p = src + c * plane + row + j;
+#define H3(q) (t0 * LOAD8_G((q) - 1) + t1 * LOAD8_G(q) + t2 * LOAD8_G((q) + 1))
+            st[c] = t0 * H3(p - grid_w) + t1 * H3(p) + t2 * H3(p + grid_w);
+#undef H3
+            STORE8_G(state + c * plane + row + j, st[c]);
+        }
+    } else {
+        for (int c = 0; c < 6; ++c) {
+            __global const float *p = src + c * plane;
+            float8 acc = 0.0f;
+            for (int dy = -radius; dy <= radius; ++dy) {
+                __global const float *r = p + CLAMP(i + dy, 0, grid_h - 1) * grid_w;
+                float8 h = 0.0f;
+                if (inner) {
+                    for (int dx = -radius; dx <= radius; ++dx)
+                        h += taps[dx + radius] * LOAD8_G(r + j + dx);
+                } else {
+                    for (int dx = -radius; dx <= radius; ++dx)
+                        h += taps[dx + radius] * gather8(r, CLAMP(j + dx + LANE_I, 0, grid_w - 1));
+                }
+                acc += taps[dy + radius] * h;
+            }
+            st[c] = acc;
+            store_cell8(state + c * plane + row, acc, j, grid_w);
+        }
+    }
+    if (i >= i0 && i <= i1 && j + VEC > j0 && j <= j1)
+        maps8(P, down, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h, gx,
+              gy, j, i);
 }

@@ -9,7 +9,7 @@ __kernel void downsample(__constant const params_t *P, __global const float *sce
     if (x >= low_w) return;
     int plane = W * H;
     float3 acc = (float3)(0.0f);
-    int xe = min((x + 1) * cell, W), ye = min((y + 1) * cell, H);
+    int xe = MIN((x + 1) * cell, W), ye = MIN((y + 1) * cell, H);
     for (int yy = y * cell; yy < ye; ++yy)
         for (int xx = x * cell; xx < xe; ++xx) acc += load3(scene, plane, yy * W + xx);
     float3 rgb = eyes * acc / (float)((xe - x * cell) * (ye - y * cell));
@@ -28,35 +28,249 @@ __kernel void rho_map(__constant const params_t *P, __global const float *yp_blu
     rho[k] = (log10(fmax(yp_blurred[k], P->Y_min)) - P->m2) / (P->m1 - P->m2);
 }
 
+// rho at every screen pixel (bilinear, edges clamped): it changes only with the scene, and the
+// acuity and compose stages both read it. Global size (ceil(W / 8), H).
+__kernel void rho_upsample(__global const float *rho, __global float *rho_full, int low_w,
+                           int low_h, int cell, int W, int H) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    lerp8_t tx = lerp8_at(low_w, ((float)x + 0.5f + LANE_F) / cell, 1);
+    lerp1_t ty = lerp1_at(low_h, (y + 0.5f) / cell, 1);
+    float8 r = bilinear8_get(rho, low_w, tx, ty, 0.0f);
+    __global float *o = rho_full + (size_t)y * W + x;
+    if (x + VEC <= W) STORE8_G(o, r);
+    else store8_part(o, r, W - x);
+}
+
 // Eq. 15 with one noise field for all bands: d = number of finest bands dropped. The kept bands
 // telescope (Eq. 14), so the result is Gaussian level d - 1 (level -1 is the scene itself).
-// X is interpolated in space and time and renormalised so that it stays N(0, 1).
-__kernel void acuity_levels(__constant const params_t *P, __global const float *rho,
-                            __global const float *key0, __global const float *key1, float frac,
-                            float spacing, int nx, int low_w, int low_h, int cell, int W, int H,
-                            __global const float *scene, __global float *G,
-                            __global uchar *d_map, volatile __global int *d_max) {
-    int x = get_global_id(0), y = get_global_id(1);
+// X is interpolated in space and time and renormalised so that it stays N(0, 1): `key` is the
+// two key frames already mixed in time (and divided by their time norm) on the host, so here
+// it is bilinear in space. Global size (ceil(W / 8), H); with want_max, d_max gets the
+// largest d (for the level-by-level bank).
+__kernel void acuity_levels(__constant const params_t *P, __global const float *rho_full,
+                            __global const float *key, float spacing, int nx, int W, int H,
+                            __global uchar *d_map, volatile __global int *d_max,
+                            int want_max) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    float px = x + 0.5f, py = y + 0.5f;
-    float r = sample_plane(rho, low_w, low_h, px / cell, py / cell, 1, 0.0f);
-    float u = px / spacing, v = py / spacing;
-    float fu = floor(u), fv = floor(v);
-    int i0 = (int)fu, j0 = (int)fv;
-    float fx = u - fu, fy = v - fv;
-    int k00 = j0 * nx + i0, k10 = k00 + 1, k01 = k00 + nx, k11 = k01 + 1;
-    float s0 = (1 - fy) * ((1 - fx) * key0[k00] + fx * key0[k10]) + fy * ((1 - fx) * key0[k01] + fx * key0[k11]);
-    float s1 = (1 - fy) * ((1 - fx) * key1[k00] + fx * key1[k10]) + fy * ((1 - fx) * key1[k01] + fx * key1[k11]);
-    float norm = sqrt(((1 - fx) * (1 - fx) + fx * fx) * ((1 - fy) * (1 - fy) + fy * fy)
-                      * ((1 - frac) * (1 - frac) + frac * frac));
-    float q = r + P->g * ((1 - frac) * s0 + frac * s1) / norm;
-    int d = 0;
-    for (int b = 0; b < P->bands; ++b) d += (q <= P->rho_i[b]);
-    int k = y * W + x, plane = W * H;
-    d_map[k] = (uchar)d;
-    if (d == 0) {
-        G[k] = scene[k]; G[plane + k] = scene[plane + k]; G[2 * plane + k] = scene[2 * plane + k];
+    float8 r = load8_row(rho_full + (size_t)y * W, x, W);
+    float8 u = ((float)x + 0.5f + LANE_F) / spacing;
+    float v = (y + 0.5f) / spacing;
+    float8 fu = floor8(u);
+    float fv = floor1(v);
+    lerp8_t tx;
+    tx.x0 = tx.a = TO_INT8(fu);
+    tx.b = tx.a + 1;
+    tx.wb = u - fu;
+    tx.wa = 1.0f - tx.wb;
+    int j0 = (int)fv;
+    float fy = v - fv;
+    __global const float *ra = key + j0 * nx, *rb = ra + nx;
+    float8 s;
+    float8 xm[8];
+    int K = xmix8(tx, xm);
+    if (K > 0) {
+        s = 0.0f;
+        for (int k = 0; k < K; ++k) {
+            int col = tx.x0.s0 + k;
+            s += ((1 - fy) * ra[col] + fy * rb[col]) * xm[k];
+        }
+    } else {  // noise nodes closer than 8 pixels (tiny frames)
+        s = (1 - fy) * (tx.wa * gather8(ra, tx.a) + tx.wb * gather8(ra, tx.b))
+            + fy * (tx.wa * gather8(rb, tx.a) + tx.wb * gather8(rb, tx.b));
+    }
+    float8 norm = sqrt((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
+    float8 q = r + P->g * s / norm;
+    int8 d = (int8)(0);
+    for (int b = 0; b < P->bands; ++b) d -= (q <= P->rho_i[b]);  // a true comparison is -1
+    __global uchar *o = d_map + (size_t)y * W + x;
+    uchar8 du = TO_UCHAR8(d);
+    if (x + VEC <= W) {
+        STORE8_D(o, du);
     } else {
-        atomic_max(d_max, d);
+        uchar tmp[8] = {du.s0, du.s1, du.s2, du.s3, du.s4, du.s5, du.s6, du.s7};
+        for (int i = 0; i < W - x; ++i) o[i] = tmp[i];
+        d = (x + LANE_I >= W) ? 0 : d;
+    }
+    if (!want_max) return;
+    int m = MAX(MAX(MAX(d.s0, d.s1), MAX(d.s2, d.s3)), MAX(MAX(d.s4, d.s5), MAX(d.s6, d.s7)));
+    if (m > *d_max) atomic_max(d_max, m);  // rarely contended: most reads see it done
+}
+
+// --- the acuity bank in tiles (CPU) ------------------------------------------------------------
+//
+// Eq. 14 needs Gaussian level d - 1 at each pixel, and level i is level i - 1 blurred by the
+// increment i (the same separable taps, edges clamped, as the reference). Done level by level
+// over the whole frame this streams the frame through memory twice per level. Here one
+// work-item takes one channel of a TX×TY tile: it scans the tile's d to see how many levels the
+// tile needs, loads the scene around it with a halo of the summed radii into local memory, runs
+// all those levels there (each level only where the following ones still need it) and writes G
+// once. Bright tiles (d = 0) are a copy. Local size 1: the loops are written for one core.
+//
+// Buffer layout: buffer (bx, by) is screen (tx0 - PX + bx, ty0 - PY + by); PX is the halo
+// rounded up to whole float8 plus one float8 of margin, so that rows are computed in float8
+// steps without reading outside the buffer. Columns and rows outside the screen hold copies of
+// the edge (as the reference's clamped reads), refreshed after each pass.
+
+inline void fill_cols(__local float *buf, int BW, int by0, int by1, int left, int right) {
+    // Columns [0, left) copy column left; columns (right, BW) copy column right.
+    for (int by = by0; by < by1; ++by) {
+        __local float *row = buf + by * BW;
+        if (left > 0 && left < BW) {
+            float e = row[left];
+            for (int bx = 0; bx < left; ++bx) row[bx] = e;
+        }
+        if (right >= 0 && right < BW - 1) {
+            float e = row[right];
+            for (int bx = right + 1; bx < BW; ++bx) row[bx] = e;
+        }
+    }
+}
+
+// Taps t[0 .. 2r] along s, s + d, ...: the general case of the unrolled CONV3/5/7 below.
+inline float8 conv8_l(__local const float *s, int d, __constant const float *t, int r) {
+    float8 a = (float8)(0.0f);
+    for (int k = 0; k <= 2 * r; ++k) a += t[k] * LOAD8_L(s + k * d);
+    return a;
+}
+
+__kernel void acuity_bank(__global const float *scene, __global const uchar *d_map,
+                          __global float *G, __constant const float *taps,
+                          __constant const int *levels, int W, int H, int TX, int TY,
+                          __local float *lmem) {
+    int tx0 = get_global_id(0) * TX, ty0 = get_global_id(1) * TY, c = get_global_id(2);
+    if (tx0 >= W || ty0 >= H) return;
+    int xe = MIN(tx0 + TX, W), ye = MIN(ty0 + TY, H), ow = xe - tx0;
+    size_t plane = (size_t)W * H;
+    __global const float *src_g = scene + c * plane;
+    __global float *dst_g = G + c * plane;
+
+    int dmax = 0;
+    uchar8 dm8 = (uchar8)(0);
+    for (int y = ty0; y < ye; ++y) {
+        __global const uchar *drow = d_map + (size_t)y * W;
+        int x = tx0;
+        for (; x + VEC <= xe; x += VEC) dm8 = MAX(dm8, LOAD8_D(drow + x));
+        for (; x < xe; ++x) dmax = MAX(dmax, (int)drow[x]);
+    }
+    dmax = MAX(dmax, (int)MAX(MAX(MAX(dm8.s0, dm8.s1), MAX(dm8.s2, dm8.s3)),
+                              MAX(MAX(dm8.s4, dm8.s5), MAX(dm8.s6, dm8.s7))));
+    if (dmax == 0) {  // nothing dropped: the scene itself
+        for (int y = ty0; y < ye; ++y) {
+            size_t k = (size_t)y * W;
+            int x = tx0;
+            for (; x + VEC <= xe; x += VEC) STORE8_G(dst_g + k + x, LOAD8_G(src_g + k + x));
+            for (; x < xe; ++x) dst_g[k + x] = src_g[k + x];
+        }
+        return;
+    }
+    // halo[l + 1] = rows/columns of level l (l = -1 is the scene) still needed around the tile.
+    int halo[9];
+    halo[dmax] = 0;
+    for (int l = dmax - 1; l >= 0; --l) halo[l] = halo[l + 1] + levels[2 * l];
+    int HX = halo[0];
+    int PX = ((HX + VEC - 1) / VEC + 1) * VEC, PY = HX;
+    int BW = TX + 2 * PX, BH = TY + 2 * PY;
+    // One buffer holds the current level (the vertical pass overwrites the level it came from:
+    // the horizontal pass has read it all by then), one the horizontal pass, one the output.
+    __local float *buf_a = lmem, *tmp = lmem + BW * BH, *acc = lmem + 2 * BW * BH;
+
+    // Screen edges in buffer coordinates.
+    int left = PX - tx0, right = PX + W - 1 - tx0, top = PY - ty0, bottom = PY + H - 1 - ty0;
+
+    // The scene, edges clamped, everywhere in the buffer; and as the output where d = 0.
+    for (int by = 0; by < BH; ++by) {
+        int y = CLAMP(ty0 - PY + by, 0, H - 1);
+        __global const float *row = src_g + (size_t)y * W;
+        __local float *brow = buf_a + by * BW;
+        for (int bx = 0; bx < BW; bx += VEC) {
+            int x = tx0 - PX + bx;
+            float8 val;
+            if (x >= 0 && x + VEC <= W) val = LOAD8_G(row + x);
+            else val = gather8(row, CLAMP(x + LANE_I, 0, W - 1));
+            STORE8_L(brow + bx, val);
+        }
+    }
+    for (int y = 0; y < TY; ++y)
+        for (int x = 0; x < TX; x += VEC)
+            STORE8_L(acc + y * TX + x, LOAD8_L(buf_a + (PY + y) * BW + PX + x));
+
+    __local float *src = buf_a, *dst = buf_a;
+    for (int l = 0; l < dmax; ++l) {
+        int r = levels[2 * l];
+        __constant const float *t = taps + levels[2 * l + 1];
+        int hl = halo[l + 1], hp = halo[l];
+        int hx = (hl + VEC - 1) / VEC * VEC;
+        int cx0 = PX - hx, cx1 = PX + TX + hx;
+        // Horizontal pass on the rows the vertical pass reads, inside the screen.
+        int ry0 = MAX(PY - hp, top), ry1 = MIN(PY + TY + hp, bottom + 1);
+        int vy0 = MAX(PY - hl, top), vy1 = MIN(PY + TY + hl, bottom + 1);
+        float t0 = t[0], t1 = t[MIN(1, 2 * r)], t2 = t[MIN(2, 2 * r)], t3 = t[MIN(3, 2 * r)];
+        float t4 = t[MIN(4, 2 * r)], t5 = t[MIN(5, 2 * r)], t6 = t[MIN(6, 2 * r)];
+#define H_PASS(CONV)                                                      \
+    for (int by = ry0; by < ry1; ++by) {                                  \
+        __local const float *s = src + by * BW - r;                       \
+        __local float *o = tmp + by * BW;                                 \
+        for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, 1)); \
+    }
+#define V_PASS(CONV)                                                      \
+    for (int by = vy0; by < vy1; ++by) {                                  \
+        __local const float *s = tmp + (by - r) * BW;                     \
+        __local float *o = dst + by * BW;                                 \
+        for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, BW)); \
+    }
+#define CONV3(s, d) (t0 * LOAD8_L(s) + t1 * LOAD8_L((s) + (d)) + t2 * LOAD8_L((s) + 2 * (d)))
+#define CONV5(s, d) (CONV3(s, d) + t3 * LOAD8_L((s) + 3 * (d)) + t4 * LOAD8_L((s) + 4 * (d)))
+#define CONV7(s, d) (CONV5(s, d) + t5 * LOAD8_L((s) + 5 * (d)) + t6 * LOAD8_L((s) + 6 * (d)))
+#define CONVN(s, d) conv8_l(s, d, t, r)
+        if (r == 1) {
+            H_PASS(CONV3)
+        } else if (r == 2) {
+            H_PASS(CONV5)
+        } else if (r == 3) {
+            H_PASS(CONV7)
+        } else {
+            H_PASS(CONVN)
+        }
+        // Rows above and below the screen repeat its edge rows.
+        for (int by = PY - hp; by < ry0; ++by)
+            for (int bx = cx0; bx < cx1; bx += VEC)
+                STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + top * BW + bx));
+        for (int by = ry1; by < PY + TY + hp; ++by)
+            for (int bx = cx0; bx < cx1; bx += VEC)
+                STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + bottom * BW + bx));
+        // Vertical pass where this level is still needed, inside the screen.
+        if (r == 1) {
+            V_PASS(CONV3)
+        } else if (r == 2) {
+            V_PASS(CONV5)
+        } else if (r == 3) {
+            V_PASS(CONV7)
+        } else {
+            V_PASS(CONVN)
+        }
+        fill_cols(dst, BW, vy0, vy1, left, right);
+        // Pixels that drop l + 1 bands show this level.
+        uchar want = (uchar)(l + 1);
+        for (int y = 0; y < ye - ty0; ++y) {
+            __global const uchar *drow = d_map + (size_t)(ty0 + y) * W + tx0;
+            __local float *arow = acc + y * TX;
+            __local const float *lrow = dst + (PY + y) * BW + PX;
+            int x = 0;
+            for (; x + VEC <= ow; x += VEC) {
+                int8 hit = TO_INT8(LOAD8_D(drow + x) == (uchar8)(want));
+                STORE8_L(arow + x, hit ? LOAD8_L(lrow + x) : LOAD8_L(arow + x));
+            }
+            for (; x < ow; ++x)
+                if (drow[x] == want) arow[x] = lrow[x];
+        }
+    }
+    for (int y = 0; y < ye - ty0; ++y) {
+        __global float *grow = dst_g + (size_t)(ty0 + y) * W + tx0;
+        __local const float *arow = acc + y * TX;
+        int x = 0;
+        for (; x + VEC <= ow; x += VEC) STORE8_G(grow + x, LOAD8_L(arow + x));
+        for (; x < ow; ++x) grow[x] = arow[x];
     }
 }

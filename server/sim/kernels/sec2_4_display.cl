@@ -1,49 +1,165 @@
 // Sec. 2.4 and Eq. 12: assemble the displayed value per screen pixel. Tone curve on the
 // Purkinje-shifted luminance (Eq. 1, 13), mesopic hue shift, afterimage gain and bleaching
 // term read at the retinal position x - gaze with the foveal fall-off, gamut, gamma.
+// One work-item makes 8 neighbouring pixels of a row; global size (ceil(W / 8), H).
 
-// Largest t in [0,1] keeping Y + t (rgb - Y) inside the cube: desaturate, never flip hue.
-inline float3 gamut_map(__constant const params_t *P, float3 rgb) {
-    float Y = clamp(dot3(P->w_P, rgb), 0.0f, 1.0f);
-    float3 d = rgb - Y;
-    float t = 1.0f;
-    float dd[3] = {d.x, d.y, d.z};
-    for (int c = 0; c < 3; ++c) {
-        if (dd[c] > 0.0f) t = fmin(t, (1.0f - Y) / dd[c]);
-        else if (dd[c] < 0.0f) t = fmin(t, Y / -dd[c]);
-    }
-    return clamp(Y + fmax(t, 0.0f) * d, 0.0f, 1.0f);
+typedef struct {
+    float8 r, g, b;
+} rgb8_t;
+
+inline float8 dot8(__constant const float *w, float8 r, float8 g, float8 b) {
+    return w[0] * r + w[1] * g + w[2] * b;
 }
 
-__kernel void compose(__constant const params_t *P, __global const float *G,
-                      __global const float *rho, __global const float *maps,
-                      __global const float *A, __global float *v, int W, int H, int low_w,
-                      int low_h, int cell, int grid_w, int grid_h, float gx, float gy,
-                      float eyes, float fovea_sigma) {
-    int x = get_global_id(0), y = get_global_id(1);
-    if (x >= W) return;
-    int k = y * W + x, plane = W * H;
-    float px = x + 0.5f, py = y + 0.5f;
-    float3 rgb = eyes * load3(G, plane, k);
-    float rc = clamp(sample_plane(rho, low_w, low_h, px / cell, py / cell, 1, 0.0f), 0.0f, 1.0f);
-    float yp = dot3(P->w_P, rgb), ys = dot3(P->w_S, rgb);
-    float R = tone(P, ln_sigma_n_of(P, A[0]), rc * yp + (1.0f - rc) * ys);  // Eq. 1 + Purkinje
-    float3 k_s = (float3)(P->k_s[0], P->k_s[1], P->k_s[2]);
-    float3 J = R * (rc * rgb / fmax(yp, P->Y_min) + (1.0f - rc) * k_s);    // hue shift
+inline rgb8_t mat8_mul(__constant const float *m, float8 r, float8 g, float8 b) {
+    rgb8_t o;
+    o.r = m[0] * r + m[1] * g + m[2] * b;
+    o.g = m[3] * r + m[4] * g + m[5] * b;
+    o.b = m[6] * r + m[7] * g + m[8] * b;
+    return o;
+}
+
+// Largest t in [0,1] keeping Y + t (rgb - Y) inside the cube: desaturate, never flip hue.
+inline float8 gamut_t(float8 Y, float8 d, float8 t) {
+    float8 lim = (d > 0.0f ? 1.0f - Y : -Y) / d;  // inf or NaN where d = 0: not taken
+    return (d != 0.0f && lim < t) ? lim : t;
+}
+
+inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
+                       __global const float *rho_full, __global const float *maps,
+                       __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
+                       float gx, float gy, float eyes, __global const float *fovea, int x,
+                       int y) {
+    size_t row = (size_t)y * W, plane = (size_t)W * H;
+    float8 r = eyes * load8_row(G + row, x, W);
+    float8 g = eyes * load8_row(G + plane + row, x, W);
+    float8 b = eyes * load8_row(G + 2 * plane + row, x, W);
+    float8 rc = CLAMP(load8_row(rho_full + row, x, W), 0.0f, 1.0f);
+    float8 yp = dot8(P->w_P, r, g, b), ys = dot8(P->w_S, r, g, b);
+    float8 R = tone8(P, ln_sigma_n_of(P, A[0]), rc * yp + (1.0f - rc) * ys);  // Eq. 1 + Purkinje
+    float8 ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);        // hue shift
+    rgb8_t lms = mat8_mul(P->rgb2lms, ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
+                          ratio * b + grey * P->k_s[2]);
     // Afterimage maps at the retinal position of this pixel; off the grid: equilibrium.
-    float mx = (px - gx) / cell + 0.5f * grid_w, my = (py - gy) / cell + 0.5f * grid_h;
+    float8 px = (float)x + 0.5f + LANE_F;
+    float py = y + 0.5f;
+    lerp8_t tx = lerp8_at(grid_w, (px - gx) / cell + 0.5f * grid_w, 0);
+    lerp1_t ty = lerp1_at(grid_h, (py - gy) / cell + 0.5f * grid_h, 0);
     int gp = grid_w * grid_h;
-    bilinear_t t = bilinear_at(grid_w, grid_h, mx, my, 0);
-    float3 gain = (float3)(bilinear_get(maps, t, 1.0f), bilinear_get(maps + gp, t, 1.0f),
-                           bilinear_get(maps + 2 * gp, t, 1.0f));
-    float3 bleach = (float3)(bilinear_get(maps + 3 * gp, t, 0.0f),
-                             bilinear_get(maps + 4 * gp, t, 0.0f),
-                             bilinear_get(maps + 5 * gp, t, 0.0f));
-    float dx = px - gx, dy = py - gy;
-    float f = exp(-(dx * dx + dy * dy) / (2.0f * fovea_sigma * fovea_sigma));  // foveal fall-off
-    float3 lms = mat3_mul(P->rgb2lms, J) * (1.0f + f * (gain - 1.0f));      // Eq. 12, alpha^j2 R
-    J = mat3_mul(P->lms2rgb, lms) + f * mat3_mul(P->H, bleach);             // + bleaching via H
-    J = gamut_map(P, J);
-    float3 out = pow_pos(J, P->gamma);
-    v[3 * k] = out.x; v[3 * k + 1] = out.y; v[3 * k + 2] = out.z;
+    float8 m[6], xm[8];
+    int K = xmix8(tx, xm);
+    if (K > 0) {
+        float8 m0 = 0.0f, m1 = 0.0f, m2 = 0.0f, m3 = 0.0f, m4 = 0.0f, m5 = 0.0f;
+        __global const float *ra = maps + ty.a * grid_w, *rb = maps + ty.b * grid_w;
+        for (int k = 0; k < K; ++k) {
+            int col = CLAMP(tx.x0.s0 + k, 0, grid_w - 1);
+            float8 wa = ty.wa * xm[k], wb = ty.wb * xm[k];
+            __global const float *pa = ra + col, *pb = rb + col;
+            m0 += pa[0] * wa + pb[0] * wb;
+            m1 += pa[gp] * wa + pb[gp] * wb;
+            m2 += pa[2 * gp] * wa + pb[2 * gp] * wb;
+            m3 += pa[3 * gp] * wa + pb[3 * gp] * wb;
+            m4 += pa[4 * gp] * wa + pb[4 * gp] * wb;
+            m5 += pa[5 * gp] * wa + pb[5 * gp] * wb;
+        }
+        float8 w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
+        m[0] = m0 + w_out;
+        m[1] = m1 + w_out;
+        m[2] = m2 + w_out;
+        m[3] = m3;
+        m[4] = m4;
+        m[5] = m5;
+    } else {
+        for (int c = 0; c < 6; ++c) m[c] = bilinear8_get(maps + c * gp, grid_w, tx, ty, c < 3);
+    }
+    float8 f = load8_row(fovea, x, W) * fovea[W + y];  // foveal fall-off, separable
+    lms.r *= 1.0f + f * (m[0] - 1.0f);  // Eq. 12, alpha^j2 R
+    lms.g *= 1.0f + f * (m[1] - 1.0f);
+    lms.b *= 1.0f + f * (m[2] - 1.0f);
+    rgb8_t J = mat8_mul(P->lms2rgb, lms.r, lms.g, lms.b);
+    rgb8_t bl = mat8_mul(P->H, m[3], m[4], m[5]);  // bleaching
+    J.r += f * bl.r;
+    J.g += f * bl.g;
+    J.b += f * bl.b;
+    // Gamut: toward the grey of equal luminance, just far enough to fit.
+    float8 Y = CLAMP(dot8(P->w_P, J.r, J.g, J.b), 0.0f, 1.0f);
+    float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
+    float8 t = MAX(gamut_t(Y, db, gamut_t(Y, dg, gamut_t(Y, dr, (float8)(1.0f)))), 0.0f);
+    rgb8_t out;
+    out.r = pow8_pos(CLAMP(Y + t * dr, 0.0f, 1.0f), P->gamma);
+    out.g = pow8_pos(CLAMP(Y + t * dg, 0.0f, 1.0f), P->gamma);
+    out.b = pow8_pos(CLAMP(Y + t * db, 0.0f, 1.0f), P->gamma);
+    return out;
+}
+
+// Interleave 8 pixels of planar r, g, b into rgbrgb... as three float8.
+#define INTERLEAVE(o, c)                                                                    \
+    float8 o##0 = (float8)(c.r.s0, c.g.s0, c.b.s0, c.r.s1, c.g.s1, c.b.s1, c.r.s2, c.g.s2); \
+    float8 o##1 = (float8)(c.b.s2, c.r.s3, c.g.s3, c.b.s3, c.r.s4, c.g.s4, c.b.s4, c.r.s5); \
+    float8 o##2 = (float8)(c.g.s5, c.b.s5, c.r.s6, c.g.s6, c.b.s6, c.r.s7, c.g.s7, c.b.s7);
+
+#define COMPOSE_ARGS                                                                             \
+    __constant const params_t *P, __global const float *G, __global const float *rho_full,      \
+        __global const float *maps, __global const float *A, int W, int H, int cell, int grid_w, \
+        int grid_h, float gx, float gy, float eyes, __global const float *fovea
+
+#define COMPOSE_CALL P, G, rho_full, maps, A, W, H, cell, grid_w, grid_h, gx, gy, eyes, fovea
+
+// v: H×W×3 float32, interleaved.
+__kernel void compose(COMPOSE_ARGS, __global float *v) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    rgb8_t c = compose8(COMPOSE_CALL, x, y);
+    __global float *o = v + 3 * ((size_t)y * W + x);
+    if (x + VEC <= W) {
+        INTERLEAVE(q, c)
+        STORE8_G(o, q0);
+        STORE8_G(o + 8, q1);
+        STORE8_G(o + 16, q2);
+        return;
+    }
+    INTERLEAVE(q, c)
+    int n = 3 * (W - x);
+    store8_part(o, q0, MIN(n, 8));
+    if (n > 8) store8_part(o + 8, q1, MIN(n - 8, 8));
+    if (n > 16) store8_part(o + 16, q2, n - 16);
+}
+
+// The same as IEEE half floats (round to nearest even), for frames sent as float16.
+__kernel void compose_half(COMPOSE_ARGS, __global half *v) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    rgb8_t c = compose8(COMPOSE_CALL, x, y);
+    __global half *o = v + 3 * ((size_t)y * W + x);
+    if (x + VEC <= W) {
+        INTERLEAVE(q, c)
+        vstore_half8_rte(q0, 0, o);
+        vstore_half8_rte(q1, 0, o + 8);
+        vstore_half8_rte(q2, 0, o + 16);
+        return;
+    }
+    INTERLEAVE(q, c)
+    float tmp[24];
+    vstore8(q0, 0, tmp);
+    vstore8(q1, 0, tmp + 8);
+    vstore8(q2, 0, tmp + 16);
+    for (int i = 0; i < 3 * (W - x); ++i) vstore_half_rte(tmp[i], i, o);
+}
+
+// The same packed as WebGL2's RGB10_A2 takes it: round(1023 v) per channel (to nearest even),
+// r | g << 10 | b << 20, alpha bits 0. One uint per pixel.
+__kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    rgb8_t c = compose8(COMPOSE_CALL, x, y);
+    uint8 q = convert_uint8_rte(c.r * 1023.0f) | (convert_uint8_rte(c.g * 1023.0f) << 10)
+              | (convert_uint8_rte(c.b * 1023.0f) << 20);
+    __global uint *o = v + (size_t)y * W + x;
+    if (x + VEC <= W) {
+        vstore8(q, 0, o);
+        return;
+    }
+    uint tmp[8];
+    vstore8(q, 0, tmp);
+    for (int i = 0; i < W - x; ++i) o[i] = tmp[i];
 }
