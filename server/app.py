@@ -29,6 +29,8 @@ from drivers import wire
 from server.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from server.metrics import Metrics
 from server.protocol import Gaze, ProtocolError, parse_control
+from server.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
+from server.recordings import RecordingLibrary
 from server.scenes import Scene
 from server.scenes.exr import SceneError
 from server.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
@@ -92,10 +94,12 @@ class TokenBucket:
 def create_app(config: ServerConfig) -> FastAPI:
     metrics = Metrics()
     scenes = SceneLibrary(config.data_dir, config.scenes)
+    recordings = RecordingLibrary(config.data_dir)
     hub = SessionHub(
         config.session,
         scenes,
         metrics,
+        recordings,
         grace_s=config.session_grace_s,
         max_sessions=config.max_sessions,
     )
@@ -137,25 +141,28 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.put("/api/scenes/{name:path}", status_code=201)
     async def upload_scene(name: str, request: Request) -> dict[str, str]:
         """Upload an OpenEXR file as the request body; it is validated before it is kept."""
-        try:
-            check_name(name)
-        except SceneError as e:
-            raise HTTPException(400, str(e)) from None
-        cap = config.max_upload_bytes
-        declared = request.headers.get("content-length")
-        if declared and declared.isdigit() and int(declared) > cap:
-            raise HTTPException(413, f"upload of {declared} bytes is over the {cap}-byte limit")
-        chunks, total = [], 0
-        async for chunk in request.stream():
-            total += len(chunk)
-            if total > cap:
-                raise HTTPException(413, f"upload is over the {cap}-byte limit")
-            chunks.append(chunk)
+        chunks = await _upload_body(name, request, config.max_upload_bytes)
         try:
             await asyncio.to_thread(scenes.store, name, chunks)
         except SceneError as e:
             raise HTTPException(422, str(e)) from None
         hub.broadcast({"type": "scenes", "scenes": scenes.names()})
+        return {"name": name}
+
+    @app.get("/api/recordings")
+    async def list_recordings() -> dict[str, list[str]]:
+        """Session logs a session can follow as gaze source `replay:NAME`."""
+        return {"recordings": recordings.names()}
+
+    @app.put("/api/recordings/{name:path}", status_code=201)
+    async def upload_recording(name: str, request: Request) -> dict[str, str]:
+        """Upload a session log (JSON Lines, drivers/sessionlog.py); validated before kept."""
+        cap = min(config.max_upload_bytes, MAX_RECORDING_BYTES)
+        chunks = await _upload_body(name, request, cap)
+        try:
+            await asyncio.to_thread(recordings.store, name, chunks)
+        except ValueError as e:
+            raise HTTPException(422, str(e)) from None
         return {"name": name}
 
     @app.get("/api/params")
@@ -274,6 +281,24 @@ def create_app(config: ServerConfig) -> FastAPI:
     if config.web_dir.is_dir():
         app.mount("/", StaticFiles(directory=config.web_dir, html=True), name="web")
     return app
+
+
+async def _upload_body(name: str, request: Request, cap: int) -> list[bytes]:
+    """The request body, refused as soon as it passes `cap` bytes; `name` checked first."""
+    try:
+        check_name(name)
+    except SceneError as e:
+        raise HTTPException(400, str(e)) from None
+    declared = request.headers.get("content-length")
+    if declared and declared.isdigit() and int(declared) > cap:
+        raise HTTPException(413, f"upload of {declared} bytes is over the {cap}-byte limit")
+    chunks, total = [], 0
+    async for chunk in request.stream():
+        total += len(chunk)
+        if total > cap:
+            raise HTTPException(413, f"upload is over the {cap}-byte limit")
+        chunks.append(chunk)
+    return chunks
 
 
 def _tracker_note(hub: SessionHub) -> dict[str, Any]:

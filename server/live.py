@@ -19,6 +19,7 @@ from typing import Any
 
 from server.metrics import Metrics
 from server.protocol import Control
+from server.recordings import RecordingLibrary
 from server.scenes.library import SceneLibrary
 from server.session import Frame, RemoteGaze, Session, SessionSettings
 
@@ -144,12 +145,14 @@ class SessionHub:
         settings: SessionSettings,
         scenes: SceneLibrary,
         metrics: Metrics,
+        recordings: RecordingLibrary | None = None,
         *,
         grace_s: float = 10.0,
         max_sessions: int = 8,
     ) -> None:
         self.settings = settings
         self.scenes = scenes
+        self.recordings = recordings or RecordingLibrary(None)
         self.metrics = metrics
         self.remote = RemoteGaze()
         self.sessions: dict[str, LiveSession] = {}
@@ -164,7 +167,7 @@ class SessionHub:
                 raise TooManySessionsError(f"the server already runs {self.max_sessions} sessions")
             new_id = secrets.token_urlsafe(9)
             session = await asyncio.to_thread(
-                Session, new_id, self.settings, self.scenes, self.remote
+                Session, new_id, self.settings, self.scenes, self.remote, self.recordings
             )
             live = LiveSession(session, self.metrics)
             live.task = asyncio.create_task(live.run(), name=f"session {new_id}")

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from drivers.wire import load_typed_json
+from server.sim.layout import encode_output
 
 MAGIC = b"GZHF"
 VERSION = 1
@@ -33,6 +34,10 @@ class Encoding(IntEnum):
 
     f16 = 1  # RGB half floats: 11 significant bits, finer still in the darks
     rgb10a2 = 2  # 10 bits per channel packed in a u32, as WebGL2's RGB10_A2 texture takes it
+
+
+#: The `Simulator.step` output that is each encoding's payload.
+SIM_OUTPUT = {Encoding.f16: "float16", Encoding.rgb10a2: "rgb10a2"}
 
 
 class ProtocolError(ValueError):
@@ -72,11 +77,12 @@ class FrameHeader:
 
 def encode_pixels(v: np.ndarray, encoding: Encoding) -> bytes:
     """H×W×3 display values in [0, 1] → the payload bytes of `encoding`."""
-    if encoding is Encoding.f16:
-        return np.asarray(v, "<f2").tobytes()
-    q = np.rint(np.clip(v, 0.0, 1.0) * 1023.0).astype(np.uint32)
-    packed = q[..., 0] | (q[..., 1] << 10) | (q[..., 2] << 20)
-    return packed.astype("<u4").tobytes()
+    return payload(encode_output(v, SIM_OUTPUT[encoding]))
+
+
+def payload(encoded: np.ndarray) -> bytes:
+    """Bytes of an array `Simulator.step(output=...)` returned, little-endian as on the wire."""
+    return encoded.astype(encoded.dtype.newbyteorder("<"), copy=False).tobytes()
 
 
 def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:

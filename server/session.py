@@ -15,6 +15,7 @@ from typing import Any
 
 from drivers.tracks import open_track
 from server.protocol import (
+    SIM_OUTPUT,
     Choose,
     Control,
     Encoding,
@@ -25,8 +26,9 @@ from server.protocol import (
     ProtocolError,
     Reset,
     Viewport,
-    encode_pixels,
+    payload,
 )
+from server.recordings import RecordingLibrary
 from server.scenes import Scene
 from server.scenes.library import SceneLibrary
 from server.sim import Params, Simulator
@@ -111,11 +113,13 @@ class Session:
         settings: SessionSettings,
         scenes: SceneLibrary,
         remote: RemoteGaze,
+        recordings: RecordingLibrary | None = None,
     ) -> None:
         self.id = session_id
         self.settings = settings
         self.scenes = scenes
         self.remote = remote
+        self.recordings = recordings or RecordingLibrary(None)
         self.size = (settings.width, settings.height)
         self.params = settings.params
         self.gaze_source = settings.gaze_source
@@ -129,6 +133,7 @@ class Session:
         self._new_gaze_at: float | None = None
         self._remote_seq = -1
         self._track = None
+        self._track_start = 0.0
         self.sim = self._new_simulator()
 
     # --- what the viewers are told ------------------------------------------------------------
@@ -140,7 +145,7 @@ class Session:
             "model": self.model,
             "models": list(MODELS),
             "gaze_source": self.gaze_source,
-            "gaze_sources": list(GAZE_SOURCES),
+            "gaze_sources": [*GAZE_SOURCES, *(f"replay:{n}" for n in self.recordings.names())],
             "width": self.size[0],
             "height": self.size[1],
             "fps": self.settings.fps,
@@ -213,11 +218,14 @@ class Session:
             if name not in MODELS:
                 raise ValueError(f"unknown model {name!r}; available: {', '.join(MODELS)}")
             self.model = name
+        elif name.startswith("replay:"):
+            self._track = self.recordings.track(name.removeprefix("replay:"))
+            self._track_start = self.sim.time
+            self.gaze_source = name
         else:
             if name not in GAZE_SOURCES:
-                raise ValueError(
-                    f"unknown gaze source {name!r}; available: {', '.join(GAZE_SOURCES)}"
-                )
+                known = ", ".join([*GAZE_SOURCES, "replay:NAME"])
+                raise ValueError(f"unknown gaze source {name!r}; available: {known}")
             self.gaze_source = name
             self._track = None
         return True
@@ -266,14 +274,17 @@ class Session:
             if r.seq != self._remote_seq:
                 self._remote_seq, self._new_gaze_at = r.seq, r.received_at
             return True
-        if self.gaze_source == "synthetic":
-            if self._track is None:
-                seed = self.settings.seed
-                self._track = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
-            x, y, self.eyes_open = self._track.at(self.sim.time % SYNTHETIC_LOOP_S)
-            self.gaze = (x, y)
-            return True
-        return False
+        if self.gaze_source == "synthetic" and self._track is None:
+            seed = self.settings.seed
+            self._track = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
+            self._track_start = 0.0
+        if self._track is None:
+            return False
+        # Tracks loop: a recording replays from where it was chosen, over and over.
+        length = max(getattr(self._track, "duration", SYNTHETIC_LOOP_S), 1e-3)
+        x, y, self.eyes_open = self._track.at((self.sim.time - self._track_start) % length)
+        self.gaze = (x, y)
+        return True
 
     def _advance(self, dt: float) -> Frame:
         started = time.perf_counter()
@@ -287,9 +298,13 @@ class Session:
             sim.step(change - sim.time, gaze=gaze, eyes_open=self.eyes_open)
             self._sync_scene()
         self._sync_scene()
-        v = sim.step(max(0.0, end - sim.time), gaze=gaze, eyes_open=self.eyes_open)
+        encoding = self.settings.encoding
+        out = sim.step(
+            max(0.0, end - sim.time), gaze=gaze, eyes_open=self.eyes_open,
+            output=SIM_OUTPUT[encoding],
+        )  # fmt: skip
         stepped = time.perf_counter()
-        payload = encode_pixels(v, self.settings.encoding)
+        data = payload(out)  # the device already encoded it: this is a copy
         encoded = time.perf_counter()
         gx, gy = sim.gaze
         header = FrameHeader(
@@ -309,7 +324,7 @@ class Session:
         )
         self.frame += 1
         new_gaze_at, self._new_gaze_at = self._new_gaze_at, None
-        return Frame(header, payload, stepped - started, encoded - stepped, new_gaze_at)
+        return Frame(header, data, stepped - started, encoded - stepped, new_gaze_at)
 
 
 def _type_of(control: Control) -> str:

@@ -399,3 +399,34 @@ def test_sample_flood_is_rate_limited_without_harming_viewers(live_server) -> No
     assert server.metrics.gaze_rate_limited.value > 50_000
     assert server.metrics.gaze_samples.value < 50_000
     assert flooded > 0.7 * quiet, (quiet, flooded)  # the flood must not starve the session
+
+
+def test_a_recorded_session_replays_as_gaze(live_server, tmp_path) -> None:
+    from drivers.samples import GazeSample
+    from drivers.sessionlog import SessionHeader, SessionLogWriter
+
+    server = live_server()
+    log = tmp_path / "rec.jsonl"
+    with SessionLogWriter(log, SessionHeader(tracker={"name": "hand-made"})) as writer:
+        # 1920x1080 screen: hold (480, 270) px for 10 s, i.e. (0.25, 0.25) of the screen.
+        for i in range(100):
+            writer.write(GazeSample(t_ns=i * 100_000_000, x=480.0, y=270.0))
+    status, body = http("PUT", server.url + "/api/recordings/lab-1", log.read_bytes())
+    assert (status, body) == (201, {"name": "lab-1"})
+    assert http("GET", server.url + "/api/recordings")[1] == {"recordings": ["lab-1"]}
+    bad = [("no-samples", b'{"format": "gazehdr-session"}\n', 422), ("../x", b"", 400)]
+    for name, payload, code in bad:
+        assert http("PUT", f"{server.url}/api/recordings/{name}", payload)[0] == code
+
+    async def check() -> None:
+        client = await Client.open(server)
+        assert "replay:lab-1" in client.hello["gaze_sources"]
+        await client.send(type="gaze_source", name="replay:lab-1")
+        assert (await client.note("state"))["gaze_source"] == "replay:lab-1"
+        header, _ = await client.frame(lambda h: h.tracker)
+        assert (header.gaze_x, header.gaze_y) == (0.25, 0.25)
+        await client.send(type="gaze_source", name="replay:nothing")
+        assert "no recording named 'nothing'" in (await client.note("error"))["message"]
+        await client.ws.close()
+
+    run(check())

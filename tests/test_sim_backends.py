@@ -176,3 +176,25 @@ def test_each_stage_alone(seed: int) -> None:
     _load_same(ref, cl, ["G", "rho", "maps", "A"], rng)
     for gaze, eyes in (((33.3, 21.7), 1.0), ((200.0, -50.0), 1.0), ((60.0, 34.0), 0.0)):
         assert_close("v", ref.compose(gaze, eyes), cl.compose(gaze, eyes))
+
+
+@pytest.mark.parametrize("output", ["float16", "rgb10a2"])
+def test_device_encoding_equals_host_encoding(output: str) -> None:
+    """The kernels that write f16 / RGB10_A2 for the wire give exactly what encoding the float32
+    frame on the host gives (round to nearest even; round(1023 v))."""
+    from server.sim.layout import encode_output
+
+    sims = [Simulator(136, 77, backend="opencl", seed=1) for _ in range(2)]
+    scene = np.resize(mixed_scene(2), (77, 136, 3))
+    for s in sims:
+        s.load_scene(scene)
+    for gaze in [(40.0, 30.0), (100.5, 12.25)]:
+        host = encode_output(sims[0].step(0.05, gaze=gaze), output)
+        device = sims[1].step(0.05, gaze=gaze, output=output)
+        assert device.dtype == host.dtype and device.shape == host.shape
+        assert np.array_equal(device, host)
+    ref = Simulator(136, 77, backend="reference", seed=1)
+    ref.load_scene(scene)
+    assert ref.step(0.05, output=output).dtype == host.dtype
+    with pytest.raises(ValueError, match="output must be one of"):
+        ref.step(0.05, output="png")

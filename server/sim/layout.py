@@ -208,3 +208,20 @@ def sanitize_radiance(rgb: np.ndarray, params: Params) -> np.ndarray:
         arr.astype(np.float64 if wide else np.float32), nan=0.0, posinf=cap, neginf=0.0
     )
     return np.clip(out, 0.0, cap, out=out).astype(np.float32, copy=False)
+
+
+#: What `Simulator.step` can return: v itself, or v made ready for the viewer's wire formats.
+OUTPUTS = ("float32", "float16", "rgb10a2")
+
+
+def encode_output(v: np.ndarray, output: str) -> np.ndarray:
+    """H×W×3 `v` in [0, 1] as `output`: float32, float16 (round to nearest even), or H×W uint32
+    RGB10_A2 words `r | g << 10 | b << 20` of round(1023 v), the layout WebGL2 uploads."""
+    if output == "float32":
+        return np.asarray(v, np.float32)
+    if output == "float16":
+        return np.asarray(v, np.float16)
+    if output == "rgb10a2":
+        q = np.rint(np.clip(v, 0.0, 1.0) * 1023.0).astype(np.uint32)
+        return q[..., 0] | (q[..., 1] << 10) | (q[..., 2] << 20)
+    raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")

@@ -11,11 +11,19 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from server.sim.layout import Layout, NoiseField, fit_to_frame, sanitize_radiance
+from server.sim.layout import (
+    OUTPUTS,
+    Layout,
+    NoiseField,
+    encode_output,
+    fit_to_frame,
+    sanitize_radiance,
+)
 from server.sim.params import Params
 from server.sim.reference import bilinear
 
 BACKENDS = ("opencl", "reference")
+_DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}
 MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no longer a frame)
 
 
@@ -124,8 +132,13 @@ class Simulator:
         dt: float,
         gaze: Sequence[float] | None = None,
         eyes_open: bool = True,
+        output: str = "float32",
     ) -> np.ndarray:
-        """Advance by `dt` seconds with the eye at `gaze` (screen px) and return H×W×3 `v`."""
+        """Advance by `dt` seconds with the eye at `gaze` (screen px) and return H×W×3 `v`.
+
+        `output` "float16" or "rgb10a2" returns `v` encoded for the viewer (see
+        `layout.encode_output`); the OpenCL backend encodes on the device, so the host never
+        makes a pass over the frame."""
         dt = float(dt)
         if not (math.isfinite(dt) and 0.0 <= dt <= MAX_DT):
             raise ValueError(f"dt must be a finite number of seconds in [0, {MAX_DT}], got {dt}")
@@ -139,7 +152,11 @@ class Simulator:
         b.retina(self._gaze, dt, False)
         if self._eyes:
             b.acuity(self._noise.at(self.time))
-        return b.compose(self._gaze, self._eyes)
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        if output != "float32" and b.name == "opencl":
+            return b.compose(self._gaze, self._eyes, out_dtype=_DEVICE_OUTPUT[output])
+        return encode_output(b.compose(self._gaze, self._eyes), output)
 
     # --- internals ----------------------------------------------------------------------------
 

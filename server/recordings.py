@@ -1,0 +1,53 @@
+"""Recorded sessions a live session can replay as its gaze, kept in `DATA_DIR/recordings/`.
+
+A recording is a native session log (`drivers/sessionlog.py`); it becomes the gaze source
+`replay:NAME` of any session, looping, with the same `SessionTrack` that offline rendering uses.
+Uploads are checked by reading them whole before they are moved into place.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from pathlib import Path
+
+from drivers.sessionlog import SessionTrack, read_session_log
+from server.scenes.library import check_name
+
+MAX_UPLOAD_BYTES = 64 * 1024 * 1024
+
+
+class RecordingLibrary:
+    def __init__(self, data_dir: Path | None) -> None:
+        self.folder = data_dir / "recordings" if data_dir else None
+
+    def names(self) -> list[str]:
+        return sorted(p.stem for p in self.folder.glob("*.jsonl")) if self.folder else []
+
+    def track(self, name: str) -> SessionTrack:
+        path = self._path(name)
+        if not path.is_file():
+            raise ValueError(f"no recording named {name!r}; available: {', '.join(self.names())}")
+        return read_session_log(path).track()
+
+    def store(self, name: str, chunks: list[bytes]) -> Path:
+        """Validate an uploaded session log and move it into place; nothing is kept if bad."""
+        path = self._path(name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".upload-{uuid.uuid4().hex}.jsonl")
+        try:
+            tmp.write_bytes(b"".join(chunks))
+            try:
+                log = read_session_log(tmp)
+                log.track()  # a log without samples cannot drive a gaze
+            except ValueError as e:
+                raise ValueError(str(e).replace(str(tmp), f"upload {name!r}")) from None
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return path
+
+    def _path(self, name: str) -> Path:
+        if self.folder is None:
+            raise ValueError("this server has no data directory for recordings")
+        return self.folder / f"{check_name(name)}.jsonl"
