@@ -28,7 +28,7 @@ from fastapi.staticfiles import StaticFiles
 from drivers import wire
 from server.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from server.metrics import Metrics
-from server.protocol import Gaze, ProtocolError, parse_control
+from server.protocol import Ack, Gaze, ProtocolError, parse_control
 from server.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from server.recordings import RecordingLibrary
 from server.scenes import Scene
@@ -249,6 +249,9 @@ def create_app(config: ServerConfig) -> FastAPI:
                 if text is None:
                     raise ProtocolError("binary messages are not accepted; send JSON text")
                 control = parse_control(text)
+                if isinstance(control, Ack):
+                    viewer.ack()
+                    continue
                 if len(live.controls) >= MAX_PENDING_CONTROLS and not isinstance(control, Gaze):
                     raise ProtocolError("too many messages; slow down", control.__class__.__name__)
                 live.submit(control)

@@ -25,6 +25,7 @@ from server.session import Frame, RemoteGaze, Session, SessionSettings
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
+WINDOW = 2  # frames in flight to a viewer that acks: one being drawn, one on the way
 
 
 class TooManySessionsError(Exception):
@@ -71,10 +72,26 @@ class Viewer:
     ) -> None:
         self.mailbox = Mailbox()
         self._send_bytes, self._send_json, self._metrics = send_bytes, send_json, metrics
+        # Flow control, on once the viewer acks: at most WINDOW frames sent and not yet taken,
+        # so frames never wait in socket buffers either, and the newest one goes next.
+        self.window: int | None = None
+        self.sent = self.acks = 0
+        self._credit = asyncio.Event()
+
+    def ack(self) -> None:
+        self.acks = min(self.acks + 1, self.sent)
+        self.window = WINDOW
+        self._credit.set()
+
+    async def _wait_for_credit(self) -> None:
+        while self.window is not None and self.sent - self.acks >= self.window:
+            self._credit.clear()
+            await self._credit.wait()
 
     async def pump(self) -> None:
         m = self._metrics
         while True:
+            await self._wait_for_credit()
             frame, notes = await self.mailbox.take()
             for note in notes:
                 await self._send_json(note)
@@ -85,6 +102,7 @@ class Viewer:
             started = time.monotonic()
             message = frame.message(self.mailbox.dropped)
             await self._send_bytes(message)
+            self.sent += 1
             sent = time.monotonic()
             m.send_seconds.observe(sent - started)
             m.frames_sent.inc()

@@ -147,7 +147,14 @@ class Reset:
     pass
 
 
-Control = Viewport | Gaze | Eyes | Choose | ParamChange | Reset
+@dataclass(frozen=True)
+class Ack:
+    """The viewer took frame `frame`: flow control, handled per viewer, not by the session."""
+
+    frame: int
+
+
+Control = Viewport | Gaze | Eyes | Choose | ParamChange | Reset | Ack
 CHOICES = ("scene", "model", "gaze_source")
 
 
@@ -190,5 +197,7 @@ def parse_control(data: str | bytes) -> Control:
         return ParamChange(_field(msg, "values", dict, "an object of parameter values"))
     if kind == "reset":
         return Reset()
-    known = "viewport, gaze, eyes, scene, model, gaze_source, params, reset"
+    if kind == "ack":
+        return Ack(_field(msg, "frame", int, "an integer"))
+    known = "viewport, gaze, eyes, scene, model, gaze_source, params, reset, ack"
     raise ProtocolError(f"unknown message type {kind!r}; known: {known}", kind)

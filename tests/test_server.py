@@ -430,3 +430,31 @@ def test_a_recorded_session_replays_as_gaze(live_server, tmp_path) -> None:
         await client.ws.close()
 
     run(check())
+
+
+def test_a_viewer_that_acks_gets_at_most_two_frames_in_flight(live_server) -> None:
+    server = live_server(fps=20.0)
+
+    async def frames_within(client: Client, seconds: float) -> list[FrameHeader]:
+        got = []
+        with pytest.raises(asyncio.TimeoutError):
+            while True:
+                got.append((await asyncio.wait_for(client.frame(), seconds))[0])
+        return got
+
+    async def check() -> None:
+        client = await Client.open(server)
+        first, _ = await client.frame()
+        await client.send(type="ack", frame=first.frame)  # from now on: window of 2
+        await asyncio.sleep(0.1)
+        stalled = await frames_within(client, 1.0)
+        # Whatever was already on its way, then the window: never more than a few frames.
+        assert 1 <= len(stalled) <= 4, [h.frame for h in stalled]
+        for header in stalled:
+            await client.send(type="ack", frame=header.frame)
+        resumed, _ = await client.frame()
+        # The next frame is the newest, not the one after the last received: ~20 were made.
+        assert resumed.frame > stalled[-1].frame + 10
+        await client.ws.close()
+
+    run(check())

@@ -145,6 +145,9 @@ function onFrame(buffer) {
   }
   const now = performance.now();
   const h = frame.header;
+  // Flow control: the server keeps at most two frames in flight to a page that acks, so a
+  // busy page gets the newest frame next instead of a backlog in the socket buffers.
+  send(messages.ack(h.frame));
   stats.frames.tick(now);
   stats.received += 1;
   if (h.gaze_seq > latencySeq && h.gaze_seq <= gazeSeq && gazeSeq - h.gaze_seq < SEQ_RING) {

@@ -104,6 +104,7 @@ export const messages = {
   gazeSource: (name) => ({ type: 'gaze_source', name }),
   params: (values) => ({ type: 'params', values }),
   reset: () => ({ type: 'reset' }),
+  ack: (frame) => ({ type: 'ack', frame }),
 };
 
 /** Parse a text message; null if it is not a JSON object with a string `type`. */
