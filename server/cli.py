@@ -158,7 +158,11 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         help="another origin (scheme://host:port) whose pages may open /ws/view; repeatable",
     )
     p.add_argument(
-        "--encoding", choices=("f16", "rgb10a2"), default="f16", help="frame pixel encoding"
+        "--encoding",
+        choices=("f16", "rgb10a2"),
+        default="rgb10a2",
+        help="frame pixels: rgb10a2 (10 bits, 4 bytes/px; default: fewer bytes, faster in a "
+        "browser) or f16 (half floats, 6 bytes/px, finer in the darks)",
     )
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl")
     p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")

@@ -26,6 +26,8 @@ from server.session import Frame, RemoteGaze, Session, SessionSettings
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
 WINDOW = 2  # frames in flight to a viewer that acks: one being drawn, one on the way
+MAX_IDLE_S = 0.5  # a session steps at least this often, even when no viewer takes frames
+DEMAND_POLL_S = 0.002
 
 
 class TooManySessionsError(Exception):
@@ -83,6 +85,13 @@ class Viewer:
         self.window = WINDOW
         self._credit.set()
 
+    def has_credit(self) -> bool:
+        return self.window is None or self.sent - self.acks < self.window
+
+    def wants_frame(self) -> bool:
+        """Whether a new frame would be sent now rather than replace one still waiting."""
+        return self.mailbox.frame is None and self.has_credit()
+
     async def _wait_for_credit(self) -> None:
         while self.window is not None and self.sent - self.acks >= self.window:
             self._credit.clear()
@@ -129,11 +138,20 @@ class LiveSession:
         for viewer in self.viewers:
             viewer.mailbox.put(None, [note])
 
+    async def _demand(self, patience: float) -> None:
+        """Wait (up to `patience` s) until some viewer would take a new frame: frames nobody
+        can take yet cost CPU that a browser on the same machine needs. The eye still advances
+        by the real elapsed time at the next step."""
+        deadline = time.monotonic() + patience
+        while not any(v.wants_frame() for v in self.viewers) and time.monotonic() < deadline:
+            await asyncio.sleep(DEMAND_POLL_S)
+
     async def run(self) -> None:
         interval = 1.0 / self.session.settings.fps
         last: float | None = None
         m = self.metrics
         while True:
+            await self._demand(MAX_IDLE_S)
             started = time.monotonic()
             dt = 0.0 if last is None else started - last
             last = started
@@ -150,7 +168,9 @@ class LiveSession:
             m.sim_seconds.observe(frame.sim_seconds)
             m.encode_seconds.observe(frame.encode_seconds)
             for viewer in self.viewers:
-                m.frames_dropped.inc(viewer.mailbox.put(frame, notes))
+                # A viewer out of credit gets the next frame made once it acks, not this one.
+                taken = frame if viewer.has_credit() else None
+                m.frames_dropped.inc(viewer.mailbox.put(taken, notes) + (taken is None))
             # Sleep out the rest of the frame interval; always yield once so sockets get served.
             await asyncio.sleep(max(0.0, started + interval - time.monotonic()))
 
