@@ -159,7 +159,8 @@ def test_file_layout_is_the_documented_one(tmp_path: Path) -> None:
 
 
 def test_writer_accepts_the_detectors_events(tmp_path: Path) -> None:
-    fixations = pytest.importorskip("drivers.fixations")
+    from drivers import fixations
+
     event = fixations.Event("fixation_end", 4, 2_000, 10.0, 20.0, 1_500, 0.3)
     blink = fixations.Event("blink_start", 5, 3_000, math.nan, math.nan, 100)
     path = tmp_path / "s.jsonl"
