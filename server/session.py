@@ -172,7 +172,7 @@ class Session:
         for control, received_at in controls:
             try:
                 changed |= self.apply(control, received_at)
-            except (ProtocolError, ValueError, TypeError) as e:
+            except (ValueError, TypeError, OSError) as e:  # ProtocolError is a ValueError
                 notes.append({"type": "error", "message": str(e), "in": _type_of(control)})
         if changed:
             notes.append({"type": "state", **self.state()})
