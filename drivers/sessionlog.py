@@ -625,6 +625,43 @@ class SessionLog:
     def track(self) -> SessionTrack:
         return SessionTrack(self.samples, self.blinks(), self.header.screen)
 
+    def fixation_track(self) -> SessionTrack:
+        """The gaze as the log's fixations: each fixation's mean position from its start until
+        the next one starts, so a saccade never sweeps the simulated retina (SPEC §4). A log
+        without fixation events is run through I-VT first; one with none found falls back to
+        the samples."""
+        events = self.events
+        if not any(e.kind.startswith("fixation") for e in events):
+            from drivers.fixations import detect  # only logs without events need it
+
+            found = detect(self.samples, "ivt", self.header.screen)
+            events = [
+                GazeEvent(e.kind, e.id, e.t_ns, e.x, e.y, e.duration_ns, e.dispersion_deg)
+                for e in found
+            ]
+        eye = next((e.eye for e in events if e.kind.startswith("fixation")), None)
+        fixations: dict[int, dict[str, float]] = {}
+        for e in sorted(events, key=lambda e: e.t_ns):
+            if not e.kind.startswith("fixation") or e.eye != eye:
+                continue
+            f = fixations.setdefault(e.id, {})
+            if e.kind == "fixation_start":
+                f.setdefault("t", e.t_ns)
+            elif e.kind == "fixation_end" and e.duration_ns is not None:
+                f.setdefault("t", e.t_ns - e.duration_ns)
+            if _finite(e.x) and _finite(e.y):
+                f["x"], f["y"] = e.x, e.y  # later events know more: the end's mean wins
+        points = sorted((f["t"], f["x"], f["y"]) for f in fixations.values() if len(f) == 3)
+        if not points:
+            return self.track()
+        samples = [GazeSample(int(t), x, y) for t, x, y in points]
+        blinks = self.blinks() or _blinks_of(events)
+        return SessionTrack(samples, blinks, self.header.screen)
+
+
+def _blinks_of(events: list[GazeEvent]) -> list[tuple[int, float]]:
+    return SessionLog(SessionHeader(), events=list(events)).blinks()
+
 
 def read_session_log(path: str | Path) -> SessionLog:
     """Read a whole log; stops cleanly at a cut final line (`truncated` says so)."""

@@ -1,7 +1,8 @@
 """Recorded sessions a live session can replay as its gaze, kept in `DATA_DIR/recordings/`.
 
 A recording is a native session log (`drivers/sessionlog.py`); it becomes the gaze source
-`replay:NAME` of any session, looping, with the same `SessionTrack` that offline rendering uses.
+`replay:NAME` of any session, looping. The session follows the recording's fixations (detected
+with I-VT when the log has none), never the samples of a saccade.
 Uploads are checked by reading them whole before they are moved into place.
 """
 
@@ -28,7 +29,7 @@ class RecordingLibrary:
         path = self._path(name)
         if not path.is_file():
             raise ValueError(f"no recording named {name!r}; available: {', '.join(self.names())}")
-        return read_session_log(path).track()
+        return read_session_log(path).fixation_track()
 
     def store(self, name: str, chunks: list[bytes]) -> Path:
         """Validate an uploaded session log and move it into place; nothing is kept if bad."""

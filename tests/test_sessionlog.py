@@ -416,3 +416,32 @@ def test_render_can_open_a_log_through_file_tracks(tmp_path: Path, monkeypatch) 
         if want.eyes_open:
             assert got.x == pytest.approx(want.x, abs=1e-12)
             assert got.y == pytest.approx(want.y, abs=1e-12)
+
+
+def test_fixation_track_never_follows_a_saccade() -> None:
+    """Without events the log is run through I-VT; the track holds each fixation's mean."""
+    ms = 1_000_000
+    samples = [GazeSample(i * 10 * ms, 100.0, 100.0) for i in range(30)]  # 300 ms at A
+    for k in range(1, 4):  # a 30 ms saccade, ~300 deg/s
+        samples.append(GazeSample((290 + 10 * k) * ms, 100 + 200.0 * k, 100 + 100.0 * k))
+    samples += [GazeSample((330 + i * 10) * ms, 900.0, 500.0) for i in range(30)]  # at B
+    log = SessionLog(SessionHeader(), samples=samples)
+    track = log.fixation_track()
+    seen = {track.at(t / 1000)[:2] for t in range(0, 620, 5)}
+    assert seen == {(100 / 1920, 100 / 1080), (900 / 1920, 500 / 1080)}
+    assert track.at(0.6)[:2] == (900 / 1920, 500 / 1080)
+
+
+def test_fixation_track_places_end_only_fixations_at_their_start() -> None:
+    """EyeLink-style events: the start has no position, the end has the mean and duration."""
+    ms = 1_000_000
+    samples = [GazeSample(i * 10 * ms, 0.0, 0.0) for i in range(100)]
+    events = [
+        GazeEvent("fixation_start", 1, 0),
+        GazeEvent("fixation_end", 1, 200 * ms, 960.0, 540.0, 200 * ms),
+        GazeEvent("fixation_end", 2, 900 * ms, 480.0, 270.0, 500 * ms),  # started at 400 ms
+    ]
+    track = SessionLog(SessionHeader(), samples=samples, events=events).fixation_track()
+    assert track.at(0.1)[:2] == (0.5, 0.5)
+    assert track.at(0.39)[:2] == (0.5, 0.5)
+    assert track.at(0.41)[:2] == (0.25, 0.25)
