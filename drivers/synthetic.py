@@ -270,6 +270,22 @@ class SyntheticScanPath:
                 yield GazeSample(t_ns, math.nan, math.nan, valid=False)
 
 
+class FixationView:
+    """A scan path as its fixations: each target held from its fixation's start until the next
+    fixation starts, blinks as in the path. What the simulation follows (SPEC §4): a saccade
+    does not sweep the retina."""
+
+    def __init__(self, path: SyntheticScanPath) -> None:
+        self.path = path
+        self.duration = path.duration
+        self._starts = [f.start for f in path.fixations]
+
+    def at(self, t: float) -> GazePoint:
+        eyes_open = self.path.at(t).eyes_open
+        f = self.path.fixations[max(bisect.bisect_right(self._starts, t) - 1, 0)]
+        return GazePoint(f.x, f.y, eyes_open)
+
+
 @dataclass(frozen=True)
 class FixedGaze:
     """The eye rests on one point with eyes open: for figures, tests, and gaze-less viewing."""

@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.synthetic import FixationView
 from drivers.tracks import open_track
 from server.protocol import (
     SIM_OUTPUT,
@@ -276,7 +277,8 @@ class Session:
             return True
         if self.gaze_source == "synthetic" and self._track is None:
             seed = self.settings.seed
-            self._track = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
+            path = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
+            self._track = FixationView(path)  # follow fixations, not saccades
             self._track_start = 0.0
         if self._track is None:
             return False

@@ -83,14 +83,15 @@ def test_controls_and_refusals() -> None:
     assert notes[-1]["width"] == notes[-1]["height"] == 72 and session.sim.time == 0.5
 
 
-def test_synthetic_gaze_source_moves_the_eye() -> None:
+def test_synthetic_gaze_source_moves_the_eye_from_fixation_to_fixation() -> None:
     session = new_session(gaze_source="synthetic")
     seen = set()
     for _ in range(40):
         frame, _ = session.tick(0.1, [(Gaze(0.9, 0.9, 1), 0.0)])  # pointer is ignored
-        seen.add((round(frame.header.gaze_x, 3), round(frame.header.gaze_y, 3)))
+        seen.add((round(frame.header.gaze_x, 9), round(frame.header.gaze_y, 9)))
         assert frame.header.tracker
-    assert len(seen) > 3 and (0.9, 0.9) not in seen
+    targets = {(round(f.x, 9), round(f.y, 9)) for f in session._track.path.fixations}
+    assert len(seen) > 3 and seen <= targets  # never a point along a saccade
 
 
 def _bleaching_peak(session: Session) -> float:
