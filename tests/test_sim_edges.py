@@ -127,3 +127,18 @@ def test_bad_parameters_are_refused() -> None:
     with pytest.raises(ValueError, match="unknown parameter"):
         Params.from_dict({"a3": 1.0})
     assert Params.from_dict(Params().to_dict()) == Params()
+
+
+@pytest.mark.parametrize("scene", list(scenes()))
+def test_wire_outputs_stay_in_range_at_the_edges(scene: str) -> None:
+    """The kernels that encode for the wire (f16, RGB10_A2) see the same extremes as `v`:
+    darkness, 1e8 cd/m^2, NaN/Inf input, gaze far off screen, dt = 0 and 1 s."""
+    sims = {out: Simulator(W, H, backend="opencl") for out in ("float16", "rgb10a2")}
+    for out, sim in sims.items():
+        sim.load_scene(scenes()[scene])
+        for dt, gaze in [(0.0, (48.0, 27.0)), (1.0, (-1e6, 3e9)), (1 / 60, (W, H))]:
+            frame = sim.step(dt, gaze=gaze, output=out)
+            if out == "float16":
+                assert np.isfinite(frame).all() and frame.min() >= 0 and frame.max() <= 1
+            else:
+                assert frame.shape == (H, W) and (frame >> 30 == 0).all()  # 30 bits used
