@@ -39,6 +39,7 @@ KERNEL_FILES = (
     "sec2_4_display.cl",
 )
 MAX_BANDS = 8
+STATE_PLANES = 8  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
@@ -102,16 +103,26 @@ def pick_device() -> cl.Device:
 
 
 @cache
-def _context_and_program() -> tuple[cl.Context, cl.Program]:
-    """One context and one built program per process: building takes seconds on PoCL."""
-    device = pick_device()
-    ctx = cl.Context([device])
+def _context() -> cl.Context:
+    return cl.Context([pick_device()])
+
+
+@cache
+def build_program(files: tuple[str, ...]) -> cl.Program:
+    """`kernels/` files built as one program, once per process: building takes seconds on
+    PoCL. A baseline model builds common.cl plus its own file, so the default pipeline does
+    not pay for models it does not run."""
+    ctx = _context()
     pkg = resources.files("server.sim") / "kernels"
-    source = "\n".join((pkg / name).read_text() for name in KERNEL_FILES)
+    source = "\n".join((pkg / name).read_text() for name in files)
     options = ["-cl-fast-relaxed-math"]
-    if "Portable Computing Language" in device.platform.name:
+    if "Portable Computing Language" in ctx.devices[0].platform.name:
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
-    return ctx, cl.Program(ctx, source).build(options=options)
+    return cl.Program(ctx, source).build(options=options)
+
+
+def _context_and_program() -> tuple[cl.Context, cl.Program]:
+    return _context(), build_program(KERNEL_FILES)
 
 
 def _round_up(n: int, m: int) -> int:
@@ -146,10 +157,10 @@ class OpenCLBackend:
         }
         self._bank = self._acuity_bank_setup()
         sizes = {
-            "scene": 3 * full, "down": 5 * low, "rho": low, "A": 1, "state": 6 * grid,
-            "maps": 6 * grid, "G": 3 * full, "v": 3 * full, "d_max": 1, "rho_full": full,
-            "grid_a": 6 * grid, "low_yp": low, "low_blur": low, "low_tmp": low,
-            "fovea": lay.width + lay.height,
+            "scene": 3 * full, "down": 5 * low, "rho": low, "A": 1,
+            "state": STATE_PLANES * grid, "maps": 6 * grid, "G": 3 * full, "v": 3 * full,
+            "d_max": 1, "rho_full": full, "grid_a": STATE_PLANES * grid, "low_yp": low,
+            "low_blur": low, "low_tmp": low, "fovea": lay.width + lay.height,
         }  # fmt: skip
         if self._bank is None:  # the level-by-level bank's whole-frame levels
             sizes.update({"lvl_a": 3 * full, "lvl_b": 3 * full, "lvl_tmp": 3 * full})
@@ -172,6 +183,12 @@ class OpenCLBackend:
         self._rho_taps = self._taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
 
     # --- host access (tests, adaptation readout) ----------------------------------------------
+
+    def set_state_channels(self, n: int) -> None:
+        """The afterimage model's retinal state has `n` planes (of STATE_PLANES allocated)."""
+        if not 1 <= n <= STATE_PLANES:
+            raise ValueError(f"an afterimage model may keep 1 to {STATE_PLANES} state planes")
+        self.shapes["state"] = (n, self.lay.grid_h, self.lay.grid_w)
 
     def get(self, name: str) -> np.ndarray:
         if name == "maps":

@@ -83,6 +83,38 @@ class Params:
     radiance_max: float = 1e10  # cd/m^2 cap on input; the sun's disc is about 1.6e9
     geometry: Geometry = field(default_factory=Geometry)
 
+    # --- baseline afterimage models (docs/baselines/) -------------------------------------------
+    # Ritschel & Eisemann 2012: Eq. 3 and Listing 1.
+    c_a: float = 0.3  # opsin activation constant (Sec. 3.1), per second per unit of L
+    c_d: float = 0.3  # deactivation constant, c_d = 1.0 c_a (Sec. 3.1)
+    ritschel_steps: int = 1  # explicit steps per frame, clamped to [0, 1] (Listing 1: n = 1)
+    # Ours: the paper's L is in trolands with an unstated scale; L = I / ritschel_L_ref makes
+    # an office white (100 cd/m^2) half-bleach the receptors at equilibrium.
+    ritschel_L_ref: float = 100.0
+    # Micro-saccade blur of the input: "about 10 px at 1280x1024, 1 m"; read as a 10 px
+    # kernel width on a 19" screen, sigma = 5 px = 0.08 deg (ours).
+    ritschel_saccade_sigma_deg: float = 0.08
+    # Diffusion N_sigma: blur after one second, sigma = N_sigma / sqrt(f) per frame. The paper
+    # fits Brindley's curve, which the text does not give; ours, as map_blur_deg.
+    ritschel_N_sigma_deg: float = 0.1
+    ritschel_strength: float = 1.0  # ours: scale of the composited afterimage (display units)
+    ritschel_flight_rate: float = 0.0  # flight of colours: oRGB hue rotation, rad/s (0 = off)
+    # Mikamo et al. 2012.
+    mikamo_top_fraction: float = 0.05  # mask: the top 5 % of luminance of I_on (Sec. 4)
+    mikamo_gamma: float = 0.7  # Z = (L_on / L_on_max)^gamma (Sec. 4)
+    mikamo_reference_xy: tuple[float, float] = (0.43, 0.40)  # Padgham's light, Yxy chromaticity
+    mikamo_drop_log10: float = 1.0  # ours: "drops sharply" = falls a log unit within one step
+    mikamo_lowpass_deg: float = 0.25  # ours: the fixed Gaussian low-pass of the afterimage
+    mikamo_strength: float = 1.0  # ours: scale of the added afterimage (display units)
+    mikamo_sequence: str = ""  # a CSV of Padgham's sequence; "" = the shipped data file
+
+    # --- acuity baselines (docs/baselines/acuity.md) --------------------------------------------
+    # Ours: a Gaussian passes half its contrast at the acuity limit R(L) of Ferwerda et al.
+    acuity_cutoff_response: float = 0.5
+    bilateral_sigma_r: float = 0.4  # ours: range sigma of Jensen et al.'s filter, log10 units
+    thompson_noise: float = 0.05  # ours: temporal noise sigma at full scotopic vision
+    thompson_noise_hz: float = 30.0  # ours: new noise this often (a display frame rate)
+
     def __post_init__(self) -> None:
         for name in ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps"):
             value = getattr(self, name)
@@ -125,7 +157,7 @@ class Params:
         values = dict(data)
         if "geometry" in values and isinstance(values["geometry"], dict):
             values["geometry"] = Geometry(**values["geometry"])
-        for name in ("b1", "b2", "w_P", "w_S", "k_s"):
+        for name in ("b1", "b2", "w_P", "w_S", "k_s", "mikamo_reference_xy"):
             if name in values:
                 values[name] = tuple(float(v) for v in values[name])
         if "H" in values:
@@ -151,6 +183,17 @@ SECTIONS: dict[str, list[str]] = {
         "m1", "m2", "w_P", "w_S", "k_s", "rho_sigma_deg", "sigma_0", "rho_step", "g", "bands",
         "noise_cell_deg", "noise_rate_hz",
     ],
+    "Ritschel & Eisemann 2012": [
+        "c_a", "c_d", "ritschel_steps", "ritschel_L_ref", "ritschel_saccade_sigma_deg",
+        "ritschel_N_sigma_deg", "ritschel_strength", "ritschel_flight_rate",
+    ],
+    "Mikamo et al. 2012": [
+        "mikamo_top_fraction", "mikamo_gamma", "mikamo_reference_xy", "mikamo_drop_log10",
+        "mikamo_lowpass_deg", "mikamo_strength", "mikamo_sequence",
+    ],
+    "Acuity baselines": [
+        "acuity_cutoff_response", "bilateral_sigma_r", "thompson_noise", "thompson_noise_hz",
+    ],
     "Input and viewing": ["Y_min", "radiance_max", "geometry"],
 }  # fmt: skip
 #: The values the paper does not give (see their comments in `Params`).
@@ -159,5 +202,8 @@ OURS = frozenset(
         "plateau_m_over_n", "plateau_K", "adaptation_sigma_deg", "rho_sigma_deg",
         "k_s", "noise_cell_deg", "noise_rate_hz", "map_blur_deg", "fovea_sigma_deg",
         "retina_cell_deg", "alpha_eps", "Y_min", "radiance_max", "geometry",
+        "ritschel_L_ref", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
+        "ritschel_strength", "mikamo_drop_log10", "mikamo_lowpass_deg", "mikamo_strength",
+        "acuity_cutoff_response", "bilateral_sigma_r", "thompson_noise", "thompson_noise_hz",
     }
 )  # fmt: skip

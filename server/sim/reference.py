@@ -185,7 +185,9 @@ def retina_update(state, down, A, gaze, dt, reset, lay: Layout, p: Params) -> np
 
 
 def afterimage_maps(state, down, A, gaze, lay: Layout, p: Params) -> np.ndarray:
-    """Per cone gain alpha^j2 (Eq. 11, guarded) and bleaching term j1 c max(B - B_inf, 0)."""
+    """The maps every afterimage model makes for `compose`: a multiplicative gain per cone
+    (here alpha^j2, Eq. 11, guarded) and an additive linear-RGB term (here H times the
+    bleaching term j1 c max(B - B_inf, 0) of Eq. 12)."""
     I = retina_input(down, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
@@ -196,7 +198,7 @@ def afterimage_maps(state, down, A, gaze, lay: Layout, p: Params) -> np.ndarray:
     alpha = (1.0 - c_inf + eps) / (1.0 - c + eps)
     gain = alpha**p.j2
     bleach = p.j1 * c * np.maximum(B - B_inf, 0.0)
-    return np.concatenate([gain, bleach])
+    return np.concatenate([gain, np.tensordot(np.asarray(p.H), bleach, axes=1)])
 
 
 def screen_coords(lay: Layout):
@@ -251,7 +253,7 @@ def compose(G, rho, maps, A, gaze, eyes: float, lay: Layout, p: Params) -> np.nd
     sig_f = lay.px(p.fovea_sigma_deg)
     f = np.exp(-((X - gaze[0]) ** 2 + (Y - gaze[1]) ** 2) / (2 * sig_f * sig_f))
     lms = np.tensordot(RGB_TO_LMS, J, axes=1) * (1 + f * (m[:3] - 1))
-    J = np.tensordot(LMS_TO_RGB, lms, axes=1) + f * np.tensordot(np.asarray(p.H), m[3:], axes=1)
+    J = np.tensordot(LMS_TO_RGB, lms, axes=1) + f * m[3:]
     J = gamut_map(J, p.w_P)
     return np.power(J, p.gamma).transpose(1, 2, 0)
 
@@ -279,6 +281,10 @@ class ReferenceBackend:
             "G": np.zeros((3, lay.height, lay.width)),
             "v": np.zeros((lay.height, lay.width, 3), np.float32),
         }
+
+    def set_state_channels(self, n: int) -> None:
+        """The afterimage model's retinal state has `n` planes (it starts at zero)."""
+        self.a["state"] = np.zeros((n, self.lay.grid_h, self.lay.grid_w))
 
     def get(self, name: str) -> np.ndarray:
         return np.array(self.a[name], copy=True)

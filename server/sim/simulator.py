@@ -19,6 +19,7 @@ from server.sim.layout import (
     fit_to_frame,
     sanitize_radiance,
 )
+from server.sim.models import Models, make_stages
 from server.sim.params import Params
 from server.sim.reference import bilinear
 
@@ -49,12 +50,17 @@ class Simulator:
         params: Params | None = None,
         backend: str = "opencl",
         seed: int = 0,
+        afterimage: str = "jacobs",
+        acuity: str = "stochastic",
     ) -> None:
         self.params = params or Params()
+        self.models = Models(afterimage, acuity)
         self.layout = Layout.for_frame(width, height, self.params)
         self.seed = int(seed)
         self.time = 0.0
         self._backend = _make_backend(backend, self.layout, self.params)
+        self._afterimage, self._acuity = make_stages(self.models, self._backend)
+        self._backend.set_state_channels(self._afterimage.state_channels)
         self._noise = NoiseField(self.layout, self.params, self.seed)
         self._gaze = (width / 2.0, height / 2.0)
         self._eyes = 1.0
@@ -80,6 +86,14 @@ class Simulator:
     def device(self) -> str:
         """Which device runs the model, for logs and benchmarks."""
         return self._backend.device_name
+
+    @property
+    def afterimage(self) -> str:
+        return self.models.afterimage
+
+    @property
+    def acuity(self) -> str:
+        return self.models.acuity
 
     @property
     def adaptation(self) -> float:
@@ -117,14 +131,15 @@ class Simulator:
         """Back to equilibrium for the current scene and gaze: no start-up afterimages."""
         self._prepare()
         self._backend.adapt(self._gaze, 0.0, True)
-        self._backend.retina(self._gaze, 0.0, True)
+        self._afterimage.retina(self._gaze, 0.0, True)
 
     def carry_state_from(self, other: Simulator) -> None:
         """Continue `other`'s eye (after a parameter change): its time and adaptation, and its
-        retinal state when both retina grids are the same; else the retina starts settled."""
+        retinal state when both retina grids and afterimage models are the same; else the
+        retina starts settled."""
         self.time = other.time
         self._backend.put("A", other._backend.get("A"))
-        if other.layout == self.layout:
+        if other.layout == self.layout and other.afterimage == self.afterimage:
             self._backend.put("state", other._backend.get("state"))
 
     def step(
@@ -149,9 +164,9 @@ class Simulator:
         b = self._backend
         self._prepare()
         b.adapt(self._gaze, dt, False)
-        b.retina(self._gaze, dt, False)
+        self._afterimage.retina(self._gaze, dt, False)
         if self._eyes:
-            b.acuity(self._noise.at(self.time))
+            self._acuity.acuity(self._noise.at(self.time), self._gaze, self.time)
         if output not in OUTPUTS:
             raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
         if output != "float32" and b.name == "opencl":
@@ -164,6 +179,7 @@ class Simulator:
         """Scene-only maps (cone input, local rho) change only with the scene or the eyelids."""
         if self._prepared_for != self._eyes:
             self._backend.prepare(self._eyes)
+            self._afterimage.prepared()
             self._prepared_for = self._eyes
 
     def _check_gaze(self, gaze: Sequence[float]) -> tuple[float, float]:

@@ -291,3 +291,21 @@ __kernel void blur_v(__global const float *src, __global float *dst, __constant 
         if (level >= 0 && d_map[y * w + i] == level + 1) G[out0 + i] = acc;
     }
 }
+
+// --- colour on 8 pixels ------------------------------------------------------------------
+
+typedef struct {
+    float8 r, g, b;
+} rgb8_t;
+
+inline float8 dot8(__constant const float *w, float8 r, float8 g, float8 b) {
+    return w[0] * r + w[1] * g + w[2] * b;
+}
+
+inline rgb8_t mat8_mul(__constant const float *m, float8 r, float8 g, float8 b) {
+    rgb8_t o;
+    o.r = m[0] * r + m[1] * g + m[2] * b;
+    o.g = m[3] * r + m[4] * g + m[5] * b;
+    o.b = m[6] * r + m[7] * g + m[8] * b;
+    return o;
+}

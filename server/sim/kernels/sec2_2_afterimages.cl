@@ -96,8 +96,8 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
     }
 }
 
-// Gain alpha^j2 (Eq. 11, guarded by alpha_eps so darkness gives 1, not 0/0) and the
-// bleaching term j1 c max(B - B_inf, 0) of Eq. 12, per cone, of 8 cells from their state.
+// Gain alpha^j2 (Eq. 11, guarded by alpha_eps so darkness gives 1, not 0/0) per cone, and the
+// bleaching term of Eq. 12, H j1 c max(B - B_inf, 0), as linear RGB, of 8 cells.
 inline void maps8(__constant const params_t *P, __global const float *down, float8 *st,
                   __global float *maps, float lsn, int low_w, int low_h, int cell, int grid_w,
                   int grid_h, float gx, float gy, int j, int i) {
@@ -105,15 +105,18 @@ inline void maps8(__constant const params_t *P, __global const float *down, floa
     size_t row = (size_t)i * grid_w;
     cone8_t I = retina_input8(down, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
+    float8 bleach[3];
     for (int c = 0; c < 3; ++c) {
         float8 B = st[c], ca = st[3 + c];
         float8 c_inf = 1.0f - tone8(P, lsn, In[c]);
         float8 alpha = (1.0f - c_inf + P->alpha_eps) / (1.0f - ca + P->alpha_eps);
-        float8 gain = pow8_pos(alpha, P->j2);
-        float8 bleach = P->j1 * ca * MAX(B - bleach_inf8(P, c, In[c]), 0.0f);
-        store_cell8(maps + c * plane + row, gain, j, grid_w);
-        store_cell8(maps + (3 + c) * plane + row, bleach, j, grid_w);
+        store_cell8(maps + c * plane + row, pow8_pos(alpha, P->j2), j, grid_w);
+        bleach[c] = P->j1 * ca * MAX(B - bleach_inf8(P, c, In[c]), 0.0f);
     }
+    rgb8_t add = mat8_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
+    store_cell8(maps + 3 * plane + row, add.r, j, grid_w);
+    store_cell8(maps + 4 * plane + row, add.g, j, grid_w);
+    store_cell8(maps + 5 * plane + row, add.b, j, grid_w);
 }
 
 // The maps of the cells from (j0, i0) on (global size: the window that the screen reads at

@@ -3,22 +3,6 @@
 // term read at the retinal position x - gaze with the foveal fall-off, gamut, gamma.
 // One work-item makes 8 neighbouring pixels of a row; global size (ceil(W / 8), H).
 
-typedef struct {
-    float8 r, g, b;
-} rgb8_t;
-
-inline float8 dot8(__constant const float *w, float8 r, float8 g, float8 b) {
-    return w[0] * r + w[1] * g + w[2] * b;
-}
-
-inline rgb8_t mat8_mul(__constant const float *m, float8 r, float8 g, float8 b) {
-    rgb8_t o;
-    o.r = m[0] * r + m[1] * g + m[2] * b;
-    o.g = m[3] * r + m[4] * g + m[5] * b;
-    o.b = m[6] * r + m[7] * g + m[8] * b;
-    return o;
-}
-
 // Largest t in [0,1] keeping Y + t (rgb - Y) inside the cube: desaturate, never flip hue.
 inline float8 gamut_t(float8 Y, float8 d, float8 t) {
     float8 lim = (d > 0.0f ? 1.0f - Y : -Y) / d;  // inf or NaN where d = 0: not taken
@@ -77,10 +61,9 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     lms.g *= 1.0f + f * (m[1] - 1.0f);
     lms.b *= 1.0f + f * (m[2] - 1.0f);
     rgb8_t J = mat8_mul(P->lms2rgb, lms.r, lms.g, lms.b);
-    rgb8_t bl = mat8_mul(P->H, m[3], m[4], m[5]);  // bleaching
-    J.r += f * bl.r;
-    J.g += f * bl.g;
-    J.b += f * bl.b;
+    J.r += f * m[3];  // additive afterimage, linear RGB (Eq. 12: H times the bleaching term)
+    J.g += f * m[4];
+    J.b += f * m[5];
     // Gamut: toward the grey of equal luminance, just far enough to fit.
     float8 Y = CLAMP(dot8(P->w_P, J.r, J.g, J.b), 0.0f, 1.0f);
     float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
