@@ -8,7 +8,7 @@ beside it, so every model sees the same scene, gaze and clock (see docs/baseline
 - acuity: `stochastic` (Sec. 2.3.3), `none`, `gaussian` (Ferwerda et al. 1996), `bilateral`
   (Jensen et al. 2000), `thompson` (Thompson et al. 2002).
 
-A stage is built with the backend it runs on and works on the backend's maps:
+A stage is built as `Stage(backend, seed)` and works on the backend's maps:
 
 - an afterimage stage advances its state on the retina grid in `retina(gaze, dt, reset)` and
   writes the six `maps` that `compose` reads at `x - gaze`: a multiplicative gain per cone
@@ -46,7 +46,7 @@ class JacobsAfterimage:
 
     state_channels = 6
 
-    def __init__(self, backend: Any) -> None:
+    def __init__(self, backend: Any, seed: int) -> None:
         self.backend = backend
 
     def prepared(self) -> None:
@@ -59,7 +59,7 @@ class JacobsAfterimage:
 class StochasticAcuity:
     """Sec. 2.3.3: the Gaussian bank with bands kept where rho + g X exceeds their threshold."""
 
-    def __init__(self, backend: Any) -> None:
+    def __init__(self, backend: Any, seed: int) -> None:
         self.backend = backend
 
     def acuity(self, noise: NoiseFrame, gaze: tuple[float, float], t: float) -> None:
@@ -126,8 +126,9 @@ def _load(path: str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-def make_stages(models: Models, backend: Any) -> tuple[AfterimageStage, AcuityStage]:
-    """Build the chosen stages for `backend` (its `name` picks the implementation)."""
-    afterimage = _load(AFTERIMAGE_MODELS[models.afterimage][backend.name])(backend)
-    acuity = _load(ACUITY_MODELS[models.acuity][backend.name])(backend)
+def make_stages(models: Models, backend: Any, seed: int) -> tuple[AfterimageStage, AcuityStage]:
+    """Build the chosen stages for `backend` (its `name` picks the implementation); `seed`
+    fixes any random field a stage draws."""
+    afterimage = _load(AFTERIMAGE_MODELS[models.afterimage][backend.name])(backend, seed)
+    acuity = _load(ACUITY_MODELS[models.acuity][backend.name])(backend, seed)
     return afterimage, acuity

@@ -59,7 +59,7 @@ class Simulator:
         self.seed = int(seed)
         self.time = 0.0
         self._backend = _make_backend(backend, self.layout, self.params)
-        self._afterimage, self._acuity = make_stages(self.models, self._backend)
+        self._afterimage, self._acuity = make_stages(self.models, self._backend, self.seed)
         self._backend.set_state_channels(self._afterimage.state_channels)
         self._noise = NoiseField(self.layout, self.params, self.seed)
         self._gaze = (width / 2.0, height / 2.0)
