@@ -36,8 +36,10 @@ Then records, each with its kind `k` and its time `t` (integer nanoseconds on th
 Unknown kinds and unknown fields are errors: a reader never guesses what a newer version meant
 (it bumps `version`).
 
-`SessionLog.track()` is the log as a `GazeTrack` (normalised coordinates, seconds since the
-first sample), so `gazehdr render SCENE --gaze session.jsonl` can replay it offline.
+`SessionLog.fixation_track()` is the log as a `GazeTrack` (normalised coordinates, seconds since
+the first sample) that follows its fixations, not its samples (SPEC §4): `gazehdr render SCENE
+--gaze session.jsonl` (through `read_session_track`) and a live session replaying the log show
+the same gaze. `SessionLog.track()` is the raw samples on the same time line.
 """
 
 from __future__ import annotations
@@ -629,7 +631,7 @@ class SessionLog:
         """The gaze as the log's fixations: each fixation's mean position from its start until
         the next one starts, so a saccade never sweeps the simulated retina (SPEC §4). A log
         without fixation events is run through I-VT first; one with none found falls back to
-        the samples."""
+        the samples. Its time line is `track()`'s: from the first sample to the last."""
         events = self.events
         if not any(e.kind.startswith("fixation") for e in events):
             from drivers.fixations import detect  # only logs without events need it
@@ -654,9 +656,12 @@ class SessionLog:
         points = sorted((f["t"], f["x"], f["y"]) for f in fixations.values() if len(f) == 3)
         if not points:
             return self.track()
-        samples = [GazeSample(int(t), x, y) for t, x, y in points]
+        held = [GazeSample(int(t), x, y) for t, x, y in points]
+        span = (held[0].t_ns, held[-1].t_ns)
+        if self.samples:
+            span = (min(span[0], self.samples[0].t_ns), max(span[1], self.samples[-1].t_ns))
         blinks = self.blinks() or _blinks_of(events)
-        return SessionTrack(samples, blinks, self.header.screen)
+        return SessionTrack(held, blinks, self.header.screen, span_ns=span)
 
 
 def _blinks_of(events: list[GazeEvent]) -> list[tuple[int, float]]:
@@ -692,6 +697,9 @@ class SessionTrack:
     the first, after the last the last. The eyes are closed at an invalid sample and inside
     blink intervals; an invalid sample keeps the last valid position (the first valid one before
     any), so the eye does not jump to a made-up place. A pure function of `t`.
+
+    `span_ns` (first, last) sets the time line, t = 0 at first and `duration` up to last
+    (default: the first and last sample's times).
     """
 
     def __init__(
@@ -699,11 +707,14 @@ class SessionTrack:
         samples: list[GazeSample],
         blinks: list[tuple[int, float]],
         screen: ScreenGeometry,
+        *,
+        span_ns: tuple[int, int] | None = None,
     ) -> None:
         if not samples:
             raise ValueError("a session log with no samples has no gaze track")
-        self.t0_ns = samples[0].t_ns
-        self.duration = (samples[-1].t_ns - self.t0_ns) / 1e9
+        first, last = span_ns or (samples[0].t_ns, samples[-1].t_ns)
+        self.t0_ns = first
+        self.duration = (last - first) / 1e9
         self._times = [s.t_ns - self.t0_ns for s in samples]
         width, height = screen.screen_width_px, screen.screen_height_px
         first = next((s for s in samples if s.valid), None)
@@ -738,8 +749,9 @@ class SessionTrack:
 
 
 def read_session_track(path: Path) -> SessionTrack:
-    """The `FILE_TRACKS` reader for `.jsonl` session logs."""
-    return read_session_log(path).track()
+    """The `FILE_TRACKS` reader for `.jsonl` session logs: the log's fixations, as a live
+    session replaying it follows them."""
+    return read_session_log(path).fixation_track()
 
 
 __all__ = [

@@ -1,7 +1,8 @@
 """Gaze tracks from files, and the one place that turns a gaze spec string into a track.
 
 A file format plugs in by adding a reader to `FILE_TRACKS` (suffix → reader); everything that
-renders only sees the `GazeTrack` protocol.
+renders only sees the `GazeTrack` protocol. A native session log (`*.jsonl`) renders as its
+fixations (`SessionLog.fixation_track`), exactly what a live session replaying it follows.
 
 CSV gaze format (`*.csv`): one sample per row, `t,x,y[,eyes_open]`.
 
@@ -95,7 +96,7 @@ def _parse_row(fields: list[str], where: str) -> tuple[float, GazePoint]:
 #: Gaze file readers by lower-case suffix; session logs and imported recordings join here.
 FILE_TRACKS: dict[str, Callable[[Path], GazeTrack]] = {
     ".csv": CsvGazeTrack.read,
-    ".jsonl": read_session_track,  # a native session log (drivers/sessionlog.py)
+    ".jsonl": read_session_track,  # a native session log's fixations (drivers/sessionlog.py)
 }
 
 

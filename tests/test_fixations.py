@@ -1,14 +1,13 @@
 """Fixation and blink detection (drivers/fixations.py) against synthetic ground truth and rules.
 
 Scoring on `SyntheticScanPath` (seeds 0-2, 40 s each, a blink every 1-3 s so that blinks are
-plentiful, at 60/120/300 Hz, with 0, 0.05° and 0.1° of Gaussian tracker noise per axis added
-here, since the path itself is noise-free):
+plentiful, at 60/120/300 Hz, with the path's own tremor (0.008° RMS) and its tracker noise set
+to 0, 0.05° and 0.1° RMS per axis):
 
-- Ground-truth onsets are the planned fixations' starts, with blinks cut out: a fixation that a
-  blink interrupts is seen again from the blink's end, and every tracker-side detector (Tobii's
-  included) reports that as a new fixation. A visible piece shorter than 150 ms (the I-DT
-  minimum of 100 ms plus the 2-3 samples that the window edges cost at 60 Hz) may or may not be
-  detected: matching it counts neither for nor against a detector.
+- Ground-truth onsets are the planned fixations' starts. The path plans blinks inside
+  fixations and lists the two pieces a blink leaves as two fixations, as every tracker-side
+  detector (Tobii's included) reports them. The last fixation, which the recording's end cuts,
+  may be too short to detect: matching it counts neither for nor against a detector.
 - A detected onset (`fixation_start.t_ns`) matches the nearest unmatched true onset within
   ±(20 ms + one sample interval): an onset cannot be placed finer than a sample, and the 20 ms
   velocity window straddling a saccade's end moves the I-VT onset by up to half a window; I-DT's
@@ -20,6 +19,8 @@ here, since the path itself is noise-free):
 - Centre error: the `fixation_end` mean position against the planned target. The path drifts by
   up to 0.07° per axis during a fixation, so errors of about that size are the path, not the
   detector.
+
+`pytest -s -k summary tests/test_fixations.py` prints the measured table.
 """
 
 from __future__ import annotations
@@ -51,8 +52,6 @@ SEEDS = (0, 1, 2)
 DURATION_S = 40.0
 RATES_HZ = (60, 120, 300)
 NOISE_DEG = (0.0, 0.05, 0.1)
-#: Visible fixation pieces shorter than this are optional in the scoring (see the docstring).
-REQUIRED_PIECE_S = 0.150
 #: Required precision and recall per (detector, noise); see `test_onsets_*` for why.
 ONSET_BOUNDS = {
     ("ivt", 0.0): (0.95, 0.95),
@@ -60,7 +59,7 @@ ONSET_BOUNDS = {
     ("ivt", 0.1): (0.95, 0.95),
     ("idt", 0.0): (0.95, 0.95),
     ("idt", 0.05): (0.90, 0.95),
-    ("idt", 0.1): (0.50, 0.95),
+    ("idt", 0.1): (0.60, 0.95),
 }
 
 
@@ -71,41 +70,10 @@ def onset_tolerance_s(rate_hz: float) -> float:
 # --- Scoring on synthetic scan paths -------------------------------------------------------------
 
 
-def _paths() -> list[SyntheticScanPath]:
-    return [
-        SyntheticScanPath(seed, DURATION_S, geometry=GEOMETRY, blink_interval_s=(1.0, 3.0))
-        for seed in SEEDS
-    ]
-
-
-def _with_noise(samples: list[GazeSample], sigma_deg: float, seed: int) -> list[GazeSample]:
-    if sigma_deg == 0:
-        return samples
-    noise = np.random.default_rng(seed).normal(0.0, sigma_deg * PPD, size=(len(samples), 2))
-    return [
-        GazeSample(s.t_ns, s.x + dx, s.y + dy) if s.valid else s
-        for s, (dx, dy) in zip(samples, noise.tolist(), strict=True)
-    ]
-
-
-def _visible_onsets(path: SyntheticScanPath) -> list[tuple[float, bool, int]]:
-    """(onset s, required?, index of the planned fixation) for each piece that blinks leave."""
-    onsets = []
-    for i, f in enumerate(path.fixations):
-        pieces = [(f.start, min(f.end, path.duration))]
-        for b in path.blinks:
-            cut = []
-            for a, z in pieces:
-                if b.end <= a or b.start >= z:
-                    cut.append((a, z))
-                    continue
-                if b.start > a:
-                    cut.append((a, b.start))
-                if b.end < z:
-                    cut.append((b.end, z))
-            pieces = cut
-        onsets.extend((a, z - a >= REQUIRED_PIECE_S, i) for a, z in pieces)
-    return onsets
+def _path(seed: int, noise_deg: float, duration: float = DURATION_S) -> SyntheticScanPath:
+    return SyntheticScanPath(
+        seed, duration, geometry=GEOMETRY, blink_interval_s=(1.0, 3.0), noise_deg=noise_deg
+    )
 
 
 @dataclasses.dataclass
@@ -138,7 +106,8 @@ class Score:
 
 def _score(path: SyntheticScanPath, events: list[Event], rate_hz: float, score: Score) -> None:
     ends = {e.id: e for e in events if e.kind == "fixation_end"}
-    truth = _visible_onsets(path)
+    # (onset s, required?): every fixation the recording holds whole is required.
+    truth = [(f.start, f.end <= path.duration) for f in path.fixations]
     used: set[int] = set()
     tol = onset_tolerance_s(rate_hz)
     width, height = GEOMETRY.screen_width_px, GEOMETRY.screen_height_px
@@ -146,7 +115,7 @@ def _score(path: SyntheticScanPath, events: list[Event], rate_hz: float, score: 
         t = start.t_ns * 1e-9
         candidates = [
             (abs(onset - t), k)
-            for k, (onset, _, _) in enumerate(truth)
+            for k, (onset, _) in enumerate(truth)
             if k not in used and abs(onset - t) <= tol
         ]
         if not candidates:
@@ -154,15 +123,15 @@ def _score(path: SyntheticScanPath, events: list[Event], rate_hz: float, score: 
             continue
         _, k = min(candidates)
         used.add(k)
-        onset, required, i = truth[k]
+        onset, required = truth[k]
         if not required:
             continue
         score.tp += 1
         score.onset_errors_ms.append((t - onset) * 1e3)
-        end, target = ends[start.id], path.fixations[i]
+        end, target = ends[start.id], path.fixations[k]
         error_px = math.hypot(end.x - target.x * width, end.y - target.y * height)
         score.centre_errors_deg.append(error_px / PPD)
-    score.required += sum(required for _, required, _ in truth)
+    score.required += sum(required for _, required in truth)
 
     true_blinks = [(b.start, b.end) for b in path.blinks if b.end < path.duration]
     score.blinks += len(true_blinks)
@@ -186,11 +155,11 @@ def _score(path: SyntheticScanPath, events: list[Event], rate_hz: float, score: 
 @pytest.fixture(scope="module")
 def scores() -> dict[tuple[str, int, float], Score]:
     out: dict[tuple[str, int, float], Score] = {}
-    for path in _paths():
-        for rate in RATES_HZ:
-            clean = list(path.samples(rate))
-            for sigma in NOISE_DEG:
-                samples = _with_noise(clean, sigma, seed=1000 * path.seed + rate)
+    for seed in SEEDS:
+        for sigma in NOISE_DEG:
+            path = _path(seed, sigma)
+            for rate in RATES_HZ:
+                samples = list(path.samples(rate))
                 for name in ("ivt", "idt"):
                     events = detect(samples, name, GEOMETRY)
                     _score(path, events, rate, out.setdefault((name, rate, sigma), Score()))
@@ -247,7 +216,11 @@ def test_blinks_precision_and_recall(scores: dict, name: str, rate: int, sigma: 
 
 @pytest.mark.parametrize("name", ["ivt", "idt"])
 def test_fixation_centres_match_the_targets(scores: dict, name: str) -> None:
-    """Median under 0.05°, and no fixation off by more than drift (0.07°/axis) plus noise."""
+    """Median under 0.05°, and no fixation off by more than drift (0.07°/axis) plus noise.
+
+    The worst (0.19°) is an I-DT fixation of 100 ms at 60 Hz with 0.1° noise: seven samples,
+    the first of them still on the saccade's tail.
+    """
     for (det, rate, sigma), s in scores.items():
         if det != name:
             continue
@@ -259,8 +232,7 @@ def test_fixation_centres_match_the_targets(scores: dict, name: str) -> None:
 @pytest.mark.parametrize("name", ["ivt", "idt"])
 @pytest.mark.parametrize("rate", [60, 300])
 def test_events_arrive_within_the_documented_delay(name: str, rate: int) -> None:
-    path = SyntheticScanPath(5, 20.0, geometry=GEOMETRY, blink_interval_s=(1.0, 2.0))
-    samples = _with_noise(list(path.samples(rate)), 0.05, seed=5)
+    samples = list(_path(5, 0.05, duration=20.0).samples(rate))
     detector = make_detector(name, GEOMETRY)
     bound = detector.max_delay_ns(round(1e9 / rate) + 1)
     worst = dict.fromkeys(bound, 0)
@@ -444,8 +416,7 @@ def test_idt_ends_a_fixation_when_dispersion_passes_1_degree() -> None:
 
 @pytest.mark.parametrize("name", ["ivt", "idt"])
 def test_event_stream_is_well_formed_and_deterministic(name: str) -> None:
-    path = SyntheticScanPath(9, 20.0, geometry=GEOMETRY, blink_interval_s=(1.0, 2.0))
-    samples = _with_noise(list(path.samples(120)), 0.1, seed=9)
+    samples = list(_path(9, 0.1, duration=20.0).samples(120))
     events = detect(samples, name, GEOMETRY)
     assert events == detect(samples, name, GEOMETRY)
     open_id: int | None = None
@@ -485,8 +456,7 @@ def test_flush_ends_the_open_fixation_and_feeding_may_go_on() -> None:
 
 def test_noise_reduction_is_off_by_default_and_selectable() -> None:
     assert IVTParams().noise_reduction == "none"
-    path = SyntheticScanPath(4, 10.0, geometry=GEOMETRY)
-    samples = _with_noise(list(path.samples(300)), 0.1, seed=4)
+    samples = list(_path(4, 0.1, duration=10.0).samples(300))
     plain = fixations_from_events(detect(samples, "ivt", GEOMETRY))
     for kind in ("median", "average"):
         smoothed = fixations_from_events(detect(samples, "ivt", GEOMETRY, noise_reduction=kind))

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from drivers.fixations import make_detector
 from drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from drivers.sessionlog import (
     ClockInfo,
@@ -25,6 +26,8 @@ from drivers.sessionlog import (
     read_session_track,
     write_session_log,
 )
+from drivers.synthetic import SyntheticScanPath
+from drivers.tracks import open_track
 
 SCREEN = ScreenGeometry(0.6, 1000, 500, 0.8)
 
@@ -348,7 +351,7 @@ def test_header_errors_name_the_field(
 # --- replay as a gaze track -------------------------------------------------------------------
 
 
-def test_track_steps_normalises_and_closes_the_eyes(tmp_path: Path) -> None:
+def test_sample_track_steps_normalises_and_closes_the_eyes(tmp_path: Path) -> None:
     log = SessionLog(header())
     for s in [
         GazeSample(5_000_000_000, 100.0, 50.0),
@@ -363,7 +366,7 @@ def test_track_steps_normalises_and_closes_the_eyes(tmp_path: Path) -> None:
     log.add(GazeEvent("blink_end", 9, 5_045_000_000, duration_ns=10_000_000))
     path = tmp_path / "s.jsonl"
     write_session_log(path, log)
-    track = read_session_track(path)
+    track = read_session_log(path).track()
     assert track.at(0.0) == (0.1, 0.1, True)
     assert track.at(0.0099) == (0.1, 0.1, True)  # step: no interpolation
     assert track.at(0.010) == (0.2, 0.2, True)
@@ -379,6 +382,9 @@ def test_track_steps_normalises_and_closes_the_eyes(tmp_path: Path) -> None:
     assert track.duration == pytest.approx(0.05)
     with pytest.raises(ValueError, match="finite"):
         track.at(math.nan)
+    # 50 ms hold no fixation (I-VT discards those under 60 ms): render falls back to the samples
+    rendered = read_session_track(path)
+    assert [rendered.at(t) for t in times] == [track.at(t) for t in times]
 
 
 def test_track_of_an_unfinished_blink_and_an_invalid_start() -> None:
@@ -395,27 +401,60 @@ def test_track_of_an_unfinished_blink_and_an_invalid_start() -> None:
         SessionLog(header()).track()
 
 
-def test_render_can_open_a_log_through_file_tracks(tmp_path: Path, monkeypatch) -> None:
-    """The one line the lead adds to drivers/tracks.py, exercised here through open_track."""
-    from drivers import tracks
-    from drivers.synthetic import SyntheticScanPath
+def _recorded_scan(folder: Path, *, with_events: bool) -> tuple[SyntheticScanPath, Path]:
+    """A 6 s synthetic scan path (0.05° tracker noise) at 120 Hz recorded as
+    `folder/recordings/scan.jsonl`, with the live I-VT detector's events or samples only."""
+    path = SyntheticScanPath(seed=3, duration=6.0, geometry=SCREEN, noise_deg=0.05)
+    file = folder / "recordings" / "scan.jsonl"
+    file.parent.mkdir(parents=True)
+    detector = make_detector("ivt", SCREEN)
+    with SessionLogWriter(file, header()) as writer:
+        for sample in path.samples(120):
+            writer.write(sample)
+            if with_events:
+                writer.write_all(detector.feed(sample))
+        if with_events:
+            writer.write_all(detector.flush())
+    return path, file
 
-    monkeypatch.setitem(tracks.FILE_TRACKS, ".jsonl", read_session_track)
-    path = SyntheticScanPath(seed=3, duration=2.0, geometry=SCREEN)
-    log = SessionLog(header())
-    for s in path.samples(120):
-        log.add(s)
-    file = tmp_path / "scan.jsonl"
-    write_session_log(file, log)
-    track = tracks.open_track(str(file))
-    for i in range(0, 241, 7):
-        t = i / 120
-        want = path.at(t)
-        got = track.at(t)
-        assert got.eyes_open == want.eyes_open
-        if want.eyes_open:
-            assert got.x == pytest.approx(want.x, abs=1e-12)
-            assert got.y == pytest.approx(want.y, abs=1e-12)
+
+TIMES_S = [i / 1000 for i in range(6001)]  # every millisecond of the recording
+
+
+@pytest.mark.parametrize("with_events", [True, False])
+def test_render_follows_the_fixations_of_a_log(tmp_path: Path, with_events: bool) -> None:
+    """`gazehdr render --gaze LOG.jsonl` holds each fixation's target through the next saccade
+    (raw samples would pass through points at least 1° from every target, saccades being 2°
+    or more), and closes the eyes for the blinks."""
+    path, file = _recorded_scan(tmp_path, with_events=with_events)
+    assert path.blinks and len(path.fixations) > 10
+    track = open_track(str(file))
+    assert track.duration == pytest.approx(6.0)
+
+    def deg(x: float, y: float) -> float:
+        return math.hypot(*SCREEN.norm_to_deg(x, y))
+
+    for t in TIMES_S:
+        x, y, eyes_open = track.at(t)
+        assert min(deg(x - f.x, y - f.y) for f in path.fixations) < 0.15
+        if any(b.start + 0.01 <= t < b.end for b in path.blinks):
+            assert not eyes_open
+    for f in path.fixations:
+        # from 60 ms in (I-VT knows a fixation once it spans 60 ms) to its end
+        for t in (u for u in TIMES_S if f.start + 0.06 <= u < f.end):
+            x, y, eyes_open = track.at(t)
+            assert deg(x - f.x, y - f.y) < 0.15 and eyes_open
+
+
+@pytest.mark.parametrize("with_events", [True, False])
+def test_render_and_live_replay_of_a_log_agree(tmp_path: Path, with_events: bool) -> None:
+    """The offline track (`FILE_TRACKS`) and a live session's `replay:NAME` track are one."""
+    from server.recordings import RecordingLibrary
+
+    _, file = _recorded_scan(tmp_path, with_events=with_events)
+    rendered, live = open_track(str(file)), RecordingLibrary(tmp_path).track("scan")
+    assert rendered.duration == live.duration == pytest.approx(6.0)
+    assert [rendered.at(t) for t in TIMES_S] == [live.at(t) for t in TIMES_S]
 
 
 def test_fixation_track_never_follows_a_saccade() -> None:

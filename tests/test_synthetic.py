@@ -44,13 +44,24 @@ def test_same_seed_same_path_other_seed_other_path() -> None:
     assert [a.at(t) for t in times] == [b.at(t) for t in times]
     assert a.fixations != c.fixations
     assert list(a.samples(100)) == list(b.samples(100))
+    noisy = [SyntheticScanPath(7, 20, noise_deg=0.1) for _ in range(2)]
+    assert list(noisy[0].samples(100)) == list(noisy[1].samples(100))
+    assert list(noisy[0].samples(100)) != list(a.samples(100))
+    assert noisy[0].fixations == a.fixations and noisy[0].blinks == a.blinks  # noise: no replan
 
 
-def test_blinks_do_not_change_the_path() -> None:
+def _targets(path: SyntheticScanPath) -> list[tuple[float, float]]:
+    """The fixation targets in order, the two pieces of a blink-split fixation counted once."""
+    return [xy for xy, _ in itertools.groupby((f.x, f.y) for f in path.fixations)]
+
+
+def test_blinks_split_fixations_without_changing_the_targets() -> None:
     with_blinks = SyntheticScanPath(seed=3, duration=30)
     without = SyntheticScanPath(seed=3, duration=30, blinks=False)
     assert with_blinks.blinks and not without.blinks
-    assert with_blinks.fixations == without.fixations
+    assert len(with_blinks.fixations) == len(_targets(with_blinks)) + len(with_blinks.blinks)
+    n = len(_targets(with_blinks))
+    assert _targets(with_blinks) == _targets(without)[:n]
 
 
 def test_fixations_cover_the_duration_inside_the_screen() -> None:
@@ -69,7 +80,7 @@ def test_fixations_cover_the_duration_inside_the_screen() -> None:
 
 
 def test_fixational_drift_is_small_and_slow() -> None:
-    path = SyntheticScanPath(seed=2, duration=20, blinks=False)
+    path = SyntheticScanPath(seed=2, duration=20, blinks=False, jitter_deg=0)
     t, xy = _positions_deg(path, RATE_HZ)
     speed = np.hypot(*np.gradient(xy, t, axis=0).T)
     for f in path.fixations:
@@ -81,35 +92,80 @@ def test_fixational_drift_is_small_and_slow() -> None:
     assert max(np.ptp(xy[(t > f.start) & (t < f.end)], axis=0).max() for f in path.fixations) > 0.02
 
 
+def test_tremor_is_band_limited_jitter_of_the_stated_size() -> None:
+    """The same seed with and without tremor: the difference is the tremor alone."""
+    still = SyntheticScanPath(seed=6, duration=20, jitter_deg=0)
+    _, xy0 = _positions_deg(still, RATE_HZ)
+    seen = np.isfinite(xy0[:, 0])
+    for rms in (0.05, 0.008):
+        _, xy = _positions_deg(SyntheticScanPath(seed=6, duration=20, jitter_deg=rms), RATE_HZ)
+        tremor = (xy - xy0)[seen]
+        assert np.sqrt(np.mean(tremor**2, axis=0)) == pytest.approx([rms, rms], rel=0.05)
+        assert np.abs(tremor.mean(axis=0)).max() < 0.05 * rms
+    tremor = (xy - xy0)[: np.argmin(seen)]  # up to the first blink: evenly sampled
+    power = np.abs(np.fft.rfft(tremor, axis=0)) ** 2
+    hz = np.fft.rfftfreq(len(tremor), 1 / RATE_HZ)
+    band = (hz >= 39) & (hz <= 101)
+    assert power[band].sum() > 0.98 * power.sum()  # 40-100 Hz, as physiological tremor
+    window = round(0.020 * RATE_HZ)  # I-VT's 20 ms velocity window sees a few °/s at most
+    assert np.hypot(*(tremor[window:] - tremor[:-window]).T).max() / 0.020 < 5.0
+
+
+def test_tracker_noise_is_white_and_of_the_stated_size() -> None:
+    clean = list(SyntheticScanPath(seed=8, duration=20).samples(500))
+    noisy = list(SyntheticScanPath(seed=8, duration=20, noise_deg=0.1).samples(500))
+    assert [s.valid for s in noisy] == [s.valid for s in clean]
+    assert [s.t_ns for s in noisy] == [s.t_ns for s in clean]
+    ppd = ScreenGeometry().pixels_per_degree
+    error = (
+        np.array([(n.x - c.x, n.y - c.y) for n, c in zip(noisy, clean, strict=True) if c.valid])
+        / ppd
+    )
+    assert np.std(error, axis=0) == pytest.approx([0.1, 0.1], rel=0.05)
+    assert np.abs(error.mean(axis=0)).max() < 0.005
+    lag1 = [np.corrcoef(error[1:, k], error[:-1, k])[0, 1] for k in (0, 1)]
+    assert np.abs(lag1).max() < 0.05  # independent from sample to sample
+
+
 def test_saccades_follow_the_main_sequence() -> None:
-    path = SyntheticScanPath(seed=4, duration=20, blinks=False)
+    path = SyntheticScanPath(seed=4, duration=20, jitter_deg=0)
     t, xy = _positions_deg(path, RATE_HZ)
     speed = np.hypot(*np.gradient(xy, t, axis=0).T)
     geometry = path.geometry
     checked = 0
-    for prev, nxt in itertools.pairwise(path.fixations):
-        during = (t >= prev.end) & (t <= nxt.start)
-        start = np.array(geometry.norm_to_deg(*path.at(prev.end)[:2]))
-        end = np.array(geometry.norm_to_deg(nxt.x, nxt.y))
+    for s in path.saccades:
+        prev = next(f for f in path.fixations if f.end == s.start)
+        nxt = next(f for f in path.fixations if f.start == s.end)
+        assert (s.x0, s.y0) == path.at(prev.end)[:2] and (s.x1, s.y1) == (nxt.x, nxt.y)
+        during = (t >= s.start) & (t <= s.end)
+        start = np.array(geometry.norm_to_deg(s.x0, s.y0))
+        end = np.array(geometry.norm_to_deg(s.x1, s.y1))
         amplitude = float(np.hypot(*(end - start)))
+        assert amplitude == pytest.approx(s.amplitude_deg)
         measured = speed[during].max()
         # Sampling at 0.5 ms misses the true peak of a >= 25 ms minimum-jerk profile by < 0.5 %.
         assert measured == pytest.approx(600 * (1 - math.exp(-amplitude / 7.25)), rel=0.01)
         assert measured == pytest.approx(path.peak_velocity(amplitude), rel=0.01)
         if amplitude <= 20:
-            assert nxt.start - prev.end == pytest.approx(0.0022 * amplitude + 0.021, rel=0.04)
+            assert s.end - s.start == pytest.approx(0.0022 * amplitude + 0.021, rel=0.04)
         checked += 1
-    assert checked > 30
+    assert checked > 30 and path.blinks  # blinks never stand in for a saccade
     assert peak_velocity(10.0, 500.0, 15.0) == pytest.approx(500 * (1 - math.exp(-10 / 15)))
 
 
-def test_blinks_close_the_eyes_and_invalidate_samples() -> None:
+def test_blinks_split_a_fixation_and_invalidate_samples() -> None:
     path = SyntheticScanPath(seed=5, duration=40)
     assert len(path.blinks) >= 4
     previous_end = 0.0
+    # Due 4-8 s after the last blink, it waits for the end of the fixation piece in progress
+    # (at most 0.6 s) and the saccade before it (under 0.1 s on this screen).
     for b in path.blinks:
-        assert 4.0 <= b.start - previous_end <= 8.0
-        assert 0.1 <= b.end - b.start <= 0.3
+        assert 4.0 <= b.start - previous_end <= 8.0 + 0.6 + 0.1
+        assert 0.1 <= b.end - b.start <= 0.3 and b.end < path.duration
+        before = next(f for f in path.fixations if f.end == b.start)
+        after = next(f for f in path.fixations if f.start == b.end)
+        assert (before.x, before.y) == (after.x, after.y)  # one fixation, split by the blink
+        assert 0.2 - 1e-9 <= after.end - after.start <= 0.6 + 1e-9
         assert path.at(b.start).eyes_open is False
         assert path.at((b.start + b.end) / 2).eyes_open is False
         assert path.at(b.start - 1e-3).eyes_open is True
@@ -141,6 +197,8 @@ def test_tracks_satisfy_the_protocol() -> None:
         ({"fixation_s": (0.6, 0.2)}, "fixation_s"),
         ({"min_amplitude_deg": 30.0}, "min_amplitude_deg"),
         ({"c_deg": 0.0}, "c_deg"),
+        ({"jitter_deg": -0.01}, "jitter_deg"),
+        ({"noise_deg": math.nan}, "noise_deg"),
     ],
 )
 def test_scan_path_rejects_bad_settings(kwargs: dict, message: str) -> None:
