@@ -88,9 +88,12 @@ class Params:
     c_a: float = 0.3  # opsin activation constant (Sec. 3.1), per second per unit of L
     c_d: float = 0.3  # deactivation constant, c_d = 1.0 c_a (Sec. 3.1)
     ritschel_steps: int = 1  # explicit steps per frame, clamped to [0, 1] (Listing 1: n = 1)
-    # Ours: the paper's L is in trolands with an unstated scale; L = I / ritschel_L_ref makes
-    # an office white (100 cd/m^2) half-bleach the receptors at equilibrium.
-    ritschel_L_ref: float = 100.0
+    # Ours: the paper's L is in trolands with an unstated scale. L = I / ritschel_L_ref with
+    # c_a = c_d half-bleaches at I = L_ref: the measured half-bleach of cone pigment, 10^4.3 td
+    # (Rushton & Henry 1968), through a ~2.1 mm pupil (Moon & Spencer at that luminance) is
+    # ~6000 cd/m^2. (100 cd/m^2 would saturate all three cones for any light above a few 1000
+    # cd/m^2: every bright afterimage alike, whatever the light's colour.)
+    ritschel_L_ref: float = 6000.0
     # Micro-saccade blur of the input: "about 10 px at 1280x1024, 1 m"; read as a 10 px
     # kernel width on a 19" screen, sigma = 5 px = 0.08 deg (ours).
     ritschel_saccade_sigma_deg: float = 0.08
@@ -111,12 +114,22 @@ class Params:
     # --- acuity baselines (docs/baselines/acuity.md) --------------------------------------------
     # Ours: a Gaussian passes half its contrast at the acuity limit R(L) of Ferwerda et al.
     acuity_cutoff_response: float = 0.5
+    # Ours: cap on the baselines' blur sigma. Ferwerda's fit R(L) falls to 0 near 1e-9.25
+    # cd/m^2; 0.25 deg is its sigma at about Y_min (1e-6), so the cap only guards the limit
+    # and bounds the kernels' radius (3 sigma).
+    acuity_sigma_max_deg: float = 0.25
     bilateral_sigma_r: float = 0.4  # ours: range sigma of Jensen et al.'s filter, log10 units
+    # Ours: Thompson et al.'s edge band is the difference of the log luminance blurred at sigma
+    # and at thompson_dog_ratio * sigma (Marr & Hildreth's 1.6), added back with this gain.
+    thompson_dog_ratio: float = 1.6
+    thompson_dog_gain: float = 1.0
     thompson_noise: float = 0.05  # ours: temporal noise sigma at full scotopic vision
     thompson_noise_hz: float = 30.0  # ours: new noise this often (a display frame rate)
 
     def __post_init__(self) -> None:
-        for name in ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps"):
+        positive = ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps")
+        acuity = ("acuity_sigma_max_deg", "bilateral_sigma_r", "thompson_noise_hz")
+        for name in positive + acuity:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"parameter {name} must be a finite positive number, got {value}")
@@ -130,6 +143,14 @@ class Params:
             raise ValueError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
         if self.bands < 1:
             raise ValueError("bands must be at least 1")
+        if not 0 < self.acuity_cutoff_response < 1:
+            raise ValueError("acuity_cutoff_response must lie in (0, 1)")
+        for name in ("thompson_dog_gain", "thompson_noise"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"parameter {name} must be a finite number >= 0, got {value}")
+        if not (math.isfinite(self.thompson_dog_ratio) and self.thompson_dog_ratio >= 1):
+            raise ValueError("thompson_dog_ratio must be a finite number >= 1")
 
     def sigma_i(self, ppd: float) -> list[float]:
         """Acuity Gaussian bank in pixels of a frame with `ppd` pixels per degree."""
@@ -192,7 +213,8 @@ SECTIONS: dict[str, list[str]] = {
         "mikamo_lowpass_deg", "mikamo_strength", "mikamo_sequence",
     ],
     "Acuity baselines": [
-        "acuity_cutoff_response", "bilateral_sigma_r", "thompson_noise", "thompson_noise_hz",
+        "acuity_cutoff_response", "acuity_sigma_max_deg", "bilateral_sigma_r",
+        "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     ],
     "Input and viewing": ["Y_min", "radiance_max", "geometry"],
 }  # fmt: skip
@@ -204,6 +226,7 @@ OURS = frozenset(
         "retina_cell_deg", "alpha_eps", "Y_min", "radiance_max", "geometry",
         "ritschel_L_ref", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
         "ritschel_strength", "mikamo_drop_log10", "mikamo_lowpass_deg", "mikamo_strength",
-        "acuity_cutoff_response", "bilateral_sigma_r", "thompson_noise", "thompson_noise_hz",
+        "acuity_cutoff_response", "acuity_sigma_max_deg", "bilateral_sigma_r",
+        "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     }
 )  # fmt: skip

@@ -1,0 +1,145 @@
+"""OpenCL stages of the acuity baselines (kernels/sec2_3_3_acuity_baselines.cl); the NumPy
+reference in `acuity` is their oracle and holds the readings. Host-side numbers (the sigma at
+the gaze, the bilateral's radius, the noise counter) come from the same functions there."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pyopencl as cl
+
+from server.sim.baselines.acuity import (
+    FERWERDA,
+    VAR_FLOOR_PX2,
+    bilateral_radius,
+    blur_sigma_px,
+    gaze_sigma_px,
+    log10_L_of_rho,
+    noise_key,
+    sigma_constants,
+)
+from server.sim.layout import gaussian_taps
+from server.sim.opencl import build_program
+
+KERNEL_FILES = ("common.cl", "sec2_3_3_acuity_baselines.cl")
+
+
+class _Taps:
+    """One device buffer of Gaussian taps, rewritten when sigma changes: sigma follows the gaze
+    continuously, so a buffer per sigma (the backend's cache) would grow without end."""
+
+    def __init__(self, backend: Any, sigma_max: float) -> None:
+        self.queue = backend.queue
+        n = len(gaussian_taps(sigma_max)) + 2  # + 2: rounding of sigma at the cap
+        self.buf = cl.Buffer(backend.ctx, cl.mem_flags.READ_ONLY, 4 * n)
+        self.sigma: float | None = None
+        self.radius = 0
+
+    def at(self, sigma: float) -> tuple[cl.Buffer, int]:
+        if sigma != self.sigma:
+            taps = gaussian_taps(sigma)
+            cl.enqueue_copy(self.queue, self.buf, taps)
+            self.sigma, self.radius = sigma, len(taps) // 2
+        return self.buf, self.radius
+
+
+class NoAcuityOpenCL:
+    """G is the scene."""
+
+    def __init__(self, backend: Any, seed: int) -> None:
+        self.backend = backend
+        self.seed = int(seed)
+
+    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+        b = self.backend
+        cl.enqueue_copy(b.queue, b.buf["G"], b.buf["scene"])
+
+    # --- shared by the blurring stages ---------------------------------------------------------
+
+    def _setup(self, full_planes: tuple[int, ...]) -> None:
+        """Kernels of this file (own objects: arguments are per stage) and scratch buffers."""
+        b = self.backend
+        prg = build_program(KERNEL_FILES)
+        self.k = {n: cl.Kernel(prg, n) for n in prg.kernel_names.split(";")}
+        full = 4 * b.lay.width * b.lay.height
+        self.scratch = [cl.Buffer(b.ctx, cl.mem_flags.READ_WRITE, n * full) for n in full_planes]
+        self.sigma_max_px = b.lay.px(b.p.acuity_sigma_max_deg)
+
+    def _gaze_sigma(self, gaze: tuple[float, float]) -> float:
+        b = self.backend
+        return gaze_sigma_px(b.get("rho").astype(np.float64), gaze, b.lay, b.p)
+
+    def _size(self) -> tuple[int, int]:
+        return self.backend.lay.width, self.backend.lay.height
+
+    def _dims(self) -> tuple[np.int32, np.int32]:
+        w, h = self._size()
+        return np.int32(w), np.int32(h)
+
+
+class GaussianAcuityOpenCL(NoAcuityOpenCL):
+    """Ferwerda et al. 1996: the backend's separable blur with the sigma at the gaze."""
+
+    def __init__(self, backend: Any, seed: int) -> None:
+        super().__init__(backend, seed)
+        self._setup((3,))
+        self.taps = _Taps(backend, self.sigma_max_px)
+
+    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+        b = self.backend
+        w, h = self._size()
+        b._blur(b.buf["scene"], b.buf["G"], self.scratch[0], self.taps.at(self._gaze_sigma(gaze)),
+                w, h, 3)  # fmt: skip
+
+
+class BilateralAcuityOpenCL(NoAcuityOpenCL):
+    """Jensen et al. 2000: guide and sigma per pixel, then a horizontal and a vertical pass."""
+
+    def __init__(self, backend: Any, seed: int) -> None:
+        super().__init__(backend, seed)
+        self._setup((3, 1, 1))  # half-filtered image, guide, sigma
+
+    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+        b, p = self.backend, self.backend.p
+        half, guide, sigma = self.scratch
+        b._ensure_rho_full()
+        k, s_disp2, s_max = sigma_constants(p)
+        self.k["bilateral_prep"](
+            b.queue, self._size(), None, b.P, b.buf["scene"], b.buf["rho_full"], guide, sigma,
+            *self._dims(), *(np.float32(v) for v in FERWERDA),
+            np.float32(k), np.float32(s_disp2), np.float32(s_max), np.float32(b.lay.ppd),
+        )  # fmt: skip
+        rho_min = float(b.get("rho").min())
+        radius = bilateral_radius(float(blur_sigma_px(log10_L_of_rho(rho_min, p), b.lay, p)))
+        inv_r = np.float32(0.5 / p.bilateral_sigma_r**2)
+        for src, dst, dx, dy in ((b.buf["scene"], half, 1, 0), (half, b.buf["G"], 0, 1)):
+            self.k["bilateral_pass"](
+                b.queue, b._rows8(), None, src, dst, guide, sigma, *self._dims(),
+                np.int32(radius), np.int32(dx), np.int32(dy), inv_r, np.float32(VAR_FLOOR_PX2),
+            )  # fmt: skip
+
+
+class ThompsonAcuityOpenCL(NoAcuityOpenCL):
+    """Thompson et al. 2002: blur, luminance band between sigma and ratio x sigma, noise."""
+
+    def __init__(self, backend: Any, seed: int) -> None:
+        super().__init__(backend, seed)
+        self._setup((3, 3, 1, 1))  # blurred, blur scratch, luminance, wide luminance
+        self.taps = _Taps(backend, self.sigma_max_px)
+        self.taps_wide = _Taps(backend, backend.p.thompson_dog_ratio * self.sigma_max_px)
+
+    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+        b, p = self.backend, self.backend.p
+        blurred, tmp, lum, wide = self.scratch
+        w, h = self._size()
+        sigma = self._gaze_sigma(gaze)
+        b._blur(b.buf["scene"], blurred, tmp, self.taps.at(sigma), w, h, 3)
+        self.k["luminance"](b.queue, (w, h), None, b.P, b.buf["scene"], lum, *self._dims())
+        b._blur(lum, wide, tmp, self.taps_wide.at(p.thompson_dog_ratio * sigma), w, h, 1)
+        b._ensure_rho_full()
+        self.k["thompson_combine"](
+            b.queue, (w, h), None, b.P, blurred, wide, b.buf["rho_full"], b.buf["G"],
+            *self._dims(), np.float32(p.thompson_dog_gain), np.float32(p.thompson_noise),
+            np.uint32(noise_key(self.seed, t, p)),
+        )  # fmt: skip
