@@ -198,3 +198,15 @@ def test_device_encoding_equals_host_encoding(output: str) -> None:
     assert ref.step(0.05, output=output).dtype == host.dtype
     with pytest.raises(ValueError, match="output must be one of"):
         ref.step(0.05, output="png")
+
+
+def test_blur_taps_cache_stays_bounded_when_dt_varies() -> None:
+    """A live session steps by a different dt every frame; each gives a new map-blur sigma."""
+    from server.sim.opencl import TAPS_CACHE
+
+    sim = Simulator(64, 48, backend="opencl")
+    sim.load_scene(mixed_scene(3)[:48, :64])
+    for k in range(3 * TAPS_CACHE):
+        sim.step(0.01 + 1e-4 * k, gaze=(32.0, 24.0))
+    assert len(sim._backend._taps) <= TAPS_CACHE
+    assert np.isfinite(sim.step(1 / 30)).all()

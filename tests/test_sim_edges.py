@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from server.sim import Params, Simulator
+from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 
 W, H = 96, 54
 BACKENDS = ["reference", "opencl"]
@@ -35,10 +36,19 @@ def scenes() -> dict[str, np.ndarray]:
     }
 
 
+#: Every model beside the default, each with the other stage at its default.
+MODELS = (
+    [("jacobs", "stochastic")]
+    + [(a, "stochastic") for a in AFTERIMAGE_MODELS if a != "jacobs"]
+    + [("jacobs", q) for q in ACUITY_MODELS if q != "stochastic"]
+)
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("scene", list(scenes()))
-def test_no_nan_or_inf_out(backend: str, scene: str) -> None:
-    sim = Simulator(W, H, backend=backend)
+@pytest.mark.parametrize("models", MODELS, ids="+".join)
+def test_no_nan_or_inf_out(backend: str, scene: str, models: tuple[str, str]) -> None:
+    sim = Simulator(W, H, backend=backend, afterimage=models[0], acuity=models[1])
     sim.load_scene(scenes()[scene])
     assert np.isfinite(sim.adaptation)
     gazes = [(48.0, 27.0), (-1e6, 3e9), (W + 500.0, -20.0), (0.0, 0.0), (W, H)]
@@ -52,8 +62,9 @@ def test_no_nan_or_inf_out(backend: str, scene: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_total_darkness_is_black(backend: str) -> None:
-    sim = Simulator(W, H, backend=backend)
+@pytest.mark.parametrize("models", MODELS, ids="+".join)
+def test_total_darkness_is_black(backend: str, models: tuple[str, str]) -> None:
+    sim = Simulator(W, H, backend=backend, afterimage=models[0], acuity=models[1])
     sim.load_scene(np.zeros((H, W, 3), np.float32))
     for _ in range(3):
         v = sim.step(1 / 30, gaze=(10.0, 10.0))
@@ -62,9 +73,10 @@ def test_total_darkness_is_black(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_long_darkness_then_light_stays_bounded(backend: str) -> None:
+@pytest.mark.parametrize("models", MODELS, ids="+".join)
+def test_long_darkness_then_light_stays_bounded(backend: str, models: tuple[str, str]) -> None:
     """Calcium saturates in the dark (the 0/0 of Eq. 11); the guard keeps alpha finite."""
-    sim = Simulator(W, H, backend=backend)
+    sim = Simulator(W, H, backend=backend, afterimage=models[0], acuity=models[1])
     sim.load_scene(np.zeros((H, W, 3), np.float32))
     for _ in range(30):
         sim.step(1.0, gaze=(48.0, 27.0))
@@ -72,12 +84,15 @@ def test_long_darkness_then_light_stays_bounded(backend: str) -> None:
     check_frame(sim.step(1 / 60, gaze=(48.0, 27.0)))
 
 
-def test_dt_zero_changes_nothing() -> None:
-    sim = Simulator(W, H, backend="reference")
+@pytest.mark.parametrize("models", MODELS, ids="+".join)
+def test_dt_zero_changes_nothing(models: tuple[str, str]) -> None:
+    sim = Simulator(W, H, backend="reference", afterimage=models[0], acuity=models[1])
     sim.load_scene(scenes()["dark and 1e8"])
     a = sim.step(0.5, gaze=(30.0, 20.0))
     b = sim.step(0.0, gaze=(30.0, 20.0))
-    np.testing.assert_allclose(a, b, atol=1e-6)  # only float rounding of (B - B_inf) + B_inf
+    # Only float rounding of (B - B_inf) + B_inf in the state; a blurring acuity model puts
+    # mid-range values beside the dark/1e8 edge, where it shows as ~1e-6 in v.
+    np.testing.assert_allclose(a, b, atol=1e-5)
 
 
 def test_scene_is_fitted_keeping_its_aspect() -> None:
@@ -142,3 +157,14 @@ def test_wire_outputs_stay_in_range_at_the_edges(scene: str) -> None:
                 assert np.isfinite(frame).all() and frame.min() >= 0 and frame.max() <= 1
             else:
                 assert frame.shape == (H, W) and (frame >> 30 == 0).all()  # 30 bits used
+
+
+def test_models_are_chosen_by_name() -> None:
+    assert Models.parse("ritschel") == Models("ritschel", "stochastic")
+    assert Models.parse("jacobs+thompson") == Models("jacobs", "thompson")
+    assert Models.parse("+none") == Models("jacobs", "none")
+    assert str(Models("mikamo", "bilateral")) == "mikamo+bilateral"
+    with pytest.raises(ValueError, match=r"unknown afterimage model 'glare'.*jacobs"):
+        Simulator(W, H, backend="reference", afterimage="glare")
+    with pytest.raises(ValueError, match=r"unknown acuity model 'sharp'.*stochastic"):
+        Models.parse("jacobs+sharp")

@@ -39,6 +39,7 @@ KERNEL_FILES = (
     "sec2_4_display.cl",
 )
 MAX_BANDS = 8
+TAPS_CACHE = 32  # blur tap buffers kept per backend
 STATE_PLANES = 8  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
@@ -214,8 +215,13 @@ class OpenCLBackend:
     # --- helpers --------------------------------------------------------------------------------
 
     def _taps_for(self, sigma: float) -> tuple[cl.Buffer, int]:
+        """Taps on the device, cached by sigma. A live session's dt, and so its per-frame blur
+        sigma, varies from frame to frame: the cache keeps the newest TAPS_CACHE only (a buffer
+        still used by queued kernels lives until they finish)."""
         key = round(float(sigma), 6)
         if key not in self._taps:
+            if len(self._taps) >= TAPS_CACHE:
+                del self._taps[next(iter(self._taps))]
             taps = gaussian_taps(key)
             mf = cl.mem_flags
             buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=taps)

@@ -129,7 +129,8 @@ class Params:
     def __post_init__(self) -> None:
         positive = ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps")
         acuity = ("acuity_sigma_max_deg", "bilateral_sigma_r", "thompson_noise_hz")
-        for name in positive + acuity:
+        baselines = ("ritschel_L_ref", "mikamo_gamma", "mikamo_drop_log10")
+        for name in positive + acuity + baselines:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"parameter {name} must be a finite positive number, got {value}")
@@ -145,12 +146,22 @@ class Params:
             raise ValueError("bands must be at least 1")
         if not 0 < self.acuity_cutoff_response < 1:
             raise ValueError("acuity_cutoff_response must lie in (0, 1)")
-        for name in ("thompson_dog_gain", "thompson_noise"):
+        if not (isinstance(self.ritschel_steps, int) and 1 <= self.ritschel_steps <= 64):
+            raise ValueError("ritschel_steps must be an integer in [1, 64]")
+        if not 0 < self.mikamo_top_fraction <= 1:
+            raise ValueError("mikamo_top_fraction must lie in (0, 1]")
+        non_negative = (
+            "c_a", "c_d", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
+            "ritschel_strength", "mikamo_lowpass_deg", "mikamo_strength",
+        )  # fmt: skip
+        for name in ("thompson_dog_gain", "thompson_noise", *non_negative):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"parameter {name} must be a finite number >= 0, got {value}")
         if not (math.isfinite(self.thompson_dog_ratio) and self.thompson_dog_ratio >= 1):
             raise ValueError("thompson_dog_ratio must be a finite number >= 1")
+        if not math.isfinite(self.ritschel_flight_rate):
+            raise ValueError("ritschel_flight_rate must be a finite number (rad/s)")
 
     def sigma_i(self, ppd: float) -> list[float]:
         """Acuity Gaussian bank in pixels of a frame with `ppd` pixels per degree."""

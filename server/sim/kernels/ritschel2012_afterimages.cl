@@ -1,0 +1,141 @@
+// Ritschel & Eisemann 2012, afterimages as a baseline (server/sim/baselines/ritschel.py is the
+// reference this mirrors). State r (L, M, S planes) on the retina grid, which is centred on the
+// gaze and spans twice the screen. The input and the kinetics are light, one work-item per
+// cell; the maps are the cost (about half of it the oRGB trigonometry), 8 cells per work-item.
+
+// L of Eq. 3 before the micro-saccade blur: the low-res cone input at gaze + retinal offset
+// (bilinear, 0 off screen) over L_ref. Global size (grid_w, grid_h).
+__kernel void ritschel_input(__global const float *down, __global float *L, int low_w, int low_h,
+                             int cell, int grid_w, int grid_h, float gx, float gy,
+                             float inv_L_ref) {
+    int j = get_global_id(0), i = get_global_id(1);
+    if (j >= grid_w || i >= grid_h) return;
+    lerp1_t tx = lerp1_at(low_w, gx / cell + (j + 0.5f - 0.5f * grid_w), 0);
+    lerp1_t ty = lerp1_at(low_h, gy / cell + (i + 0.5f - 0.5f * grid_h), 0);
+    int plane = low_w * low_h, cells = grid_w * grid_h;
+    for (int c = 0; c < 3; ++c) {
+        __global const float *ra = down + c * plane + ty.a * low_w;
+        __global const float *rb = down + c * plane + ty.b * low_w;
+        float v = ty.wa * (tx.wa * ra[tx.a] + tx.wb * ra[tx.b]) +
+                  ty.wb * (tx.wa * rb[tx.a] + tx.wb * rb[tx.b]);
+        L[c * cells + i * grid_w + j] = v * inv_L_ref;
+    }
+}
+
+// Equilibrium of Eq. 3 for a constant input, r_inf = c_a L / (c_a L + c_d), of a = c_a L
+// (guarded: c_d = 0 in darkness would be 0/0).
+#define R_INF(a, c_d) ((a) / MAX((a) + (c_d), 1e-30f))
+
+// One clamped explicit step of Eq. 3 (Listing 1) of length h, or with reset the equilibrium.
+// r_in and r_out may be the same buffer. Global size (3 grid_w grid_h).
+__kernel void ritschel_kinetics(__global const float *L, __global const float *r_in,
+                                __global float *r_out, int n, float h, float c_a, float c_d,
+                                int reset) {
+    int k = get_global_id(0);
+    if (k >= n) return;
+    float r;
+    if (reset) {
+        r = R_INF(c_a * L[k], c_d);
+    } else {
+        r = r_in[k];
+        r = CLAMP(r + h * (c_a * L[k] * (1.0f - r) - c_d * r), 0.0f, 1.0f);
+    }
+    r_out[k] = r;
+}
+
+// The maps run on the whole grid every frame and need powers, atan2, cos and sin per cell: as
+// float8 with inline polynomials (PoCL's builtins are calls, see common.cl), 8 cells per
+// work-item. Global size (ceil(grid_w grid_h / 8)).
+
+#define ABS8(x) MAX(x, -(x))
+
+// sign(x) |x|^e.
+inline float8 signed_power8(float8 x, float e) {
+    float8 m = pow8_pos(ABS8(x), e);
+    return x < 0.0f ? -m : m;
+}
+
+// atan2(y, x) in [-pi, pi], 0 at the origin: Cephes' atanf (S. L. Moshier) on min/max of
+// |x|, |y| in [0, 1], reduced by pi/4 above tan(pi/8); within a few ulp.
+inline float8 atan2_8(float8 y, float8 x) {
+    float8 ax = ABS8(x), ay = ABS8(y);
+    float8 a = MIN(ax, ay) / MAX(MAX(ax, ay), FLT_MIN);
+    int8 big = a > 0.4142135623730950f;
+    float8 z = big ? (a - 1.0f) / (a + 1.0f) : a;
+    float8 z2 = z * z;
+    float8 p = ((8.05374449538e-2f * z2 - 1.38776856032e-1f) * z2 + 1.99777106478e-1f) * z2;
+    p = (p - 3.33329491539e-1f) * z2 * z + z;
+    float8 t = big ? p + M_PI_4_F : p;
+    t = ay > ax ? M_PI_2_F - t : t;
+    t = x < 0.0f ? M_PI_F - t : t;
+    return y < 0.0f ? -t : t;
+}
+
+// cos and sin of t in [-2 pi, 2 pi]: Cephes' sinf/cosf, reduced to octants.
+inline void sincos8(float8 t, float8 *c, float8 *s) {
+    float8 x = ABS8(t);
+    int8 j = TO_INT8(x * 1.27323954473516f);  // 4 / pi
+    j = (j + 1) & ~1;
+    float8 fj = TO_FLOAT8(j);
+    x = ((x - fj * 0.78515625f) - fj * 2.4187564849853515625e-4f) - fj * 3.77489497744594108e-8f;
+    float8 z = x * x;
+    float8 ps = ((-1.9515295891e-4f * z + 8.3321608736e-3f) * z - 1.6666654611e-1f) * z * x + x;
+    float8 pc = ((2.443315711809948e-5f * z - 1.388731625493765e-3f) * z +
+                 4.166664568298827e-2f) * z * z - 0.5f * z + 1.0f;
+    int8 q = (j >> 1) & 3;  // quadrant
+    int8 swap = (q & 1) != 0;
+    float8 sv = swap ? pc : ps, cv = swap ? ps : pc;
+    sv = (q & 2) != 0 ? -sv : sv;
+    cv = (q == 1 || q == 2) ? -cv : cv;
+    *s = t < 0.0f ? -sv : sv;
+    *c = cv;
+}
+
+// The oRGB hue map (Bratkova et al. 2009): |t| < pi/3 -> 3t/2, else pi/2 + 3(|t| - pi/3)/4,
+// mirrored for negative angles (dir > 0); or its inverse.
+inline float8 hue_map8(float8 t, int dir) {
+    float8 a = ABS8(t), m;
+    if (dir > 0) m = a < M_PI_F / 3.0f ? 1.5f * a : M_PI_2_F + 0.75f * (a - M_PI_F / 3.0f);
+    else m = a < M_PI_2_F ? a / 1.5f : M_PI_F / 3.0f + (a - M_PI_2_F) / 0.75f;
+    return t < 0.0f ? -m : m;
+}
+
+// Chroma (c.g, c.b) turned so that its angle t becomes hue_map8(t, dir); radius and c.r kept.
+inline rgb8_t remap_hue8(rgb8_t c, int dir) {
+    float8 rho = sqrt(c.g * c.g + c.b * c.b);
+    float8 t = hue_map8(atan2_8(c.b, c.g), dir), ct, st;
+    sincos8(t, &ct, &st);
+    rgb8_t o = {c.r, rho * ct, rho * st};
+    return o;
+}
+
+// maps[0:3] = 1 (no gain); maps[3:6] = strength × the opponent colour in oRGB (chroma negated,
+// then turned by the flight-of-colours angle, cos_f / sin_f) of the bleaching in excess of the
+// current input's equilibrium, as linear RGB >= 0. `orgb` holds the R'G'B' -> oRGB matrix
+// (before the hue map), then its exact inverse.
+__kernel void ritschel_maps(__constant const params_t *P, __constant const float *orgb,
+                            __global const float *L, __global const float *r,
+                            __global float *maps, int n, float c_a, float c_d, float strength,
+                            float cos_f, float sin_f) {
+    int k = get_global_id(0) * VEC;
+    if (k >= n) return;
+    float8 e[3];
+    for (int c = 0; c < 3; ++c) {
+        float8 r_inf = R_INF(c_a * load8_row(L + c * n, k, n), c_d);
+        e[c] = MAX(load8_row(r + c * n, k, n) - r_inf, 0.0f);
+    }
+    rgb8_t x = mat8_mul(P->lms2rgb, e[0], e[1], e[2]);
+    float g = P->gamma;
+    x = mat8_mul(orgb, signed_power8(x.r, g), signed_power8(x.g, g), signed_power8(x.b, g));
+    x = remap_hue8(x, 1);
+    rgb8_t o = {x.r, -(cos_f * x.g - sin_f * x.b), -(sin_f * x.g + cos_f * x.b)};
+    o = remap_hue8(o, -1);
+    x = mat8_mul(orgb + 9, o.r, o.g, o.b);
+    float8 add[3] = {x.r, x.g, x.b};
+    int m = MIN(VEC, n - k);
+    for (int c = 0; c < 3; ++c) {
+        store8_part(maps + c * n + k, (float8)(1.0f), m);
+        add[c] = strength * MAX(signed_power8(add[c], 1.0f / g), 0.0f);
+        store8_part(maps + (3 + c) * n + k, add[c], m);
+    }
+}

@@ -1,0 +1,280 @@
+"""The `ritschel` afterimage model (Ritschel & Eisemann 2012): oRGB, kinetics, colours, backends.
+
+Tolerances: oRGB round trips 1e-12 in float64 (reference), 2e-5 relative in float32 (kernel);
+OpenCL against the reference: state (in [0, 1]) and maps (linear display RGB, 1 = white)
+absolute 1e-4, v absolute 2e-3 (half an 8-bit step) outside pixels whose acuity band differs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from server.sim import Params, Simulator
+from server.sim.baselines.ritschel import (
+    hue_forward,
+    hue_inverse,
+    opponent,
+    orgb_to_rgb,
+    rgb_to_orgb,
+)
+from server.sim.layout import LMS_TO_RGB
+
+BACKENDS = ["reference", "opencl"]
+W, H = 64, 48
+GAZE = (32.0, 24.0)
+GREY = 30.0  # cd/m^2, the background of the flash tests
+
+
+def sim(backend: str, params: Params | None = None, **kw) -> Simulator:
+    return Simulator(W, H, params=params, backend=backend, seed=5, afterimage="ritschel", **kw)
+
+
+def patch_scene(colour, background: float = GREY) -> np.ndarray:
+    scene = np.full((H, W, 3), background, np.float32)
+    scene[18:30, 26:38] = colour
+    return scene
+
+
+def centre_add(s: Simulator) -> np.ndarray:
+    """The additive afterimage (linear RGB) at the retina cell the gaze rests on."""
+    maps = s._backend.get("maps")
+    return maps[3:, maps.shape[1] // 2, maps.shape[2] // 2].astype(np.float64)
+
+
+def flash_then(backend: str, colour, after_s: float, eyes_open: bool) -> Simulator:
+    """1 s on the patch, then `after_s` on the plain background (or with the eyes closed)."""
+    s = sim(backend)
+    s.load_scene(patch_scene(colour))
+    s.step(0.0, gaze=GAZE)
+    for _ in range(10):
+        s.step(0.1, gaze=GAZE)
+    s.load_scene(patch_scene(GREY), reset=False)
+    for _ in range(round(after_s / 0.1)):
+        s.step(0.1, gaze=GAZE, eyes_open=eyes_open)
+    return s
+
+
+# --- oRGB ----------------------------------------------------------------------------------------
+
+
+def test_orgb_round_trip_float64() -> None:
+    rng = np.random.default_rng(0)
+    rgb = rng.uniform(-1.0, 2.0, (3, 5000))  # gamma-encoded, out-of-gamut values included
+    assert np.abs(orgb_to_rgb(rgb_to_orgb(rgb)) - rgb).max() < 1e-12
+    orgb = np.concatenate([rng.uniform(0, 1, (1, 5000)), rng.uniform(-1, 1, (2, 5000))])
+    assert np.abs(rgb_to_orgb(orgb_to_rgb(orgb)) - orgb).max() < 1e-12
+    # The opponent of the opponent is the colour itself (gamma coding included).
+    lin = rng.uniform(-0.2, 1.5, (3, 1000))
+    assert np.abs(opponent(opponent(lin, 0.0, 0.455), 0.0, 0.455) - lin).max() < 1e-12
+
+
+def test_orgb_is_the_published_space() -> None:
+    """Bratkova et al.: primaries and yellow land on the opponent axes, hue map piecewise."""
+    cases = {  # R'G'B' -> (L', C_yb, C_rg)
+        (1, 0, 0): (0.299, 0.0, 1.0),
+        (0, 1, 0): (0.587, 0.0, -1.0),
+        (0, 0, 1): (0.114, -1.0, 0.0),
+        (1, 1, 0): (0.886, 1.0, 0.0),
+        (0.5, 0.5, 0.5): (0.5, 0.0, 0.0),
+    }
+    for rgb, orgb in cases.items():
+        assert rgb_to_orgb(np.array(rgb, float)) == pytest.approx(orgb, abs=1e-4)
+    pi = math.pi
+    theta = np.array([0.0, pi / 6, pi / 3, pi / 2, 2 * pi / 3, pi])
+    expect = np.array([0.0, pi / 4, pi / 2, pi / 2 + pi / 8, 3 * pi / 4, pi])
+    assert hue_forward(theta) == pytest.approx(expect, abs=1e-12)
+    assert hue_forward(-theta) == pytest.approx(-expect, abs=1e-12)
+    t = np.linspace(-pi, pi, 1001)
+    assert hue_inverse(hue_forward(t)) == pytest.approx(t, abs=1e-12)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_kernel_orgb_round_trip(backend: str) -> None:
+    """A flight-of-colours half turn undoes the opponent: in darkness with c_d = 0 and no blur
+    the maps are then exactly max(LMS_TO_RGB r, 0), through gamma, oRGB and back."""
+    p = Params(c_d=0.0, ritschel_N_sigma_deg=0.0, ritschel_flight_rate=math.pi)
+    s = sim(backend, p)
+    rng = np.random.default_rng(1)
+    r = rng.uniform(0.0, 1.0, s._backend.get("state").shape)
+    s._backend.put("state", r)
+    s.step(1.0, gaze=GAZE)
+    expect = np.maximum(np.tensordot(LMS_TO_RGB, r, axes=1), 0.0)
+    got = s._backend.get("maps")[3:]
+    assert (expect < 0.05).mean() > 0.05  # clamped negative chroma was among the cases
+    assert np.abs(got - expect).max() < 2e-5 * max(1.0, expect.max())
+    assert (s._backend.get("maps")[:3] == 1.0).all()
+
+
+# --- behaviour -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_steady_view_leaves_no_afterimage(backend: str) -> None:
+    """A reset is the equilibrium, and fixating long enough returns to it: r -> r_inf(L).
+    (Without diffusion: the diffusion of r keeps a faint halo at edges, see the docs.)"""
+    s = sim(backend, Params(ritschel_N_sigma_deg=0.0))
+    s.load_scene(patch_scene((2e4, 5e3, 1e3)))
+    s.step(0.0, gaze=GAZE)
+    assert s._backend.get("maps")[3:].max() < 1e-6  # reset: equilibrium (float32 rounding)
+    s.step(0.5, gaze=(10.0, 10.0))
+    assert s._backend.get("maps")[3:].max() > 0.05  # a move leaves an afterimage ...
+    for _ in range(40):
+        s.step(0.5, gaze=GAZE)  # ... 20 s of fixation let it settle
+    assert s._backend.get("maps")[3:].max() < 1e-3
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("eyes_open", [False, True], ids=["eyes closed", "grey background"])
+def test_white_flash_leaves_neutral_brightening_afterimage(backend: str, eyes_open: bool) -> None:
+    flash = flash_then(backend, (2e4, 2e4, 2e4), 0.5, eyes_open)
+    plain = flash_then(backend, (GREY, GREY, GREY), 0.5, eyes_open)
+    add = centre_add(flash)
+    assert add.min() > 0.05  # a visible afterimage
+    assert np.ptp(add) < 1e-4 * add.max()  # neutral: R = G = B
+    assert flash._backend.get("maps")[3:].min() >= 0.0
+    v_flash, v_plain = (s._backend.get("v")[24, 32].astype(float) for s in (flash, plain))
+    assert (v_flash > v_plain + 0.05).all()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_red_leaves_green_cyan_afterimage(backend: str) -> None:
+    r, g, b = centre_add(flash_then(backend, (3e4, 0.0, 0.0), 0.3, False))
+    assert g > 0.02 and g > 3 * r and g >= b
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_blue_leaves_yellow_afterimage(backend: str) -> None:
+    r, g, b = centre_add(flash_then(backend, (0.0, 0.0, 1e5), 0.3, False))
+    assert r > 0.02 and g > 0.01 and b < 0.2 * min(r, g)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_afterimage_fades(backend: str) -> None:
+    s = flash_then(backend, (2e4, 2e4, 2e4), 0.0, False)
+    levels = []
+    for _ in range(8):
+        for _ in range(5):
+            s.step(0.1, gaze=GAZE, eyes_open=False)
+        levels.append(centre_add(s).mean())
+    assert levels[0] > 0.1
+    assert all(b < a for a, b in itertools.pairwise(levels))
+    assert levels[-1] < 0.5 * levels[0]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_diffusion_after_one_second_is_independent_of_frame_rate(backend: str) -> None:
+    """σ = N_σ / sqrt(f) per frame: the spread of a point after 1 s is N_σ at any f and n."""
+    n_sigma_deg = 3.0
+    spreads = []
+    for fps, n in ((1, 1), (10, 1), (30, 2)):
+        p = Params(c_d=0.0, ritschel_N_sigma_deg=n_sigma_deg, ritschel_steps=n)
+        s = sim(backend, p)
+        lay = s.layout
+        r = np.zeros(s._backend.get("state").shape)
+        r[:, lay.grid_h // 2, lay.grid_w // 2] = 1.0
+        s._backend.put("state", r)
+        for _ in range(fps):
+            s.step(1.0 / fps, gaze=GAZE, eyes_open=False)
+        plane = s._backend.get("state")[1].astype(np.float64)
+        xs = np.arange(lay.grid_w) - lay.grid_w // 2
+        assert plane.sum() == pytest.approx(1.0, rel=1e-4)
+        spreads.append(math.sqrt((plane.sum(axis=0) * xs**2).sum() / plane.sum()))
+    expect = lay.px(n_sigma_deg) / lay.cell
+    assert spreads == pytest.approx([expect] * 3, rel=0.02)
+
+
+# --- backends, edges, determinism ----------------------------------------------------------------
+
+
+def mixed_scene(w: int, h: int) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    scene = np.exp(rng.normal(np.log(0.05), 1.0, (h, w, 3))).astype(np.float32)
+    scene[:, w // 2 :] *= 2000
+    scene[20:34, 70:90] = 5e6
+    scene[40:60, 10:30] = (3e4, 1e3, 10.0)
+    scene[5:15, 40:55] = (1.0, 20.0, 3e5)
+    return scene
+
+
+def assert_backends_agree(ref: Simulator, cl: Simulator) -> None:
+    a, b = ref._backend, cl._backend
+    for name in ("state", "maps"):
+        err = np.abs(a.get(name) - b.get(name).astype(np.float64))
+        assert err.max() < 1e-4, f"{name}: worst {err.max():.3g}"
+    keep = a.get("d") == b.get("d")
+    assert keep.mean() > 0.99
+    err = np.abs(a.get("v")[keep] - b.get("v")[keep])
+    assert err.max() < 2e-3, f"v: worst {err.max():.3g}"
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        Params(),
+        # n = 3 steps, colours in flight, strong blurs, 2-pixel retina cells
+        Params(
+            ritschel_steps=3, ritschel_flight_rate=2.0, ritschel_strength=0.7,
+            ritschel_saccade_sigma_deg=1.0, ritschel_N_sigma_deg=3.0, retina_cell_deg=0.5,
+        ),
+    ],
+    ids=["defaults", "steps+flight+blur"],
+)  # fmt: skip
+def test_opencl_matches_reference(params: Params) -> None:
+    w, h = 120, 68
+    scene = mixed_scene(w, h)
+    sims = [
+        Simulator(w, h, params=params, backend=b, seed=1, afterimage="ritschel") for b in BACKENDS
+    ]
+    for s in sims:
+        s.load_scene(scene)
+    moves = [
+        ((60.0, 34.0), 1 / 30, True),
+        ((80.3, 27.1), 0.5, True),
+        ((-40.0, 10.0), 1 / 24, False),
+        ((15.5, 60.25), 1 / 60, True),
+        ((50.0, 30.0), 1.0, False),
+    ]
+    for i, (gaze, dt, eyes) in enumerate(moves):
+        for s in sims:
+            s.step(dt, gaze=gaze, eyes_open=eyes)
+        assert_backends_agree(*sims)
+        if i == 1:  # the lights go down: afterimages everywhere
+            for s in sims:
+                s.load_scene(scene * 1e-3, reset=False)
+    assert sims[0]._backend.get("maps")[3:].max() > 0.1  # there was something to compare
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("level", [0.0, 1e8])
+def test_no_nan_or_inf(backend: str, level: float) -> None:
+    s = sim(backend)
+    scene = patch_scene((level, level, level), background=0.0)
+    scene[:, : W // 3] = level
+    s.load_scene(scene)
+    for dt in (0.0, 1 / 60, 1.0, 0.0):
+        for gaze in (GAZE, (-1e6, 3e9), (W + 500.0, -20.0), (0.0, 0.0)):
+            for eyes in (True, False):
+                v = s.step(dt, gaze=gaze, eyes_open=eyes)
+                assert np.isfinite(v).all() and v.min() >= 0.0 and v.max() <= 1.0
+                state, maps = s._backend.get("state"), s._backend.get("maps")
+                assert np.isfinite(state).all() and np.isfinite(maps).all()
+                assert state.min() >= 0.0 and state.max() <= 1.0 + 1e-6 and maps.min() >= 0.0
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_deterministic(backend: str) -> None:
+    p = Params(ritschel_flight_rate=1.5)
+    runs = []
+    for _ in range(2):
+        s = sim(backend, p)
+        s.load_scene(patch_scene((3e4, 2e3, 5e4)))
+        frames = [s.step(dt, gaze=(30.0 + 3 * k, 20.0), eyes_open=k != 3)
+                  for k, dt in enumerate((1 / 30, 0.2, 0.0, 1.0))]  # fmt: skip
+        runs.append((frames, s._backend.get("state"), s._backend.get("maps")))
+    (f0, s0, m0), (f1, s1, m1) = runs
+    assert all(np.array_equal(a, b) for a, b in zip(f0, f1, strict=True))
+    assert np.array_equal(s0, s1) and np.array_equal(m0, m1)
