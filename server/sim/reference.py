@@ -97,7 +97,7 @@ def gamut_map(rgb: np.ndarray, w_P) -> np.ndarray:
     """
     Y = np.clip(np.tensordot(np.asarray(w_P), rgb, axes=1), 0.0, 1.0)
     d = rgb - Y
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # inf: not taken
         t_hi = np.where(d > 0, (1.0 - Y) / np.where(d > 0, d, 1.0), np.inf)
         t_lo = np.where(d < 0, Y / np.where(d < 0, -d, 1.0), np.inf)
     t = np.clip(np.minimum(t_hi, t_lo).min(axis=0), 0.0, 1.0)
