@@ -193,6 +193,8 @@ def create_app(config: ServerConfig) -> FastAPI:
                 "id": live.session.id,
                 "viewers": len(live.viewers),
                 "scene": live.session.scene_name,
+                "model": str(live.session.model),
+                "split": None if live.session.split is None else str(live.session.split),
                 "frame": live.session.frame,
                 "time": live.session.sim.time,
                 "size": list(live.session.size),

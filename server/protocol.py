@@ -10,6 +10,7 @@ import math
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
+from types import EllipsisType
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ MAX_CONTROL_BYTES = 64 * 1024
 GAZE_RANGE = (-3.0, 4.0)
 FLAG_EYES_OPEN = 1
 FLAG_TRACKER = 2
+FLAG_SPLIT = 4
 
 
 class Encoding(IntEnum):
@@ -64,9 +66,15 @@ class FrameHeader:
     tracker: bool = False
     server_ms: float = 0.0
     dropped: int = 0
+    #: Two panes side by side, each `width // 2` px wide (see docs/protocol.md).
+    split: bool = False
 
     def pack(self) -> bytes:
-        flags = (FLAG_EYES_OPEN if self.eyes_open else 0) | (FLAG_TRACKER if self.tracker else 0)
+        flags = (
+            (FLAG_EYES_OPEN if self.eyes_open else 0)
+            | (FLAG_TRACKER if self.tracker else 0)
+            | (FLAG_SPLIT if self.split else 0)
+        )
         return _HEADER.pack(
             MAGIC, VERSION, HEADER_BYTES, self.frame & 0xFFFFFFFF, self.gaze_seq & 0xFFFFFFFF,
             self.time, self.gaze_x, self.gaze_y, self.adaptation, self.rho,
@@ -98,6 +106,7 @@ def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:
     header = FrameHeader(
         frame, seq, t, gx, gy, A, rho, w, h, Encoding(enc),
         bool(flags & FLAG_EYES_OPEN), bool(flags & FLAG_TRACKER), ms, dropped,
+        bool(flags & FLAG_SPLIT),
     )  # fmt: skip
     payload = memoryview(data)[header_bytes:]
     if header.encoding is Encoding.f16:
@@ -131,10 +140,27 @@ class Eyes:
 
 @dataclass(frozen=True)
 class Choose:
-    """Switch `what` (scene, model or gaze_source) to `name`."""
+    """Switch `what` (scene or gaze_source) to `name`."""
 
     what: str
     name: str
+
+
+@dataclass(frozen=True)
+class ModelPick:
+    """Model names asked for; None keeps that part as it is."""
+
+    afterimage: str | None = None
+    acuity: str | None = None
+
+
+@dataclass(frozen=True)
+class ModelChange:
+    """Switch the frame's model (the left pane in split view) and the split: `split` is the
+    right pane's model, None turns split view off, `...` leaves it as it is."""
+
+    model: ModelPick
+    split: ModelPick | EllipsisType | None = ...
 
 
 @dataclass(frozen=True)
@@ -154,8 +180,9 @@ class Ack:
     frame: int
 
 
-Control = Viewport | Gaze | Eyes | Choose | ParamChange | Reset | Ack
-CHOICES = ("scene", "model", "gaze_source")
+Control = Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | Reset | Ack
+CHOICES = ("scene", "gaze_source")
+MODEL_PARTS = ("afterimage", "acuity")
 
 
 def _field(msg: dict[str, Any], key: str, kind: type | tuple[type, ...], what: str) -> Any:
@@ -171,6 +198,25 @@ def _number(msg: dict[str, Any], key: str, lo: float, hi: float) -> float:
     if not (math.isfinite(value) and lo <= value <= hi):
         raise ProtocolError(f"'{key}' must be a finite number in [{lo}, {hi}]", msg["type"])
     return value
+
+
+def _model_pick(obj: dict[str, Any], where: str = "") -> ModelPick:
+    for key in MODEL_PARTS:
+        if obj.get(key) is not None and not isinstance(obj[key], str):
+            raise ProtocolError(f"'{where}{key}' must be a model name (a string)", "model")
+    return ModelPick(obj.get("afterimage"), obj.get("acuity"))
+
+
+def _model_change(msg: dict[str, Any]) -> ModelChange:
+    """`{"type": "model", "afterimage"?, "acuity"?, "split"?: {...} | null}`."""
+    if not any(key in msg for key in (*MODEL_PARTS, "split")):
+        raise ProtocolError("'model' needs 'afterimage', 'acuity' or 'split'", "model")
+    split: ModelPick | EllipsisType | None = ...
+    if "split" in msg:
+        if msg["split"] is not None and not isinstance(msg["split"], dict):
+            raise ProtocolError("'split' must be an object of model names or null", "model")
+        split = None if msg["split"] is None else _model_pick(msg["split"], "split.")
+    return ModelChange(_model_pick(msg), split)
 
 
 def parse_control(data: str | bytes) -> Control:
@@ -193,6 +239,8 @@ def parse_control(data: str | bytes) -> Control:
         return Eyes(_field(msg, "open", bool, "true or false"))
     if kind in CHOICES:
         return Choose(kind, _field(msg, "name", str, "a string"))
+    if kind == "model":
+        return _model_change(msg)
     if kind == "params":
         return ParamChange(_field(msg, "values", dict, "an object of parameter values"))
     if kind == "reset":

@@ -83,6 +83,8 @@ def render(
     seed: int,
     backend: str,
     out_dir: str | Path,
+    afterimage: str = "jacobs",
+    acuity: str = "stochastic",
     exr: bool = False,
     progress: bool = True,
     params: Params | None = None,
@@ -94,13 +96,18 @@ def render(
     and figures. Frame i shows the eye at t = i/fps: frame 0 is the equilibrium for the scene
     and the first gaze, each later frame steps 1/fps towards the gaze and scene at its own t.
     With `overwrite`, frames left in `out_dir` by an earlier render are removed first, so the
-    directory holds one clean sequence.
+    directory holds one clean sequence. `afterimage` and `acuity` name the models
+    (`server.sim.models`).
     """
     started = time.perf_counter()
     _check(seconds, fps, width, height, seed)
+    # Before touching the directory: a model or backend that cannot be built leaves it alone.
+    sim = Simulator(
+        width, height, params=params or Params(), backend=backend, seed=seed,
+        afterimage=afterimage, acuity=acuity,
+    )  # fmt: skip
     out_dir = Path(out_dir)
     _prepare_out_dir(out_dir, overwrite)
-    sim = Simulator(width, height, params=params or Params(), backend=backend, seed=seed)
     dither_rng = np.random.default_rng([seed, 1])
     n = frame_count(seconds, fps)
     digits = max(5, len(str(n - 1)))

@@ -17,6 +17,7 @@ from server.scenes.exr import ExrScene
 from server.session import SessionSettings
 from server.sim import Params
 from server.sim.layout import check_frame_size
+from server.sim.models import Models
 
 #: Largest WebSocket message a client may send (uvicorn closes with 1009 beyond it).
 WS_MAX_MESSAGE = 1024 * 1024
@@ -39,6 +40,8 @@ def build_config(
     encoding: str,
     backend: str,
     seed: int,
+    afterimage: str = "jacobs",
+    acuity: str = "stochastic",
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
     if not (math.isfinite(fps) and 0 < fps <= 240):
@@ -46,6 +49,7 @@ def build_config(
     if not 0 <= port <= 65535:
         raise ValueError(f"port must be in [0, 65535], got {port}")
     check_frame_size(*size)
+    model = Models(afterimage, acuity)  # unknown names: a ValueError listing the choices
     params = Params()
     if params_file:
         try:
@@ -63,6 +67,7 @@ def build_config(
         fps=fps,
         scene=scene,
         gaze_source=gaze,
+        model=model,
         params=params,
         seed=seed,
         backend=backend,

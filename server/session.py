@@ -1,5 +1,8 @@
 """One viewing session: a simulated eye, its scene, its gaze, and the frames it produces.
 
+In split view the session runs two simulators, one per half of the frame, with the same scene,
+gaze and steps and a model each, so two models can be compared side by side.
+
 `Session` is synchronous and knows no sockets and no clock: the caller passes the elapsed
 time and the control messages that arrived, and gets back an encoded frame plus the JSON
 messages to tell the viewers. `server.live` runs it on a thread at real time.
@@ -11,7 +14,10 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
+from types import EllipsisType
 from typing import Any
+
+import numpy as np
 
 from drivers.synthetic import FixationView
 from drivers.tracks import open_track
@@ -23,6 +29,8 @@ from server.protocol import (
     Eyes,
     FrameHeader,
     Gaze,
+    ModelChange,
+    ModelPick,
     ParamChange,
     ProtocolError,
     Reset,
@@ -32,11 +40,11 @@ from server.protocol import (
 from server.recordings import RecordingLibrary
 from server.scenes import Scene
 from server.scenes.library import SceneLibrary
-from server.sim import Params, Simulator
+from server.sim import Geometry, Params, Simulator
 from server.sim.layout import MAX_SIZE, MIN_SIZE
+from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 from server.sim.params import OURS, SECTIONS
 
-MODELS = ("jacobs",)
 GAZE_SOURCES = ("mouse", "synthetic", "remote")
 #: A stalled server steps the eye by at most this much at once (s), so it never leaps.
 MAX_FRAME_DT = 1.0
@@ -53,7 +61,9 @@ class SessionSettings:
     fps: float = 30.0
     scene: str = "flash"
     gaze_source: str = "mouse"
-    model: str = "jacobs"
+    model: Models = field(default_factory=Models)
+    #: The right pane's model in split view; None: one model over the whole frame.
+    split: Models | None = None
     params: Params = field(default_factory=Params)
     seed: int = 0
     backend: str = "opencl"
@@ -107,6 +117,19 @@ def fit_size(budget: tuple[int, int], viewport: tuple[int, int]) -> tuple[int, i
     return (min(max(w, MIN_SIZE), MAX_SIZE[0]), min(max(h, MIN_SIZE), MAX_SIZE[1]))
 
 
+def pane_params(params: Params, width: int, pane_width: int) -> Params:
+    """`params` for a pane `pane_width` px wide of a frame `width` px wide. A pane is that part
+    of the screen, not a whole screen: its pixels keep their size and so the frame's pixels per
+    degree (blurs, the fovea and the retina's cells cover the angles the viewer sees), and two
+    half-width panes cost what one whole frame does."""
+    g = params.geometry
+    pitch = g.screen_diagonal_m / math.hypot(g.screen_width_px, g.screen_height_px)
+    covered = max(1, round(g.screen_width_px * pane_width / width))  # screen px of the pane
+    diagonal = pitch * math.hypot(covered, g.screen_height_px)
+    geometry = Geometry(diagonal, covered, g.screen_height_px, g.viewing_distance_m)
+    return dataclasses.replace(params, geometry=geometry)
+
+
 class Session:
     def __init__(
         self,
@@ -125,6 +148,7 @@ class Session:
         self.params = settings.params
         self.gaze_source = settings.gaze_source
         self.model = settings.model
+        self.split = settings.split
         self.scene_name = settings.scene
         self.scene: Scene = scenes.open(settings.scene)
         self.frame = 0
@@ -135,7 +159,15 @@ class Session:
         self._remote_seq = -1
         self._track = None
         self._track_start = 0.0
-        self.sim = self._new_simulator()
+        if self.split is not None:
+            self._check_split_width(self.size)
+        #: One simulator per pane: the whole frame, or the left and right halves in split view.
+        self.sims = self._new_simulators(self._pane_models())
+
+    @property
+    def sim(self) -> Simulator:
+        """The simulator of the whole frame, or of the left pane in split view."""
+        return self.sims[0]
 
     # --- what the viewers are told ------------------------------------------------------------
 
@@ -143,8 +175,9 @@ class Session:
         return {
             "scene": self.scene_name,
             "scenes": self.scenes.names(),
-            "model": self.model,
-            "models": list(MODELS),
+            "model": _names(self.model),
+            "split": None if self.split is None else _names(self.split),
+            "models": {"afterimage": list(AFTERIMAGE_MODELS), "acuity": list(ACUITY_MODELS)},
             "gaze_source": self.gaze_source,
             "gaze_sources": [*GAZE_SOURCES, *(f"replay:{n}" for n in self.recordings.names())],
             "width": self.size[0],
@@ -190,7 +223,8 @@ class Session:
             self.eyes_open = control.open
             return False
         if isinstance(control, Reset):
-            self.sim.reset()
+            for sim in self.sims:
+                sim.reset()
             return False
         if isinstance(control, Viewport):
             if not self.settings.fit_viewport:
@@ -199,11 +233,14 @@ class Session:
             size = fit_size(budget, (control.width, control.height))
             if size == self.size:
                 return False
-            self.size = size
-            self.sim = self._new_simulator(keep_from=self.sim)
+            # Too narrow for two panes: one model again, and the state tells the viewers.
+            split = self.split if size[0] >= 2 * MIN_SIZE else None
+            self._rebuild(size=size, split=split)
             return True
         if isinstance(control, ParamChange):
             return self._set_params(control.values)
+        if isinstance(control, ModelChange):
+            return self._set_models(control.model, control.split)
         if isinstance(control, Choose):
             return self._choose(control.what, control.name)
         raise ProtocolError(f"unhandled control {control!r}")
@@ -215,10 +252,6 @@ class Session:
             self.scene = self.scenes.open(name)
             self.scene_name = name
             self._load_scene(reset=True)
-        elif what == "model":
-            if name not in MODELS:
-                raise ValueError(f"unknown model {name!r}; available: {', '.join(MODELS)}")
-            self.model = name
         elif name.startswith("replay:"):
             self._track = self.recordings.track(name.removeprefix("replay:"))
             self._track_start = self.sim.time
@@ -239,33 +272,99 @@ class Session:
             raise ValueError(f"parameters refused: {e}") from None
         if params == self.params:
             return False
-        old = self.sim
-        self.params = params
-        self.sim = self._new_simulator(keep_from=old)
+        self._rebuild(params=params)
         return True
 
-    def _new_simulator(self, keep_from: Simulator | None = None) -> Simulator:
-        w, h = self.size
+    def _set_models(self, pick: ModelPick, split: ModelPick | EllipsisType | None) -> bool:
+        """Switch models; the new simulators continue the eye's time and adaptation (and its
+        retina where the afterimage model and pane size stay), else the retina starts settled.
+        Nothing changes unless every simulator could be built."""
+        model = _merge(self.model, pick)
+        if split is ...:
+            right = self.split
+        elif split is None:
+            right = None
+        else:  # a part not named follows the pane's current model, or the left one's
+            right = _merge(self.split or model, split)
+        if right is not None:
+            self._check_split_width(self.size)
+        if (model, right) == (self.model, self.split):
+            return False
+        self._rebuild(model=model, split=right)
+        return True
+
+    def _rebuild(self, **changes: Any) -> None:
+        """Set `changes` (size, params, model, split) and new simulators for them, continuing
+        the eye; if a simulator cannot be built, nothing changes."""
+        before = {name: getattr(self, name) for name in changes}
+        for name, value in changes.items():
+            setattr(self, name, value)
+        try:
+            self.sims = self._new_simulators(self._pane_models(), keep_from=self.sims)
+        except Exception:
+            for name, value in before.items():
+                setattr(self, name, value)
+            raise
+
+    def _pane_models(self) -> list[Models]:
+        return [self.model] if self.split is None else [self.model, self.split]
+
+    @staticmethod
+    def _check_split_width(size: tuple[int, int]) -> None:
+        if size[0] < 2 * MIN_SIZE:
+            raise ValueError(f"a frame {size[0]} px wide is too narrow for split view")
+
+    def _pane_size(self, panes: int) -> tuple[int, int]:
+        """Pixels of one pane: the frame, or half of it (an odd last column stays black)."""
+        return (self.size[0] // panes, self.size[1])
+
+    def _pane_gaze(self, panes: int) -> tuple[float, float]:
+        """The gaze in one pane's pixels. In split view the pointer (or tracker) over either
+        half looks at the same point of the scene: x - pane width over the right half; a gaze
+        left or right of the screen stays off the pane on that side."""
+        w, h = self._pane_size(panes)
+        x = self.gaze[0] * self.size[0]
+        return (x - w if panes == 2 and x >= w else x, self.gaze[1] * h)
+
+    def _new_simulators(
+        self, panes: list[Models], keep_from: list[Simulator] | None = None
+    ) -> list[Simulator]:
+        """A settled simulator per pane, each continuing the eye of the old pane at its place
+        (a new right pane continues the left one); the scene as it is at that time."""
         s = self.settings
-        sim = Simulator(w, h, params=self.params, backend=s.backend, seed=s.seed)
-        sim.step(0.0, gaze=(self.gaze[0] * w, self.gaze[1] * h), eyes_open=self.eyes_open)
-        self.sim = sim
-        self._load_scene(reset=True)
-        if keep_from is not None:
-            sim.carry_state_from(keep_from)
-        return sim
+        w, h = self._pane_size(len(panes))
+        params = pane_params(self.params, self.size[0], w)
+        gaze = self._pane_gaze(len(panes))
+        t = keep_from[0].time if keep_from else 0.0
+        frame = self.scene.render(t, w, h)
+        sims = []
+        for i, model in enumerate(panes):
+            try:
+                sim = Simulator(
+                    w, h, params=params, backend=s.backend, seed=s.seed,
+                    afterimage=model.afterimage, acuity=model.acuity,
+                )  # fmt: skip
+            except ImportError as e:  # a baseline that is not part of this installation
+                raise ValueError(f"model {model} is not available: {e}") from None
+            sim.step(0.0, gaze=gaze, eyes_open=self.eyes_open)
+            sim.load_scene(frame, reset=True)
+            if keep_from:
+                sim.carry_state_from(keep_from[min(i, len(keep_from) - 1)])
+            sims.append(sim)
+        self._loaded = self.scene.state_at(t)
+        return sims
 
     def _load_scene(self, reset: bool) -> None:
         t = self.sim.time
         self._loaded = self.scene.state_at(t)
-        self.sim.load_scene(self.scene.render(t, *self.size), reset=reset)
+        frame = self.scene.render(t, *self._pane_size(len(self.sims)))
+        for sim in self.sims:
+            sim.load_scene(frame, reset=reset)
 
     def _sync_scene(self) -> None:
-        """Load the scene as it is at the simulator's time, if that differs from what it sees."""
-        t = self.sim.time
-        if self.scene.animated and self.scene.state_at(t) != self._loaded:
-            self._loaded = self.scene.state_at(t)
-            self.sim.load_scene(self.scene.render(t, *self.size), reset=False)
+        """Load the scene as it is at the simulators' time, if that differs from what they see."""
+        if self.scene.animated and self.scene.state_at(self.sim.time) != self._loaded:
+            self._load_scene(reset=False)
 
     def _current_gaze(self) -> bool:
         """Update gaze and eyes from the session's source; True when it came from a tracker."""
@@ -292,21 +391,25 @@ class Session:
         started = time.perf_counter()
         tracker = self._current_gaze()
         sim, (w, h) = self.sim, self.size
-        gaze = (self.gaze[0] * w, self.gaze[1] * h)
+        gaze = self._pane_gaze(len(self.sims))
         # Split the step where the scene changes: a flash shorter than a frame is seen for
-        # exactly its duration, never skipped nor stretched to the whole frame.
+        # exactly its duration, never skipped nor stretched to the whole frame. All panes
+        # take the same steps.
         end = sim.time + dt
         while (change := self.scene.next_change(sim.time)) is not None and change < end:
-            sim.step(change - sim.time, gaze=gaze, eyes_open=self.eyes_open)
+            step = change - sim.time
+            for pane in self.sims:
+                pane.step(step, gaze=gaze, eyes_open=self.eyes_open)
             self._sync_scene()
         self._sync_scene()
         encoding = self.settings.encoding
-        out = sim.step(
-            max(0.0, end - sim.time), gaze=gaze, eyes_open=self.eyes_open,
-            output=SIM_OUTPUT[encoding],
-        )  # fmt: skip
+        step = max(0.0, end - sim.time)
+        outs = [
+            pane.step(step, gaze=gaze, eyes_open=self.eyes_open, output=SIM_OUTPUT[encoding])
+            for pane in self.sims
+        ]
         stepped = time.perf_counter()
-        data = payload(out)  # the device already encoded it: this is a copy
+        data = payload(_side_by_side(outs, w))  # the device already encoded each pane
         encoded = time.perf_counter()
         gx, gy = sim.gaze
         header = FrameHeader(
@@ -323,18 +426,41 @@ class Session:
             eyes_open=self.eyes_open,
             tracker=tracker,
             server_ms=(encoded - started) * 1e3,
+            split=len(self.sims) == 2,
         )
         self.frame += 1
         new_gaze_at, self._new_gaze_at = self._new_gaze_at, None
         return Frame(header, data, stepped - started, encoded - stepped, new_gaze_at)
 
 
+def _names(model: Models) -> dict[str, str]:
+    return {"afterimage": model.afterimage, "acuity": model.acuity}
+
+
+def _merge(model: Models, pick: ModelPick) -> Models:
+    """`model` with the parts `pick` names; unknown names raise ValueError listing the choices."""
+    return Models(pick.afterimage or model.afterimage, pick.acuity or model.acuity)
+
+
+def _side_by_side(panes: list[np.ndarray], width: int) -> np.ndarray:
+    """The encoded panes next to each other in a frame `width` px wide (one pane: as it is)."""
+    if len(panes) == 1:
+        return panes[0]
+    first = panes[0]
+    frame = np.zeros((first.shape[0], width, *first.shape[2:]), first.dtype)  # 0 is black
+    w = first.shape[1]
+    for i, pane in enumerate(panes):
+        frame[:, i * w : (i + 1) * w] = pane
+    return frame
+
+
 def _type_of(control: Control) -> str:
     if isinstance(control, Choose):
         return control.what
     return {
-        Viewport: "viewport", Gaze: "gaze", Eyes: "eyes", ParamChange: "params", Reset: "reset"
+        Viewport: "viewport", Gaze: "gaze", Eyes: "eyes", ModelChange: "model",
+        ParamChange: "params", Reset: "reset",
     }.get(type(control), "unknown")  # fmt: skip
 
 
-__all__ = ["GAZE_SOURCES", "MODELS", "Frame", "RemoteGaze", "Session", "SessionSettings"]
+__all__ = ["GAZE_SOURCES", "Frame", "RemoteGaze", "Session", "SessionSettings", "pane_params"]

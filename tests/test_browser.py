@@ -283,6 +283,74 @@ def test_side_panel_sends_controls(live_server, open_viewer) -> None:
     assert viewer.js("() => document.querySelectorAll('#panel code.readonly').length") >= 1
 
 
+def test_split_view_from_the_panel(live_server, open_viewer) -> None:
+    """The panel's split toggle and model choosers: split frames arrive, a divider and a label
+    per pane appear, the HUD names both models, and the pointer over the right pane looks at
+    the same spot as over the left one (the server maps it; docs/protocol.md)."""
+    W, H = 320, 176
+    srv = live_server(scene="lamp", size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    page = viewer.page
+    afterimages = viewer.js("() => window.gazehdr.state.models.afterimage")
+    assert viewer.js("() => document.getElementById('split-overlay').hidden")
+    page.keyboard.press("p")
+    options = "(id) => [...document.querySelectorAll(`#${id} option`)].map(o => o.value)"
+    assert viewer.js(options, "afterimage-select") == afterimages
+    assert viewer.js(options, "split-acuity-select") == viewer.js(
+        "() => window.gazehdr.state.models.acuity"
+    )
+    page.select_option("#split-afterimage-select", "ritschel")
+    assert viewer.js("() => window.gazehdr.state.split") is None  # chosen, not yet shown
+    page.check("#split-toggle")
+    viewer.wait("() => window.gazehdr.state.split?.afterimage === 'ritschel'")
+    split = viewer.wait("() => window.gazehdr.lastHeader.split && window.gazehdr.lastHeader")
+    assert (split["width"], split["height"]) == (W, H)
+    viewer.next_frame(split["frame"])  # frames keep coming
+
+    overlay = viewer.js(
+        """() => { const o = document.getElementById('split-overlay');
+          const d = o.querySelector('.divider').getBoundingClientRect();
+          return { hidden: o.hidden, x: d.left, top: d.top, height: d.height,
+                   labels: [...o.querySelectorAll('.pane-label')].map(l => [
+                     l.textContent, l.getBoundingClientRect().left]) }; }"""
+    )
+    assert not overlay["hidden"]
+    assert overlay["x"] == pytest.approx(W / 2, abs=1) and overlay["height"] == pytest.approx(H)
+    assert [text for text, _ in overlay["labels"]] == [
+        "jacobs + stochastic",
+        "ritschel + stochastic",
+    ]
+    assert overlay["labels"][0][1] < W / 2 < overlay["labels"][1][1]
+    viewer.wait(
+        "() => /left jacobs \\+ stochastic \\| right ritschel \\+ stochastic/"
+        ".test(document.getElementById('hud').textContent)"
+    )
+
+    # Close the panel (it covers the frame), then point at the right pane: the header's gaze is
+    # the same spot in the left pane, and a ring marks it in each pane.
+    page.evaluate("() => document.activeElement.blur()")
+    page.keyboard.press("p")
+    h = viewer.move_gaze(240.0, 60.0)
+    assert h["split"] and h["gaze_x"] * W == pytest.approx(240.0 - W / 2, abs=1.0)
+    assert h["gaze_y"] * H == pytest.approx(60.0, abs=1.0)
+    rings = viewer.js(
+        """() => ['marker', 'marker-right'].map(id => {
+          const r = document.getElementById(id).getBoundingClientRect();
+          return [r.left + r.width / 2, r.top + r.height / 2]; })"""
+    )
+    np.testing.assert_allclose(rings, [[80.0, 60.0], [240.0, 60.0]], atol=1.5)
+    h = viewer.move_gaze(70.0, 60.0)
+    assert h["gaze_x"] * W == pytest.approx(70.0, abs=1.0)
+
+    # Split off from the panel: whole frames again, the overlay and second ring go.
+    page.keyboard.press("p")
+    page.uncheck("#split-toggle")
+    viewer.wait("() => window.gazehdr.state.split === null")
+    viewer.wait("() => !window.gazehdr.lastHeader.split")
+    viewer.wait("() => document.getElementById('split-overlay').hidden")
+    assert viewer.js("() => document.getElementById('marker-right').hidden")
+
+
 # --- 2. the pointer is the gaze; afterimages stay on the retina -------------------------------
 
 

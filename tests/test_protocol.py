@@ -18,6 +18,8 @@ from server.protocol import (
     Eyes,
     FrameHeader,
     Gaze,
+    ModelChange,
+    ModelPick,
     ParamChange,
     ProtocolError,
     Reset,
@@ -33,7 +35,7 @@ def _header(w: int, h: int, encoding: Encoding) -> FrameHeader:
     return FrameHeader(
         frame=7, gaze_seq=42, time=12.5, gaze_x=-0.25, gaze_y=1.5, adaptation=3.25, rho=-0.5,
         width=w, height=h, encoding=encoding, eyes_open=False, tracker=True, server_ms=8.5,
-        dropped=3,
+        dropped=3, split=True,
     )  # fmt: skip
 
 
@@ -44,6 +46,7 @@ def test_frame_round_trip(encoding: Encoding) -> None:
     header = _header(7, 5, encoding)
     data = header.pack() + encode_pixels(v, encoding)
     assert data[:4] == b"GZHF" and len(header.pack()) == HEADER_BYTES == 56
+    assert data[45] == 0b110  # flags: eyes closed, tracker, split (docs/protocol.md)
     assert int.from_bytes(data[6:8], "little") == HEADER_BYTES
     got, back = decode_frame(data)
     assert got == header
@@ -78,7 +81,20 @@ def test_decode_refuses_foreign_bytes() -> None:
         ({"type": "gaze", "x": 0.25, "y": -1, "seq": 3}, Gaze(0.25, -1.0, 3)),
         ({"type": "eyes", "open": False}, Eyes(False)),
         ({"type": "scene", "name": "lamp"}, Choose("scene", "lamp")),
-        ({"type": "model", "name": "jacobs"}, Choose("model", "jacobs")),
+        (
+            {"type": "model", "afterimage": "ritschel", "acuity": "none"},
+            ModelChange(ModelPick("ritschel", "none")),
+        ),
+        ({"type": "model", "acuity": "gaussian"}, ModelChange(ModelPick(acuity="gaussian"))),
+        (
+            {"type": "model", "split": {"afterimage": "mikamo", "acuity": "stochastic"}},
+            ModelChange(ModelPick(), ModelPick("mikamo", "stochastic")),
+        ),
+        ({"type": "model", "split": {}}, ModelChange(ModelPick(), ModelPick())),
+        (
+            {"type": "model", "afterimage": "jacobs", "split": None},
+            ModelChange(ModelPick("jacobs"), None),
+        ),
         ({"type": "gaze_source", "name": "remote"}, Choose("gaze_source", "remote")),
         ({"type": "params", "values": {"j1": 0.1}}, ParamChange({"j1": 0.1})),
         ({"type": "reset"}, Reset()),
@@ -106,6 +122,10 @@ def test_controls_parse(message: dict, expected: object) -> None:
         ('{"type": "eyes", "open": 1}', "'open' must be true or false"),
         ('{"type": "params", "values": [1]}', "'values' must be an object"),
         ('{"type": "scene", "name": 3}', "'name' must be a string"),
+        ('{"type": "model", "name": "jacobs"}', "'model' needs 'afterimage', 'acuity' or 'split'"),
+        ('{"type": "model", "afterimage": 1}', "'afterimage' must be a model name"),
+        ('{"type": "model", "split": "jacobs"}', "'split' must be an object of model names"),
+        ('{"type": "model", "split": {"acuity": [1]}}', "'split.acuity' must be a model name"),
     ],
 )
 def test_bad_controls_are_refused_with_a_reason(text: str, match: str) -> None:

@@ -16,6 +16,7 @@ from drivers.synthetic import FixedGaze
 from server.cli import main
 from server.dither import dither8
 from server.render import render
+from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS
 
 TINY = ["--size", "64x36", "--seconds", "0.1", "--fps", "30", "--backend", "reference", "--quiet"]
 
@@ -190,6 +191,34 @@ def test_cli_renders_with_opencl(tmp_path: Path) -> None:
         assert image.mode == "RGB" and image.size == (32, 18)
 
 
+MODEL_OPTIONS = [("--afterimage", n) for n in AFTERIMAGE_MODELS if n != "jacobs"] + [
+    ("--acuity", n) for n in ACUITY_MODELS if n != "stochastic"
+]
+
+
+@pytest.mark.parametrize(("option", "name"), MODEL_OPTIONS, ids=[n for _, n in MODEL_OPTIONS])
+def test_cli_renders_with_each_model(tmp_path: Path, option: str, name: str) -> None:
+    """Each model by name gives frames of its own: after 0.5 s on the lamp's glare (and in
+    the dim room, where acuity models differ) the last frame is not the default model's."""
+    args = ["render", "lamp", *TINY, "--seconds", "0.5", "--fps", "10", "--gaze", "0.45,0.35"]
+
+    def last_frame(out: Path, *extra: str) -> bytes:
+        assert main([*args, *extra, "--exr", "--out", str(out)]) == 0
+        frames = _frames(out, ".exr")
+        assert len(frames) == 5
+        return OpenEXR.File(str(frames[-1])).channels()["RGB"].pixels.tobytes()
+
+    assert last_frame(tmp_path / "model", option, name) != last_frame(tmp_path / "default")
+
+
+def test_cli_help_names_every_model(capsys: pytest.CaptureFixture) -> None:
+    for command in ("render", "serve"):
+        assert main([command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        for name in (*AFTERIMAGE_MODELS, *ACUITY_MODELS):
+            assert name in text, (command, name)
+
+
 def _bad_exr(tmp_path: Path) -> str:
     path = tmp_path / "broken.exr"
     path.write_bytes(b"not an exr at all")
@@ -217,8 +246,17 @@ def _bad_params(tmp_path: Path) -> str:
         (["render", "flash", "--gaze", "{tmp}/missing.csv"], "not found"),
         (["render", "flash", "--params", "{bad_params}"], "no_such_parameter"),
         (["render", "flash", "--backend", "cuda"], "invalid choice"),
+        (
+            ["render", "flash", "--afterimage", "magic"],
+            "unknown afterimage model 'magic'; choose one of jacobs, ritschel, mikamo",
+        ),
+        (
+            ["render", "flash", "--acuity", "blurry"],
+            "unknown acuity model 'blurry'; choose one of stochastic, none, gaussian, bilateral",
+        ),
         (["render", "flash", "--frobnicate"], "unrecognized arguments: --frobnicate"),
         (["render", "flash", "--out", "{tmp}/file.txt/sub"], "file.txt"),
+        (["serve", "--acuity", "blurry"], "unknown acuity model 'blurry'; choose one of"),
         (["launch"], "invalid choice"),
         ([], "required: COMMAND"),
     ],
@@ -229,7 +267,7 @@ def test_cli_errors_are_one_line_with_status_2(
     (tmp_path / "file.txt").write_text("")
     fill = {"tmp": tmp_path, "bad_exr": _bad_exr(tmp_path), "bad_params": _bad_params(tmp_path)}
     argv = [a.format(**fill) for a in args]
-    if argv and "--out" not in argv:
+    if argv[:1] == ["render"] and "--out" not in argv:
         argv += ["--out", str(tmp_path / "out"), "--quiet"]
     assert main(argv) == 2
     err = capsys.readouterr().err

@@ -205,7 +205,8 @@ def test_controls_change_the_session_and_errors_do_not_stop_it(live_server) -> N
             ('{"type": "scene", "name": "../../etc/passwd"}', "not allowed"),
             ('{"type": "scene", "name": "nowhere"}', "no scene named"),
             ('{"type": "params", "values": {"n": 0}}', "parameters refused"),
-            ('{"type": "model", "name": "magic"}', "unknown model"),
+            ('{"type": "model", "afterimage": "magic"}', "unknown afterimage model 'magic'"),
+            ('{"type": "model", "name": "jacobs"}', "'model' needs 'afterimage', 'acuity'"),
             (json.dumps({"type": "reset", "pad": "x" * 70_000}), "limit is 65536"),
         ]:
             await client.ws.send(bad)
@@ -217,6 +218,38 @@ def test_controls_change_the_session_and_errors_do_not_stop_it(live_server) -> N
         before, _ = await client.frame()
         after, _ = await client.frame(lambda h: h.frame > before.frame + 2)
         assert after.time > before.time
+        await client.ws.close()
+
+    run(check())
+
+
+def test_model_choice_and_split_view_over_the_socket(live_server) -> None:
+    """Models by name, split on and off; the frames say so (flag, width) and so does the
+    state. Reference backend: every model has one."""
+    server = live_server(scene="lamp", backend="reference", size=(64, 36))
+
+    async def check() -> None:
+        client = await Client.open(server)
+        hello = client.hello
+        assert hello["model"] == {"afterimage": "jacobs", "acuity": "stochastic"}
+        assert hello["split"] is None and "ritschel" in hello["models"]["afterimage"]
+        await client.send(type="viewport", width=64, height=36)  # keep the budget's shape
+        await client.send(type="model", acuity="none", split={"afterimage": "ritschel"})
+        state = await client.note("state")
+        assert state["model"] == {"afterimage": "jacobs", "acuity": "none"}
+        assert state["split"] == {"afterimage": "ritschel", "acuity": "none"}
+        header, v = await client.frame(lambda h: h.split)
+        assert (header.width, header.height) == (64, 36) and v.shape == (36, 64, 3)
+        status, sessions = await asyncio.to_thread(http, "GET", server.url + "/api/sessions")
+        assert status == 200
+        assert (sessions[0]["model"], sessions[0]["split"]) == ("jacobs+none", "ritschel+none")
+        await client.send(type="model", afterimage="nope", split=None)
+        assert "unknown afterimage model 'nope'" in (await client.note("error"))["message"]
+        seen, _ = await client.frame()
+        assert seen.split  # refused as a whole: split view still on
+        await client.send(type="model", split=None)
+        assert (await client.note("state"))["split"] is None
+        await client.frame(lambda h: not h.split and h.frame > seen.frame)
         await client.ws.close()
 
     run(check())

@@ -2,11 +2,25 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from server.protocol import Choose, Eyes, Gaze, ParamChange, Reset, Viewport, decode_frame
+from server.protocol import (
+    Choose,
+    Eyes,
+    Gaze,
+    ModelChange,
+    ModelPick,
+    ParamChange,
+    Reset,
+    Viewport,
+    decode_frame,
+)
 from server.scenes.library import SceneLibrary
-from server.session import MAX_FRAME_DT, RemoteGaze, Session, SessionSettings
+from server.session import MAX_FRAME_DT, RemoteGaze, Session, SessionSettings, pane_params
+from server.sim import Params, Simulator
+from server.sim.layout import Layout
+from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 
 SETTINGS = SessionSettings(width=96, height=54, fps=30.0, scene="flash", seed=3)
 
@@ -71,7 +85,7 @@ def test_controls_and_refusals() -> None:
         [
             (ParamChange({"j1": -1.0, "n": 0}), 0.0),
             (Choose("scene", "nowhere"), 0.0),
-            (Choose("model", "magic"), 0.0),
+            (ModelChange(ModelPick("magic")), 0.0),
             (Choose("gaze_source", "telepathy"), 0.0),
         ],
     )
@@ -113,3 +127,174 @@ def test_a_flash_inside_a_long_frame_is_seen_for_its_duration() -> None:
     assert coarse.sim.time == pytest.approx(fine.sim.time)
     assert _bleaching_peak(coarse) > 5 * rest
     assert _bleaching_peak(coarse) == pytest.approx(_bleaching_peak(fine), rel=0.05)
+
+
+# --- models and split view --------------------------------------------------------------------
+
+#: Every model but the defaults, each switched to on its own (the other part stays default).
+SWITCHES = [ModelPick(afterimage=n) for n in AFTERIMAGE_MODELS if n != "jacobs"] + [
+    ModelPick(acuity=n) for n in ACUITY_MODELS if n != "stochastic"
+]
+LOOK = [  # (dt, gaze): look at the lamp (0.5, 0.3 of the lamp scene) a while, then look away
+    (0.0, Gaze(0.5, 0.3, 1)),
+    *[(0.1, None) for _ in range(10)],
+    (0.1, Gaze(0.3, 0.55, 2)),
+    (0.1, None),
+]
+
+
+def _look(session: Session, first: list[ModelChange] = ()) -> list[bytes]:
+    frames = []
+    for i, (dt, gaze) in enumerate(LOOK):
+        controls = [*(first if i == 0 else ()), *([gaze] if gaze else [])]
+        frames.append(session.tick(dt, [(c, 0.0) for c in controls])[0].payload)
+    return frames
+
+
+@pytest.mark.parametrize("pick", SWITCHES, ids=lambda p: p.afterimage or p.acuity)
+def test_a_model_switch_changes_the_frames_and_the_state(pick: ModelPick) -> None:
+    """Reference backend: every model has one. The eye goes on (time, adaptation); a new
+    acuity model keeps the retina as it was, a new afterimage model starts it settled."""
+    lamp = dict(scene="lamp", backend="reference", width=64, height=36)
+    default, switched = new_session(**lamp), new_session(**lamp)
+    for s in (default, switched):
+        s.tick(0.5, [(Gaze(0.5, 0.3, 1), 0.0)])
+    retina, A = switched.sim._backend.get("state"), switched.sim.adaptation
+    _, notes = switched.tick(0.0, [(ModelChange(pick), 0.0)])
+    want = {"afterimage": pick.afterimage or "jacobs", "acuity": pick.acuity or "stochastic"}
+    assert [n["type"] for n in notes] == ["state"]
+    assert notes[0]["model"] == want and notes[0]["split"] is None
+    assert (switched.sim.afterimage, switched.sim.acuity) == tuple(want.values())
+    assert switched.sim.time == 0.5 and switched.sim.adaptation == pytest.approx(A)
+    if pick.acuity:  # the same retina, after the tick's step of 0 s (rounding only)
+        np.testing.assert_allclose(switched.sim._backend.get("state"), retina, rtol=1e-12)
+    assert _look(switched) != _look(default)
+
+
+def test_state_lists_the_models_and_unknown_names_are_refused() -> None:
+    session = new_session()
+    state = session.state()
+    assert state["models"] == {"afterimage": [*AFTERIMAGE_MODELS], "acuity": [*ACUITY_MODELS]}
+    assert state["model"] == {"afterimage": "jacobs", "acuity": "stochastic"}
+    assert state["split"] is None
+    sims = session.sims
+    _, notes = session.tick(
+        0.1,
+        [
+            (ModelChange(ModelPick("magic")), 0.0),
+            (ModelChange(ModelPick(acuity="blur")), 0.0),
+            (ModelChange(ModelPick(), ModelPick(afterimage="magic")), 0.0),
+        ],
+    )
+    assert [(n["type"], n["in"]) for n in notes] == [("error", "model")] * 3
+    assert "unknown afterimage model 'magic'; choose one of jacobs, " in notes[0]["message"]
+    assert "unknown acuity model 'blur'; choose one of stochastic, " in notes[1]["message"]
+    assert session.state() == state and session.sims is sims  # nothing changed
+    frame, notes = session.tick(0.1, [])  # and the session carries on
+    assert notes == [] and frame.header.time == pytest.approx(0.2)
+    # Asking for what runs already changes nothing and tells nobody.
+    assert session.tick(0.0, [(ModelChange(ModelPick("jacobs")), 0.0)])[1] == []
+
+
+def _pane_gaze(x: float, y: float, w: int, h: int) -> tuple[float, float]:
+    """docs/protocol.md, split view: the pane pixel a frame fraction looks at."""
+    px = x * w
+    return (px - w // 2 if px >= w // 2 else px, y * h)
+
+
+SPLIT_SCRIPT = [  # (dt, controls)
+    (0.0, [Gaze(0.25, 0.3, 1)]),  # the lamp in the left pane
+    *[(0.1, []) for _ in range(5)],
+    (0.1, [Gaze(0.8, 0.3, 2)]),  # the right pane, somewhat left of the lamp
+    (0.2, [Gaze(1.2, 0.5, 3)]),  # right of the screen: off the right pane
+    (0.1, [Eyes(False)]),
+    (0.3, []),
+]
+
+
+@pytest.mark.parametrize(
+    ("backend", "right"),
+    [("reference", Models()), ("opencl", Models()), ("reference", Models("ritschel", "none"))],
+    ids=["reference", "opencl", "reference-ritschel+none"],
+)
+def test_split_view_is_two_half_width_simulators_side_by_side(backend: str, right: Models) -> None:
+    W, H, w = 99, 54, 49  # odd width: the last column stays black
+    session = new_session(scene="lamp", width=W, height=H, backend=backend, split=right)
+    assert session.state()["split"] == {"afterimage": right.afterimage, "acuity": right.acuity}
+    assert session.state()["params"] == Params().to_dict()  # the session's are unchanged
+    # A pane's pixels keep their size: the frame's pixels per degree (within the rounding of
+    # the pane's share of the screen to whole screen pixels: 950 of 1920 for 49 of 99).
+    params = pane_params(Params(), W, w)
+    frame_ppd = Layout.for_frame(W, H, Params()).ppd
+    assert Layout.for_frame(w, H, params).ppd == pytest.approx(frame_ppd, rel=1e-3)
+    lamp = SceneLibrary().open("lamp").render(0.0, w, H)
+    panes = []
+    for model in (Models(), right):  # the same start as a session: settled at the first gaze
+        sim = Simulator(w, H, params=params, backend=backend, seed=3, **vars(model))
+        sim.step(0.0, gaze=_pane_gaze(0.5, 0.5, W, H))
+        sim.load_scene(lamp, reset=True)
+        panes.append(sim)
+    gaze, eyes = (0.5, 0.5), True
+    for dt, controls in SPLIT_SCRIPT:
+        frame, notes = session.tick(dt, [(c, 0.0) for c in controls])
+        assert notes == []
+        for c in controls:
+            gaze, eyes = ((c.x, c.y), eyes) if isinstance(c, Gaze) else (gaze, c.open)
+        px = _pane_gaze(*gaze, W, H)
+        want = [sim.step(dt, gaze=px, eyes_open=eyes, output="float16") for sim in panes]
+        header, v = decode_frame(frame.header.pack() + frame.payload)
+        assert header.split and (header.width, header.height) == (W, H)
+        assert header.gaze_x == pytest.approx(px[0] / W) and header.gaze_y == pytest.approx(gaze[1])
+        assert header.adaptation == pytest.approx(panes[0].adaptation)
+        # The same arithmetic on the same inputs: equal but for float16 rounding (none here).
+        for i, pane in enumerate(want):
+            np.testing.assert_allclose(v[:, i * w : (i + 1) * w], pane, rtol=0, atol=1e-6)
+        assert not v[:, 2 * w :].any()
+    assert panes[0].time == pytest.approx(session.sim.time)
+
+
+def test_either_pane_under_the_pointer_drives_the_same_gaze() -> None:
+    W, H = 96, 54
+
+    def frame_for(x: float) -> tuple[float, bytes]:
+        session = new_session(scene="lamp", width=W, height=H, split=Models(acuity="none"))
+        session.tick(0.0, [(Gaze(x, 0.4, 1), 0.0)])
+        frame, _ = session.tick(0.2, [])
+        return frame.header.gaze_x, frame.payload
+
+    left, right = frame_for(0.25), frame_for(0.75)  # pane pixel 24 in both cases
+    assert left == right and left[0] == 0.25
+    assert frame_for(0.3)[1] != left[1]  # and the gaze does matter
+    # Off the screen stays off the pane on that side.
+    assert frame_for(-0.1)[0] == pytest.approx(-0.1)
+    assert frame_for(1.1)[0] == pytest.approx(1.1 - 0.5)
+
+
+def test_split_view_on_off_and_models_per_pane() -> None:
+    session = new_session(scene="lamp", backend="reference", width=64, height=36)
+    session.tick(0.3, [(Gaze(0.5, 0.3, 1), 0.0)])
+    A, whole = session.sim.adaptation, session.sim.layout
+    _, notes = session.tick(0.0, [(ModelChange(ModelPick(), ModelPick(acuity="none")), 0.0)])
+    assert notes[-1]["split"] == {"afterimage": "jacobs", "acuity": "none"}
+    assert [(s.width, s.acuity) for s in session.sims] == [(32, "stochastic"), (32, "none")]
+    # Two panes cost what the whole frame did: the retina grids add up to the whole one's.
+    cells = [s.layout.grid_w * s.layout.grid_h for s in session.sims]
+    assert sum(cells) == whole.grid_w * whole.grid_h
+    # Both panes continue the eye: its time and (up to the pane's own adaptation field) A.
+    assert all(s.time == 0.3 for s in session.sims)
+    assert all(s.adaptation == pytest.approx(A) for s in session.sims)
+    # Changing only the left model keeps the right pane's.
+    session.tick(0.1, [(ModelChange(ModelPick(acuity="gaussian")), 0.0)])
+    assert [s.acuity for s in session.sims] == ["gaussian", "none"]
+    _, notes = session.tick(0.1, [(ModelChange(ModelPick(), None), 0.0)])
+    assert notes[-1]["split"] is None and notes[-1]["model"]["acuity"] == "gaussian"
+    assert len(session.sims) == 1 and session.sim.width == 64
+    assert not session.tick(0.1, [])[0].header.split
+
+    # A frame too narrow for two panes refuses split view; a viewport that makes it so ends it.
+    narrow = new_session(width=24, height=54, backend="reference")
+    _, notes = narrow.tick(0.0, [(ModelChange(ModelPick(), ModelPick()), 0.0)])
+    assert notes[0]["type"] == "error" and "too narrow for split view" in notes[0]["message"]
+    split = new_session(split=Models(), backend="reference")
+    _, notes = split.tick(0.0, [(Viewport(1, 1000), 0.0)])
+    assert notes[-1]["width"] == 16 and notes[-1]["split"] is None and len(split.sims) == 1

@@ -1,5 +1,6 @@
 // Heads-up display: rates, latency, the model's state at the gaze, connection status, and a
-// ring where the server put the gaze. Text is rebuilt a few times a second, not every draw.
+// ring where the server put the gaze (one per pane in split view). Text is rebuilt a few times
+// a second, not every draw. Also the split view's divider and pane labels.
 
 import { ENCODING_NAMES } from './protocol.js';
 
@@ -46,6 +47,12 @@ export class Ring {
 
 const fmt = (v, digits = 1) => (Number.isFinite(v) ? v.toFixed(digits) : '–');
 
+/** "jacobs + stochastic" for a {afterimage, acuity} from the state message. */
+export const modelLabel = (m) => (m ? `${m.afterimage} + ${m.acuity}` : '–');
+
+/** Where the right pane starts, as a fraction of the frame width (0: no split). */
+const splitAt = (h) => (h?.split ? Math.floor(h.width / 2) / h.width : 0);
+
 /** 10^A as a readable luminance: 100, 3.2e5, 0.01. */
 function luminance(a) {
   if (!Number.isFinite(a)) return '–';
@@ -54,16 +61,17 @@ function luminance(a) {
 }
 
 export class Hud {
-  constructor(element, marker) {
+  /** `markers`: gaze rings for the frame (or left pane) and the right pane. */
+  constructor(element, markers) {
     this.element = element;
-    this.marker = marker;
+    this.markers = markers;
     this.visible = true;
   }
 
   toggle(visible = !this.visible) {
     this.visible = visible;
     this.element.hidden = !visible;
-    if (!visible) this.marker.hidden = true;
+    if (!visible) for (const m of this.markers) m.hidden = true;
   }
 
   /** Rebuild the text. `info`: see main.js's hudInfo(). */
@@ -80,7 +88,10 @@ export class Hud {
         `server ${h ? fmt(h.server_ms) : '–'} ms`,
     );
     if (h) {
-      lines.push(`A = ${fmt(h.adaptation, 2)} (${luminance(h.adaptation)} cd/m²) · ρ = ${fmt(h.rho, 2)}`);
+      const where = h.split ? ' (left pane)' : '';
+      lines.push(
+        `A = ${fmt(h.adaptation, 2)} (${luminance(h.adaptation)} cd/m²) · ρ = ${fmt(h.rho, 2)}${where}`,
+      );
       lines.push(
         `frame ${h.width}×${h.height} ${ENCODING_NAMES[h.encoding] ?? h.encoding} · ` +
           `#${h.frame} · t = ${fmt(h.time, 2)} s`,
@@ -92,20 +103,52 @@ export class Hud {
     } else {
       lines.push('no frame yet');
     }
-    lines.push(`scene ${info.scene ?? '–'} · model ${info.model ?? '–'} · source ${info.gazeSource ?? '–'}`);
+    lines.push(
+      info.split
+        ? `split · left ${modelLabel(info.model)} | right ${modelLabel(info.split)}`
+        : `model ${modelLabel(info.model)}`,
+    );
+    lines.push(`scene ${info.scene ?? '–'} · source ${info.gazeSource ?? '–'}`);
     lines.push(`tracker ${info.tracker}`);
     this.element.textContent = lines.join('\n');
   }
 
-  /** Place the gaze ring at the header's gaze (frame fractions) inside the drawn rectangle. */
+  /** Place the gaze ring at the header's gaze (frame fractions) inside the drawn rectangle;
+   * in split view the header has the left pane's gaze, and the right pane's ring is offset by
+   * the pane width. */
   placeMarker(header, rect) {
-    if (!this.visible || !header || !Number.isFinite(header.gaze_x)) {
-      this.marker.hidden = true;
-      return;
-    }
-    this.marker.hidden = false;
-    const x = rect.x + header.gaze_x * rect.width;
-    const y = rect.y + header.gaze_y * rect.height;
-    this.marker.style.transform = `translate(${x}px, ${y}px)`;
+    const shown = this.visible && header && Number.isFinite(header.gaze_x);
+    const offsets = !shown ? [] : header.split ? [0, splitAt(header)] : [0];
+    this.markers.forEach((marker, i) => {
+      marker.hidden = i >= offsets.length;
+      if (marker.hidden) return;
+      const x = rect.x + (header.gaze_x + offsets[i]) * rect.width;
+      const y = rect.y + header.gaze_y * rect.height;
+      marker.style.transform = `translate(${x}px, ${y}px)`;
+    });
+  }
+}
+
+/** The split view's divider and one label per pane, over the drawn frame; shown while the
+ * frames are split (header flag), labelled from the state (which model is in which pane). */
+export class SplitOverlay {
+  constructor(root) {
+    this.root = root;
+    this.divider = root.querySelector('.divider');
+    this.labels = [...root.querySelectorAll('.pane-label')];
+  }
+
+  place(header, rect, model, split) {
+    const at = splitAt(header);
+    this.root.hidden = !at;
+    if (!at) return;
+    const x = rect.x + at * rect.width;
+    Object.assign(this.divider.style, { left: `${x}px`, top: `${rect.y}px`, height: `${rect.height}px` });
+    const [left, right] = this.labels;
+    left.textContent = modelLabel(model);
+    right.textContent = modelLabel(split);
+    const bottom = `${window.innerHeight - rect.y - rect.height + 6}px`;
+    Object.assign(left.style, { left: `${rect.x + 6}px`, bottom });
+    Object.assign(right.style, { left: `${x + 6}px`, bottom });
   }
 }

@@ -3,7 +3,7 @@
 
 import { decodeFrame, messages, parseText } from './protocol.js';
 import { Renderer } from './renderer.js';
-import { Hud, RateMeter, Ring } from './hud.js';
+import { Hud, RateMeter, Ring, SplitOverlay } from './hud.js';
 import { Panel } from './panel.js';
 
 const BACKOFF_MIN_MS = 500;
@@ -13,7 +13,11 @@ const HUD_INTERVAL_MS = 250;
 const SEQ_RING = 512; // send times kept for latency; far more than frames in flight
 
 const canvas = document.getElementById('view');
-const hud = new Hud(document.getElementById('hud'), document.getElementById('marker'));
+const hud = new Hud(document.getElementById('hud'), [
+  document.getElementById('marker'),
+  document.getElementById('marker-right'),
+]);
+const splitOverlay = new SplitOverlay(document.getElementById('split-overlay'));
 const toasts = document.getElementById('toasts');
 
 function toast(text, ms = 4000) {
@@ -281,6 +285,7 @@ function hudInfo(now) {
     latencyP95: stats.latency.percentile(95),
     scene: state.scene,
     model: state.model,
+    split: state.split,
     gazeSource: state.gaze_source,
     tracker: tracker.connected
       ? `${tracker.name ?? 'connected'} · ${tracker.samples} samples`
@@ -299,7 +304,9 @@ function tick(now) {
   flushGaze();
   renderer.draw(); // every display frame: the dither noise must change even without new frames
   stats.draws.tick(now);
-  hud.placeMarker(lastHeader, renderer.cssRect());
+  const rect = renderer.cssRect();
+  hud.placeMarker(lastHeader, rect);
+  splitOverlay.place(lastHeader, rect, state.model, state.split);
   if (now - hudAt >= HUD_INTERVAL_MS) {
     hudAt = now;
     hud.update(hudInfo(now));

@@ -1,4 +1,4 @@
-// Side panel: scene / model / gaze source, the model's parameters grouped by paper section,
+// Side panel: scene / models (and split view) / gaze source, the model's parameters grouped by paper section,
 // presets and EXR upload. It only builds messages; main.js sends them.
 
 import { messages } from './protocol.js';
@@ -44,10 +44,22 @@ export class Panel {
 
   build() {
     this.sceneSelect = el('select', { id: 'scene-select' });
-    this.modelSelect = el('select', { id: 'model-select' });
+    this.afterimageSelect = el('select', { id: 'afterimage-select' });
+    this.acuitySelect = el('select', { id: 'acuity-select' });
+    this.splitBox = el('input', { type: 'checkbox', id: 'split-toggle' });
+    this.splitAfterimageSelect = el('select', { id: 'split-afterimage-select' });
+    this.splitAcuitySelect = el('select', { id: 'split-acuity-select' });
     this.sourceSelect = el('select', { id: 'source-select' });
     this.sceneSelect.addEventListener('change', () => this.send(messages.scene(this.sceneSelect.value)));
-    this.modelSelect.addEventListener('change', () => this.send(messages.model(this.modelSelect.value)));
+    for (const control of [
+      this.afterimageSelect,
+      this.acuitySelect,
+      this.splitBox,
+      this.splitAfterimageSelect,
+      this.splitAcuitySelect,
+    ]) {
+      control.addEventListener('change', () => this.sendModels());
+    }
     this.sourceSelect.addEventListener('change', () =>
       this.send(messages.gazeSource(this.sourceSelect.value)),
     );
@@ -69,7 +81,10 @@ export class Panel {
     this.root.append(
       el('h2', {}, 'gazehdr'),
       el('label', {}, 'scene ', this.sceneSelect),
-      el('label', {}, 'model ', this.modelSelect),
+      el('label', {}, 'afterimage ', this.afterimageSelect),
+      el('label', {}, 'acuity ', this.acuitySelect),
+      el('label', {}, this.splitBox, ' split view: right pane'),
+      el('div', { class: 'row split-models' }, this.splitAfterimageSelect, this.splitAcuitySelect),
       el('label', {}, 'gaze ', this.sourceSelect),
       el('div', { class: 'row' }, preset, reset),
       el('div', { class: 'row' }, this.fileInput),
@@ -79,10 +94,27 @@ export class Panel {
     );
   }
 
+  /** The whole model choice as one message: the server applies it at once. */
+  sendModels() {
+    const pick = (a, b) => ({ afterimage: a.value, acuity: b.value });
+    const split = this.splitBox.checked ? pick(this.splitAfterimageSelect, this.splitAcuitySelect) : null;
+    this.send(messages.model(pick(this.afterimageSelect, this.acuitySelect), split));
+  }
+
   /** Refresh from a hello/state message. */
   update(state) {
     fillSelect(this.sceneSelect, state.scenes, state.scene);
-    fillSelect(this.modelSelect, state.models, state.model);
+    const models = state.models ?? {};
+    const model = state.model ?? {};
+    fillSelect(this.afterimageSelect, models.afterimage, model.afterimage);
+    fillSelect(this.acuitySelect, models.acuity, model.acuity);
+    // Split off: the right pane's choosers keep what the user picked, ready for the toggle.
+    const right = (select, part) => {
+      fillSelect(select, models[part], state.split?.[part] ?? (select.value || model[part]));
+    };
+    right(this.splitAfterimageSelect, 'afterimage');
+    right(this.splitAcuitySelect, 'acuity');
+    if (state.split !== undefined) this.splitBox.checked = state.split !== null;
     fillSelect(this.sourceSelect, state.gaze_sources, state.gaze_source);
     this.defaults = state.defaults ?? {};
     const params = state.params ?? {};

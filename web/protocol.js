@@ -46,6 +46,7 @@ export function decodeHeader(buffer) {
     flags,
     eyes_open: (flags & 1) !== 0,
     tracker_gaze: (flags & 2) !== 0,
+    split: (flags & 4) !== 0, // two panes side by side, each floor(width / 2) px wide
     server_ms: dv.getFloat32(48, true),
     dropped: dv.getUint32(52, true),
   };
@@ -100,7 +101,13 @@ export const messages = {
   gaze: (x, y, seq) => ({ type: 'gaze', x: clampGaze(x), y: clampGaze(y), seq }),
   eyes: (open) => ({ type: 'eyes', open: Boolean(open) }),
   scene: (name) => ({ type: 'scene', name }),
-  model: (name) => ({ type: 'model', name }),
+  /** `model`, `split`: {afterimage, acuity}; split null: one model over the whole frame. */
+  model: (model, split) => ({
+    type: 'model',
+    afterimage: model.afterimage,
+    acuity: model.acuity,
+    split: split ? { afterimage: split.afterimage, acuity: split.acuity } : null,
+  }),
   gazeSource: (name) => ({ type: 'gaze_source', name }),
   params: (values) => ({ type: 'params', values }),
   reset: () => ({ type: 'reset' }),
