@@ -38,6 +38,22 @@ def _size(text: str) -> tuple[int, int]:
     return int(match[1]), int(match[2])
 
 
+def _add_model_options(p: argparse.ArgumentParser, whose: str) -> None:
+    p.add_argument(
+        "--afterimage",
+        default="jacobs",
+        metavar="NAME",
+        help=f"afterimage model{whose}: jacobs, ritschel or mikamo (default: jacobs)",
+    )
+    p.add_argument(
+        "--acuity",
+        default="stochastic",
+        metavar="NAME",
+        help=f"acuity model{whose}: stochastic, none, gaussian, bilateral or thompson "
+        "(default: stochastic)",
+    )
+
+
 # --- render -----------------------------------------------------------------------------------
 
 
@@ -69,6 +85,7 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         default="opencl",
         help="PyOpenCL kernels or the NumPy reference (default: opencl)",
     )
+    _add_model_options(p, "")
     p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
     p.add_argument(
         "--scale",
@@ -86,7 +103,9 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
     from server.render import render
     from server.scenes import open_scene
     from server.sim import Params
+    from server.sim.models import Models
 
+    models = Models(args.afterimage, args.acuity)  # a wrong name: exit 2 listing the choices
     params = None
     if args.params:
         try:
@@ -105,6 +124,8 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
         height=height,
         seed=args.seed,
         backend=args.backend,
+        afterimage=models.afterimage,
+        acuity=models.acuity,
         out_dir=args.out,
         exr=args.exr,
         progress=not args.quiet,
@@ -165,6 +186,7 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         "browser) or f16 (half floats, 6 bytes/px, finer in the darks)",
     )
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl")
+    _add_model_options(p, " of new sessions (the viewer's panel changes it)")
     p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
 
 
@@ -191,6 +213,8 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         allow_origins=tuple(args.allow_origin),
         encoding=args.encoding,
         backend=args.backend,
+        afterimage=args.afterimage,
+        acuity=args.acuity,
         seed=args.seed,
     )
 
@@ -239,6 +263,67 @@ def _devices(args: argparse.Namespace, extra: list[str]) -> int:
     from drivers.hid import devices_main
 
     return devices_main(extra)
+
+
+# --- figures ----------------------------------------------------------------------------------
+
+
+def _figure_numbers(text: str) -> list[int]:
+    try:
+        return [int(n) for n in text.split(",") if n.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected figure numbers such as 4,5,10, got {text!r}"
+        ) from None
+
+
+def _configure_figures(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for PNGs and index.html")
+    p.add_argument(
+        "--size",
+        type=_size,
+        default=(320, 180),
+        metavar="WxH",
+        help="frame size of the simulations (default: 320x180)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("opencl", "reference"),
+        default="opencl",
+        help="PyOpenCL kernels or the NumPy reference (default: opencl)",
+    )
+    p.add_argument(
+        "--only",
+        type=_figure_numbers,
+        metavar="N,N,...",
+        help="only these of the paper's figures, from 4 to 12 (default: all)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _figures(args: argparse.Namespace, extra: list[str]) -> int:
+    import importlib.util
+    from pathlib import Path
+
+    if importlib.util.find_spec("matplotlib") is None:
+        raise UsageError("figures needs matplotlib: pip install 'gazehdr[figures]'")
+    from server.figures import Context, make_figures, select
+    from server.sim.layout import check_frame_size
+
+    if args.seed < 0:
+        raise UsageError(f"seed must be a non-negative integer, got {args.seed}")
+    check_frame_size(*args.size)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"output {out} exists and is not a directory")
+    figures = select(args.only)
+    ctx = Context(out, *args.size, args.backend, args.seed)
+    summary = make_figures(ctx, figures, progress=not args.quiet)
+    print(f"wrote {len(summary.files)} files to {out} in {summary.seconds:.1f} s")
+    for key, why in summary.failed.items():
+        sys.stderr.write(f"{PROG}: error: Fig. {key} not made: {why}\n")
+    return 1 if summary.failed else 0
 
 
 # --- scenes -----------------------------------------------------------------------------------
@@ -311,6 +396,14 @@ COMMANDS: dict[str, Command] = {
         "(arguments pass through; see 'gazehdr devices --help')",
         _devices,
         passthrough=True,
+    ),
+    "figures": Command(
+        "reproduce the paper's Figures 4-12 as PNGs and an index.html",
+        _figures,
+        _configure_figures,
+        epilog="examples:\n"
+        "  gazehdr figures --out figs\n"
+        "  gazehdr figures --out figs --only 4,5 --size 640x360",
     ),
     "scenes": Command("list the built-in scenes", _scenes),
 }

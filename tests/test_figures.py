@@ -1,0 +1,151 @@
+"""`gazehdr figures`: every file is written, and each figure shows what the paper's caption says.
+
+The command runs once, at a small size, on the OpenCL backend (PoCL in CI); the content checks
+read the numbers it stores in figures.json and the PNGs themselves.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from server.cli import main
+from server.figures import FIGURES
+from server.sim import Params
+
+SMALL = ["--size", "128x72", "--quiet", "--seed", "3"]
+
+
+@pytest.fixture(scope="module")
+def figs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("figs")
+    assert main(["figures", "--out", str(out), *SMALL]) == 0
+    return out, json.loads((out / "figures.json").read_text())
+
+
+def test_every_figure_writes_its_files(figs: tuple[Path, dict]) -> None:
+    out, data = figs
+    assert set(data) == {f.key for f in FIGURES}
+    pngs = [name for fig in data.values() for name in fig["images"]]
+    assert len(pngs) >= len(FIGURES) and sorted(p.name for p in out.glob("*.png")) == sorted(pngs)
+    index = (out / "index.html").read_text()
+    assert set(re.findall(r"<img src='([^']+)'", index)) == set(pngs)
+    for fig in FIGURES:
+        assert f"<section id='fig{fig.key}'>" in index and "Not made" not in index
+    for name in pngs:
+        with Image.open(out / name) as img:
+            rgb = np.asarray(img.convert("RGB"), np.float64)
+        assert rgb.shape[0] > 50 and rgb.shape[1] > 100
+        assert rgb.std() > 10, f"{name} is blank"
+
+
+def test_fig4_bleaching_rises_in_the_flash_and_decays_as_eq5(figs: tuple[Path, dict]) -> None:
+    fig = figs[1]["4"]
+    t, B = np.array(fig["t"]), np.array(fig["B"])
+    assert B[0].max() < 1e-3  # on black before the flash
+    end = B[t == 0][0]
+    assert end[0] > 0.99 and end[1] > 0.99 and 0.2 < end[2] < 0.5
+    after = B[t >= 0]
+    assert (np.diff(after, axis=0) <= 1e-6).all()  # only decays once the flash is over
+    # B(t) = B(0) exp(-b2 t) in the dark (Eq. 5 with I = 0): half-lives within 5 %.
+    expected = np.log(2) / np.array(Params().b2)
+    assert np.allclose(fig["half_life_s"], expected, rtol=0.05)
+
+
+def test_fig5_bright_flashes_start_green_weak_ones_magenta(figs: tuple[Path, dict]) -> None:
+    fig = figs[1]["5"]
+    share = fig["green_share_at_start"]
+    assert share["7"] > share["3"] + 0.3 and share["5"] > share["4"] + 0.3
+    for e in ("3", "4", "5", "6", "7"):
+        late = np.array(fig["rgb_linear"][e][int(np.searchsorted(fig["times_s"], 4.0))])
+        assert late[0] > late[1] and late[2] > late[1], f"10^{e} should fade to magenta"
+
+
+def test_fig6_7_ritschel_stays_neutral_ours_and_mikamo_are_coloured(figs: tuple[Path, dict]):
+    fig = figs[1]["6-7"]
+    sat = fig["spot_saturation"]
+    assert sat["ritschel"][0] < 0.05 and sat["jacobs"][0] > 0.3 and max(sat["mikamo"]) > 0.3
+    ours = np.array(fig["spot_rgb_linear"]["jacobs"])
+    assert ours[0, 1] > ours[0, 0]  # green first (10^7 cd/m^2 flash)
+    assert ours[-1].sum() < 0.1 * ours[0].sum()  # faded by 8 s
+
+
+def test_fig8_calcium_weakens_the_bleaching_afterimage(figs: tuple[Path, dict]) -> None:
+    fig = figs[1]["8"]
+    luma = np.array(Params().w_P)
+    eq7, eq12 = (np.array(fig["spot_rgb_added"][k]) @ luma for k in ("eq7", "eq12"))
+    assert eq7 > 0 and eq12 < eq7
+    assert fig["reference_vs_simulator_max_abs"] < 2e-3
+
+
+def test_fig9_ours_is_a_dark_spot_ritschels_a_bright_one(figs: tuple[Path, dict]) -> None:
+    ratio = figs[1]["9"]["spot_luminance_ratio"]
+    assert ratio["jacobs"] < 0.95 and ratio["ritschel"] > 1.5
+
+
+def test_fig10_purkinje_brightens_blue_against_red_as_light_falls(figs: tuple[Path, dict]):
+    ratio = figs[1]["10"]["blue_over_red_luminance"]
+    assert np.ptp(ratio["photopic"]) < 0.02 * ratio["photopic"][0]
+    assert (np.diff(ratio["purkinje"]) >= -1e-3).all()
+    assert ratio["purkinje"][-1] > 2 * ratio["photopic"][-1]
+
+
+def test_fig11_colour_fades_to_purple_and_acuity_falls(figs: tuple[Path, dict]) -> None:
+    fig = figs[1]["11"]
+    sat = fig["mean_saturation_chromatic_patches"]
+    assert (np.diff(sat) <= 1e-3).all() and sat[-1] < 0.5 * sat[0]
+    r, g, b = fig["neutral_patch_rgb_relative"][-1]
+    assert b > g and r > g  # neutral greys turn purple
+    assert fig["inset_sharpness_relative"][-1] < 0.7
+
+
+def test_fig12_only_the_stochastic_model_varies_in_patches(figs: tuple[Path, dict]) -> None:
+    fig = figs[1]["12"]
+    change, kept = fig["frame_to_frame_change"], fig["contrast_kept"]
+    assert change["stochastic"] > 5 * change["gaussian"]
+    # Ours keeps a different amount of fine detail in each frame; a Gaussian blur the same.
+    varies = {m: max(np.ptp(c) for c in kept[m].values()) for m in ("stochastic", "gaussian")}
+    assert varies["gaussian"] < 0.005 and varies["stochastic"] > 0.02
+    assert min(kept["none"]["3"]) > max(kept["gaussian"]["3"]) + 0.3
+
+
+def test_only_selects_and_bad_options_exit_2(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "only"
+    assert main(["figures", "--out", str(out), "--only", "4", *SMALL]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "fig04_bleaching.png",
+        "figures.json",
+        "index.html",
+    ]
+    assert re.search(r"wrote 3 files to .* in [\d.]+ s", capsys.readouterr().out)
+    for bad in (["--only", "3"], ["--only", "x"], ["--size", "8x8"], ["--seed", "-1"]):
+        assert main(["figures", "--out", str(tmp_path / "bad"), *bad]) == 2
+        assert "error" in capsys.readouterr().err
+    (tmp_path / "file").write_text("")
+    assert main(["figures", "--out", str(tmp_path / "file"), "--only", "4"]) == 2
+
+
+def test_missing_matplotlib_names_the_extra(tmp_path: Path, monkeypatch, capsys) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if not installed
+    assert main(["figures", "--out", str(tmp_path), "--only", "4"]) == 2
+    assert "pip install 'gazehdr[figures]'" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_model_that_does_not_import_fails_loudly(tmp_path: Path, monkeypatch, capsys) -> None:
+    from server.sim import models
+
+    missing = "server.sim.baselines.not_there:Stage"
+    monkeypatch.setitem(
+        models.AFTERIMAGE_MODELS, "ritschel", dict.fromkeys(("opencl", "reference"), missing)
+    )
+    assert main(["figures", "--out", str(tmp_path), "--only", "9", *SMALL]) == 1
+    assert "Fig. 9 not made" in capsys.readouterr().err
+    assert "Not made" in (tmp_path / "index.html").read_text()
+    assert not list(tmp_path.glob("*.png"))  # no figure drawn with another model
