@@ -36,7 +36,7 @@ from server.scenes.exr import SceneError
 from server.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
 from server.session import SessionSettings
 from server.sim import Params
-from server.sim.params import OURS, SECTIONS
+from server.sim.params import OURS, SECTIONS, check_remote_change
 
 WEB_DIR = Path(os.environ.get("GAZEHDR_WEB_DIR", Path(__file__).resolve().parent.parent / "web"))
 MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
@@ -179,6 +179,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     async def put_params(values: dict[str, Any] = Body(...)) -> dict[str, Any]:  # noqa: B008
         """Change (some of) the parameters new sessions start with."""
         try:
+            check_remote_change(defaults["params"], values)
             params = Params.from_dict({**defaults["params"].to_dict(), **values})
         except (TypeError, ValueError) as e:
             raise HTTPException(422, f"parameters refused: {e}") from None

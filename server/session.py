@@ -43,7 +43,7 @@ from server.scenes.library import SceneLibrary
 from server.sim import Geometry, Params, Simulator
 from server.sim.layout import MAX_SIZE, MIN_SIZE
 from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
-from server.sim.params import OURS, SECTIONS
+from server.sim.params import OURS, SECTIONS, check_remote_change
 
 GAZE_SOURCES = ("mouse", "synthetic", "remote")
 #: A stalled server steps the eye by at most this much at once (s), so it never leaps.
@@ -267,6 +267,7 @@ class Session:
     def _set_params(self, values: dict[str, Any]) -> bool:
         merged = {**self.params.to_dict(), **values}
         try:
+            check_remote_change(self.params, values)
             params = Params.from_dict(merged)
         except (TypeError, ValueError) as e:
             raise ValueError(f"parameters refused: {e}") from None

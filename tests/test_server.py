@@ -98,11 +98,13 @@ def test_params_rest_validates_and_sets_new_sessions(live_server) -> None:
     assert status == 200 and body["params"] == body["defaults"] and body["defaults"]["j1"] == 0.03
     assert "2.2 Afterimages" in body["sections"] and "plateau_K" in body["ours"]
     bad = [b'{"n": -1}', b'{"nope": 1}', b'{"b1": [1, 2]}', b'{"n": "x"}', b"[1]", b"{"]
+    bad.append(b'{"mikamo_sequence": "/etc/passwd"}')  # the server's files are not for clients
     for payload in bad:
         status, err = http(
             "PUT", server.url + "/api/params", payload, **{"content-type": "application/json"}
         )
         assert status == 422, (payload, err)
+    assert "cannot be set remotely" in err["detail"] and "passwd" not in err["detail"]
     status, body = http(
         "PUT", server.url + "/api/params", b'{"j1": 0.2}', **{"content-type": "application/json"}
     )

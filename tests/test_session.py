@@ -87,10 +87,12 @@ def test_controls_and_refusals() -> None:
             (Choose("scene", "nowhere"), 0.0),
             (ModelChange(ModelPick("magic")), 0.0),
             (Choose("gaze_source", "telepathy"), 0.0),
+            (ParamChange({"mikamo_sequence": "/etc/passwd"}), 0.0),
         ],
     )
-    assert [n["type"] for n in notes] == ["error"] * 4
-    assert [n["in"] for n in notes] == ["params", "scene", "model", "gaze_source"]
+    assert [n["type"] for n in notes] == ["error"] * 5
+    assert [n["in"] for n in notes] == ["params", "scene", "model", "gaze_source", "params"]
+    assert "cannot be set remotely" in notes[-1]["message"]
     assert session.state() == before
 
     _, notes = session.tick(0.0, [(Viewport(1000, 1000), 0.0), (Reset(), 0.0)])

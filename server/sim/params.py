@@ -241,3 +241,17 @@ OURS = frozenset(
         "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     }
 )  # fmt: skip
+#: Parameters that name a file on the server. A change that comes over the network may keep
+#: their value or set the default (""), never a path: a viewer must not make the server read
+#: its files. Set them with `gazehdr serve --params PRESET.json`.
+SERVER_FILES = frozenset({"mikamo_sequence"})
+
+
+def check_remote_change(current: Params, values: dict[str, Any]) -> None:
+    """Refuse a change from a client that would point a file parameter somewhere new."""
+    for name in sorted(SERVER_FILES & set(values)):
+        if values[name] not in ("", getattr(current, name)):
+            raise ValueError(
+                f"{name} names a file on the server and cannot be set remotely; "
+                "start the server with --params PRESET.json instead"
+            )
