@@ -26,7 +26,7 @@ from pathlib import Path
 
 from drivers.samples import GazePoint, GazeTrack
 from drivers.sessionlog import read_session_track
-from drivers.synthetic import FixedGaze, SyntheticScanPath
+from drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath
 
 _TRUE = {"1", "true", "yes"}
 _FALSE = {"0", "false", "no"}
@@ -103,10 +103,12 @@ FILE_TRACKS: dict[str, Callable[[Path], GazeTrack]] = {
 def open_track(spec: str, *, seed: int = 0, duration: float = 60.0) -> GazeTrack:
     """The track a gaze spec names: `synthetic`, `fixed`, `X,Y` (normalised) or a file path.
 
-    `seed` and `duration` configure the synthetic scan path and are ignored otherwise.
+    `seed` and `duration` configure the synthetic scan path and are ignored otherwise. Like a
+    recorded session, the scan path is followed from fixation to fixation (SPEC §4): a
+    saccade does not sweep the retina.
     """
     if spec == "synthetic":
-        return SyntheticScanPath(seed=seed, duration=duration)
+        return FixationView(SyntheticScanPath(seed=seed, duration=duration))
     if spec == "fixed":
         return FixedGaze()
     point = _POINT.fullmatch(spec)

@@ -64,7 +64,7 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         "--gaze",
         default="synthetic",
         metavar="SPEC",
-        help="synthetic (seeded scan path), fixed (centre), X,Y (normalised point) or a "
+        help="synthetic (seeded scan path, fixation to fixation), fixed (centre), X,Y (normalised point) or a "
         "CSV file of t,x,y[,eyes_open] rows (default: synthetic)",
     )
     p.add_argument("--seconds", type=float, default=6.0, help="duration (default: 6)")

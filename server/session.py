@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.synthetic import FixationView
 from drivers.tracks import open_track
 from server.protocol import (
     SIM_OUTPUT,
@@ -377,8 +376,7 @@ class Session:
             return True
         if self.gaze_source == "synthetic" and self._track is None:
             seed = self.settings.seed
-            path = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
-            self._track = FixationView(path)  # follow fixations, not saccades
+            self._track = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
             self._track_start = 0.0
         if self._track is None:
             return False

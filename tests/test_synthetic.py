@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drivers.samples import GazePoint, GazeSample, GazeTrack, ScreenGeometry
-from drivers.synthetic import FixedGaze, SyntheticScanPath, peak_velocity
+from drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath, peak_velocity
 from drivers.tracks import CsvGazeTrack, open_track
 
 RATE_HZ = 2000.0  # dense enough that finite differences resolve a 25 ms saccade's peak
@@ -249,10 +249,9 @@ def test_csv_errors_name_file_and_line(tmp_path: Path, text: str, message: str) 
 
 
 def test_open_track_specs(tmp_path: Path) -> None:
-    assert isinstance(open_track("synthetic", seed=3, duration=5), SyntheticScanPath)
-    assert (
-        open_track("synthetic", seed=3, duration=5).fixations == SyntheticScanPath(3, 5).fixations
-    )
+    synthetic = open_track("synthetic", seed=3, duration=5)
+    assert isinstance(synthetic, FixationView)  # render and viewer follow fixations alike
+    assert synthetic.path.fixations == SyntheticScanPath(3, 5).fixations
     assert open_track("fixed") == FixedGaze(0.5, 0.5)
     assert open_track(" 0.25, .75 ") == FixedGaze(0.25, 0.75)
     csv = tmp_path / "g.CSV"
