@@ -64,8 +64,9 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         "--gaze",
         default="synthetic",
         metavar="SPEC",
-        help="synthetic (seeded scan path, fixation to fixation), fixed (centre), X,Y (normalised point) or a "
-        "CSV file of t,x,y[,eyes_open] rows (default: synthetic)",
+        help="synthetic (seeded scan path, fixation to fixation), fixed (centre), X,Y "
+        "(normalised point), a CSV of t,x,y[,eyes_open] rows or a session log .jsonl "
+        "(default: synthetic)",
     )
     p.add_argument("--seconds", type=float, default=6.0, help="duration (default: 6)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
