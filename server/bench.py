@@ -25,6 +25,7 @@ from server.sim.layout import (
     acuity_increments,
     gaussian_taps,
 )
+from server.sim.models import Models, each_beside_default
 from server.sim.reference import adaptation_window
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
@@ -226,6 +227,37 @@ def _bench_size(
     return result
 
 
+def _bench_models(
+    width: int, height: int, frames: int, scene_name: str, dt: float, models: list[Models]
+) -> dict[str, float]:
+    """Live-step ms per model: one simulator each, stepped in turn on the same scene and gaze
+    path, so that a shared machine's drift hits every model alike."""
+    from server.scenes import open_scene
+
+    scene = open_scene(scene_name).render(0.0, width, height)
+    sims = {}
+    for m in models:
+        sims[str(m)] = Simulator(
+            width, height, backend="opencl", seed=0, afterimage=m.afterimage, acuity=m.acuity
+        )
+        sims[str(m)].load_scene(scene)
+    times: dict[str, list[float]] = {name: [] for name in sims}
+    for i in range(frames + 2):
+        gaze = (width * (0.3 + 0.2 * (i % 3)), height * (0.4 + 0.2 * (i % 2)))
+        eyes_open = i % 8 != 7  # now and then a closed-eye frame, as in a blink
+        for name, sim in sims.items():
+            t0 = time.perf_counter()
+            sim.step(dt, gaze=gaze, eyes_open=eyes_open, output="rgb10a2")
+            times[name].append(time.perf_counter() - t0)
+    return {name: statistics.median(v[2:]) * 1000 for name, v in times.items()}
+
+
+def _parse_models(text: str) -> list[Models]:
+    if text == "all":
+        return each_beside_default()
+    return [Models.parse(spec) for spec in text.split(",")]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="gazehdr bench", description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=10, help="timed frames per size (default 10)")
@@ -238,8 +270,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--half", action="store_true", help="compose to float16, as frames sent as f16 are"
     )
+    ap.add_argument(
+        "--models",
+        metavar="LIST",
+        help="instead of the stage table, time a live step of each model, e.g. "
+        "'jacobs,ritschel,jacobs+thompson', or 'all' (each baseline beside the default)",
+    )
     args = ap.parse_args(argv)
-    if not args.opencl_only:
+    models = None
+    if args.models:
+        try:
+            models = _parse_models(args.models)
+        except ValueError as e:
+            ap.error(str(e))
+    if not args.opencl_only and models is None:
         try:
             import cv2  # noqa: F401
         except ImportError:
@@ -253,6 +297,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError:
         ap.error(f"--sizes must look like 640x360,1280x720, got {args.sizes!r}")
     for width, height in sizes:
+        if models is not None:
+            ms = _bench_models(width, height, args.frames, args.scene, args.dt, models)
+            base = ms[str(models[0])]
+            print(f"\n{width}x{height}  scene={args.scene}  live step, rgb10a2 out")
+            print(f"  {'model':<22}{'ms':>9}{'fps':>8}{'× ' + str(models[0]):>26}")
+            for name, t in ms.items():
+                print(f"  {name:<22}{t:>9.2f}{1000 / t:>8.1f}{t / base:>26.2f}")
+            continue
         r = _bench_size(
             width, height, args.frames, args.scene, args.dt, not args.opencl_only, args.half
         )

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
 from server.bench import main
+from server.sim.models import each_beside_default
 
 
 def test_bench_prints_stages_ratios_and_agrees(capsys) -> None:
@@ -22,3 +25,16 @@ def test_bench_prints_stages_ratios_and_agrees(capsys) -> None:
         assert lo <= ratio <= hi, (stage, cl_ms, cv_ms, ratio)
     diff = float(re.search(r"mean \|v_OpenCL - v_OpenCV\| = ([\d.e+-]+)", out).group(1))
     assert diff < 0.01  # the same work on both sides (edge sampling differs slightly)
+
+
+def test_bench_times_each_model_beside_the_default(capsys) -> None:
+    assert main(["--frames", "1", "--sizes", "64x48", "--models", "all"]) == 0
+    out = capsys.readouterr().out
+    for m in each_beside_default():
+        row = re.search(rf"^\s+{re.escape(str(m))}\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.M)
+        assert row, f"no row for {m}:\n{out}"
+        ms, fps, ratio = map(float, row.groups())
+        assert ms > 0 and abs(fps - 1000 / ms) < 0.1 * fps + 0.1
+        assert ratio == 1.0 if m == each_beside_default()[0] else ratio > 0
+    with pytest.raises(SystemExit):
+        main(["--models", "jacobs+sharp"])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from server.sim import Params, Simulator
-from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
+from server.sim.models import Models, each_beside_default
 
 W, H = 96, 54
 BACKENDS = ["reference", "opencl"]
@@ -37,11 +37,7 @@ def scenes() -> dict[str, np.ndarray]:
 
 
 #: Every model beside the default, each with the other stage at its default.
-MODELS = (
-    [("jacobs", "stochastic")]
-    + [(a, "stochastic") for a in AFTERIMAGE_MODELS if a != "jacobs"]
-    + [("jacobs", q) for q in ACUITY_MODELS if q != "stochastic"]
-)
+MODELS = [(m.afterimage, m.acuity) for m in each_beside_default()]
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

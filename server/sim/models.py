@@ -121,6 +121,16 @@ class Models:
         return f"{self.afterimage}+{self.acuity}"
 
 
+def each_beside_default() -> list[Models]:
+    """The default, then every other model of each stage with the other stage at its default:
+    the set that comparisons (tests, benchmarks) run."""
+    return (
+        [Models()]
+        + [Models(a, "stochastic") for a in AFTERIMAGE_MODELS if a != "jacobs"]
+        + [Models("jacobs", q) for q in ACUITY_MODELS if q != "stochastic"]
+    )
+
+
 def _load(path: str) -> type:
     module, _, name = path.partition(":")
     return getattr(importlib.import_module(module), name)
