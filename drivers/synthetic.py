@@ -64,6 +64,11 @@ class PlannedSaccade:
     y1: float
     amplitude_deg: float
 
+    def position(self, t: float) -> tuple[float, float]:
+        u = min(max((t - self.start) / (self.end - self.start), 0.0), 1.0)
+        s = u * u * u * (10.0 + u * (-15.0 + 6.0 * u))  # minimum jerk
+        return self.x0 + s * (self.x1 - self.x0), self.y0 + s * (self.y1 - self.y0)
+
 
 @dataclass(frozen=True)
 class PlannedBlink:
@@ -89,21 +94,6 @@ class _Fixating:
             for axis in self.drift
         )
         return self.x + dx, self.y + dy
-
-
-@dataclass(frozen=True)
-class _Saccade:
-    start: float
-    end: float
-    x0: float
-    y0: float
-    x1: float
-    y1: float
-
-    def position(self, t: float) -> tuple[float, float]:
-        u = min(max((t - self.start) / (self.end - self.start), 0.0), 1.0)
-        s = u * u * u * (10.0 + u * (-15.0 + 6.0 * u))  # minimum jerk
-        return self.x0 + s * (self.x1 - self.x0), self.y0 + s * (self.y1 - self.y0)
 
 
 def _check_range(name: str, value: tuple[float, float]) -> None:
@@ -238,9 +228,9 @@ class SyntheticScanPath:
         drift_deg: float,
         blink_interval_s: tuple[float, float],
         blink_duration_s: tuple[float, float],
-    ) -> list[_Fixating | _Saccade]:
+    ) -> list[_Fixating | PlannedSaccade]:
         """Fixations, saccades and blinks in one pass; fills the ground-truth lists."""
-        segments: list[_Fixating | _Saccade] = []
+        segments: list[_Fixating | PlannedSaccade] = []
         due = float(blink_rng.uniform(*blink_interval_s)) if blink_rng else math.inf
         t, x, y = 0.0, 0.5, 0.5  # start on a central fixation cross, as experiments do
         while True:
@@ -266,8 +256,9 @@ class SyntheticScanPath:
             x, y = tx, ty
             amplitude = math.hypot(*self.geometry.norm_to_deg(x - x0, y - y0))
             length = self.saccade_duration(amplitude)
-            segments.append(_Saccade(t, t + length, x0, y0, x, y))
-            self.saccades.append(PlannedSaccade(t, t + length, x0, y0, x, y, amplitude))
+            saccade = PlannedSaccade(t, t + length, x0, y0, x, y, amplitude)
+            segments.append(saccade)
+            self.saccades.append(saccade)
             t += length
 
     def _drift(

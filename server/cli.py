@@ -57,6 +57,22 @@ def _add_model_options(p: argparse.ArgumentParser, whose: str) -> None:
 # --- render -----------------------------------------------------------------------------------
 
 
+def _add_size_and_backend(p: argparse.ArgumentParser, size: tuple[int, int], what: str) -> None:
+    p.add_argument(
+        "--size",
+        type=_size,
+        default=size,
+        metavar="WxH",
+        help=f"{what} (default: {size[0]}x{size[1]})",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("opencl", "reference"),
+        default="opencl",
+        help="PyOpenCL kernels or the NumPy reference (default: opencl)",
+    )
+
+
 def _configure_render(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", metavar="SCENE", help="built-in scene name or EXR file")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
@@ -70,21 +86,9 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seconds", type=float, default=6.0, help="duration (default: 6)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
-    p.add_argument(
-        "--size",
-        type=_size,
-        default=(640, 360),
-        metavar="WxH",
-        help="frame size (default: 640x360)",
-    )
+    _add_size_and_backend(p, (640, 360), "frame size")
     p.add_argument(
         "--seed", type=int, default=0, help="seeds noise, dither and scan path (default: 0)"
-    )
-    p.add_argument(
-        "--backend",
-        choices=("opencl", "reference"),
-        default="opencl",
-        help="PyOpenCL kernels or the NumPy reference (default: opencl)",
     )
     _add_model_options(p, "")
     p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
@@ -280,19 +284,7 @@ def _figure_numbers(text: str) -> list[int]:
 
 def _configure_figures(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="directory for PNGs and index.html")
-    p.add_argument(
-        "--size",
-        type=_size,
-        default=(320, 180),
-        metavar="WxH",
-        help="frame size of the simulations (default: 320x180)",
-    )
-    p.add_argument(
-        "--backend",
-        choices=("opencl", "reference"),
-        default="opencl",
-        help="PyOpenCL kernels or the NumPy reference (default: opencl)",
-    )
+    _add_size_and_backend(p, (320, 180), "frame size of the simulations")
     p.add_argument(
         "--only",
         type=_figure_numbers,
