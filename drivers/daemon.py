@@ -18,7 +18,9 @@ one asyncio loop:
   once: a sample may arrive twice across a reconnect, never not at all unless counted dropped);
 - the same echoes estimate the clock offset to the server: offset = server_ns − (t0 + t1)/2 with
   uncertainty RTT/2, keeping the estimate with the smallest RTT among the last `clock_window`
-  echoes; it is reported in `stats` and written to the session log as `clock` records;
+  echoes of the current connection (a reconnect may reach a restarted or rebooted server,
+  whose monotonic clock is another); it is reported in `stats` and written to the session log
+  as `clock` records;
 - a lost connection is retried with exponential back-off (`backoff`); a refused token (close
   code 4401) is fatal: `UnauthorizedError`, no retry.
 
@@ -61,6 +63,7 @@ DEFAULT_RATE_HZ = 1900.0  # what the daemon sends at most: below the limit, with
 DEFAULT_BURST = 1000.0  # below the server's burst of 4000
 DEFAULT_BUFFER = 20_000  # items (samples and events): 10 s of a 2000 Hz tracker
 _RATE_NOTE = re.compile(r"rate limit: (\d+) samples dropped")
+_WIRE_TIMES = range(2**63)  # what a wire `t` may be (drivers.wire._int); the server refuses others
 
 
 class DaemonError(RuntimeError):
@@ -142,7 +145,8 @@ class DaemonStats:
     samples_undelivered: int = 0  # still buffered when the daemon gave up draining
     events_undelivered: int = 0
     resent: int = 0  # items sent again after a connection died unacknowledged
-    events_unsendable: int = 0  # fixation events without a position (some imports)
+    samples_unsendable: int = 0  # times the wire cannot carry (negative: some imports)
+    events_unsendable: int = 0  # the same, or fixation events without a position
     server_rate_limited: int = 0  # samples the server said it dropped (should stay 0)
     connects: int = 0
     disconnects: int = 0
@@ -162,7 +166,16 @@ class DaemonStats:
             f"{self.samples_produced} samples, {self.events_produced} events from the source; "
             f"delivered {self.samples_delivered} samples, {self.events_delivered} events; "
             f"dropped {self.samples_dropped} samples, {self.events_dropped} events "
-            f"(buffer full){self._undelivered()}; {self.connects} connection(s); {clock}"
+            f"(buffer full){self._undelivered()}{self._unsendable()}; "
+            f"{self.connects} connection(s); {clock}"
+        )
+
+    def _unsendable(self) -> str:
+        if not (self.samples_unsendable or self.events_unsendable):
+            return ""
+        return (
+            f"; {self.samples_unsendable} samples, {self.events_unsendable} events not sendable "
+            "(recorded only)"
         )
 
     def _undelivered(self) -> str:
@@ -199,7 +212,11 @@ def _fraction(value: float, size: int) -> float:
 
 
 def _to_wire(item: Any, info: SourceInfo) -> wire.Sample | wire.Event | None:
+    """The wire form of a sample or event, or None where the server would refuse it: a message
+    it refuses is still acknowledged by the next echo, so it must never be sent."""
     w, h = info.geometry.screen_width_px, info.geometry.screen_height_px
+    if int(item.t_ns) not in _WIRE_TIMES:
+        return None
     if isinstance(item, GazeSample):
         if item.valid:
             return wire.Sample(int(item.t_ns), _fraction(item.x, w), _fraction(item.y, h), True)
@@ -549,6 +566,7 @@ class Daemon:
         self.stats.connects += 1
         self.connected = True
         self._marks.clear()
+        self.clock = ClockEstimator(self.clock.window.maxlen or 1)  # maybe another server clock
         self._bucket = TokenBucket(self.max_rate, self.burst)
         self._last_echo = 0.0
         log.info("connected to %s as %r", self.url, self.info.name)
@@ -678,17 +696,21 @@ class Daemon:
                     items.append(queue.popleft())
                 if queue is self._unsent:
                     self._pending_samples -= len(items)
-                self._bucket.take(len(items))
-                message = wire.Samples(tuple(_to_wire(s, self.info) for s in items))
-                self._track(items)
-                await ws.send(wire.dumps(message))
-                self.stats.samples_sent += len(items)
-                self.stats.sent_times.append((time.monotonic(), len(items)))
+                wired = [(s, _to_wire(s, self.info)) for s in items]
+                sendable = [(s, m) for s, m in wired if m is not None]
+                self._count_unsendable(len(items) - len(sendable), 0)
+                if not sendable:
+                    continue
+                self._bucket.take(len(sendable))
+                self._track([s for s, _ in sendable])
+                await ws.send(wire.dumps(wire.Samples(tuple(m for _, m in sendable))))
+                self.stats.samples_sent += len(sendable)
+                self.stats.sent_times.append((time.monotonic(), len(sendable)))
             else:
                 item = queue.popleft()
                 message = _to_wire(item, self.info)
                 if message is None:
-                    self.stats.events_unsendable += 1
+                    self._count_unsendable(0, 1)
                     continue
                 self._track([item])
                 await ws.send(wire.dumps(message))
@@ -704,6 +726,17 @@ class Daemon:
             self._last_echo = now
             await ws.send(wire.dumps(wire.Echo(t0)))
         return limited
+
+    def _count_unsendable(self, samples: int, events: int) -> None:
+        if not (samples or events):
+            return
+        if not (self.stats.samples_unsendable or self.stats.events_unsendable):
+            log.warning(
+                "not sending records the server would refuse (a negative time, or a fixation "
+                "without a position); they are counted, and recorded if --record is given"
+            )
+        self.stats.samples_unsendable += samples
+        self.stats.events_unsendable += events
 
     def _track(self, items: list[Any]) -> None:
         for item in items:

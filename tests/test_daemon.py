@@ -315,3 +315,80 @@ def test_a_flood_is_paced_below_the_limit_without_harming_a_viewer(live_server, 
     for i, (t, _) in enumerate(sent):  # within any second: at most burst + rate
         assert sum(k for u, k in sent[i:] if u - t < 1.0) <= 1000 + 1900 + 50
     assert flooded > 0.7 * quiet, (quiet, flooded)
+
+
+def test_times_the_wire_cannot_carry_are_not_sent_nor_counted_delivered(
+    live_server, received, tmp_path
+) -> None:
+    """An imported log may start before 0 (BIDS StartTime < 0). The server refuses a batch with
+    a negative `t`, yet the next echo acknowledges it: such samples must never be sent."""
+    server = live_server(token="t")
+    samples = [GazeSample((i - 30) * 4_000_000, 960.0 + i, 540.0) for i in range(100)]
+    log = _write_log(tmp_path / "early.jsonl", samples)
+    stats = run(run_daemon(ReplaySource(log, speed=math.inf), server.ws_url, "t", detector=None))
+    sendable = [s.t_ns for s in samples if s.t_ns >= 0]
+    assert [t for _, batch in received for t in batch] == sendable  # every one, in order
+    assert server.hub.remote.samples == stats.samples_delivered == len(sendable) == 70
+    assert stats.samples_unsendable == 30 and stats.samples_undelivered == 0
+    assert "30 samples, 0 events not sendable" in stats.summary()
+
+
+def test_a_reconnect_forgets_the_old_servers_clock(live_server, monkeypatch, tmp_path) -> None:
+    """A rebooted server has another monotonic clock: echoes of the old one must not stand in
+    for it, even those with a smaller round trip."""
+    shift = 5_000_000_000
+    first = live_server(token="t")
+    original = app_module._GazeLink.handle
+
+    def handle(self, msg, now):  # the restarted server: its clock 5 s ahead, echoes slower
+        reply = original(self, msg, now)
+        if isinstance(msg, wire.Echo) and self.hub is not first.hub:
+            time.sleep(0.01)
+            return wire.EchoReply(reply.t0_ns, reply.server_ns + shift)
+        return reply
+
+    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    config = ServerConfig(
+        token="t",
+        session=SessionSettings(width=160, height=96, fps=20.0),
+        data_dir=tmp_path / "data2",
+        session_grace_s=0.0,
+    )
+    record = tmp_path / "rec.jsonl"
+    daemon = Daemon(
+        SyntheticSource(5, 500.0),
+        first.ws_url,
+        "t",
+        record=record,
+        backoff=(0.05, 0.2),
+        drain_timeout=5.0,
+        clock_window=100_000,  # nothing slides out during the test: only a reset can help
+    )
+    second: list[ServerOnPort] = []
+
+    async def scenario():
+        task = asyncio.create_task(daemon.run())
+        await until(lambda: daemon.stats.samples_delivered >= 200, what="first deliveries")
+        before = daemon.stats.clock
+        await asyncio.to_thread(first.stop)
+        await until(lambda: not daemon.connected, what="the daemon to notice")
+        second.append(await asyncio.to_thread(ServerOnPort, config, first.port))
+        await until(lambda: daemon.stats.connects == 2, what="the reconnect")
+        await until(
+            lambda: daemon.stats.clock.offset_ns > shift / 2, timeout=5.0, what="the new clock"
+        )
+        await asyncio.sleep(1.2)  # one more clock record (they are written at most 1/s)
+        daemon.stop()
+        return before, await task
+
+    try:
+        before, stats = run(scenario())
+    finally:
+        for s in second:
+            s.stop()
+    assert abs(before.offset_ns) <= before.uncertainty_ns + 1_000  # one host, one clock
+    after = stats.clock
+    assert after.rtt_ns >= 10_000_000 > before.rtt_ns
+    assert abs(after.offset_ns - shift) <= after.uncertainty_ns + 1_000
+    clocks = read_session_log(record).clocks
+    assert abs(clocks[0].offset_ns) < shift / 2 and abs(clocks[-1].offset_ns - shift) < shift / 2

@@ -157,6 +157,26 @@ def test_eyelink_binocular_2000hz_fractional_times() -> None:
     assert log.header.tracker["eyes"] == ["left", "right"]
 
 
+def test_eyelink_2000hz_without_ftime_and_message_offsets() -> None:
+    """Manual §4.9.2: the second row of a 2000 Hz time stamp is 0.5 ms later; a message that
+    begins with an integer happened that many ms before its time stamp (SR Research FAQ)."""
+    log = read_eyelink_asc(DATA / "eyelink_2000hz.asc")
+    assert xyv(log) == [
+        (7_000_010_000_000, 500.0, 400.0, True),
+        (7_000_010_500_000, 500.5, 400.5, True),
+        (7_000_011_000_000, 501.0, 401.0, True),
+        (7_000_011_500_000, 501.5, 401.5, True),
+        (7_000_012_000_000, None, None, False),
+        (7_000_012_500_000, 502.5, 402.5, True),
+        (7_000_013_000_000, None, None, False),  # END
+    ]
+    assert log.notes == [
+        Note(7_000_000_000_000, "DISPLAY_COORDS 0 0 1023 767"),
+        Note(7_000_002_000_000, "stimulus onset"),  # 10 ms before its stamp: sorted first
+        Note(7_000_015_000_000, "!V IMGLOAD CENTER scene.png 512 384"),  # -4: 4 ms after
+    ]
+
+
 def test_eyelink_gaze_coords_offset_and_prescaler(tmp_path: Path) -> None:
     text = (
         "MSG\t100 GAZE_COORDS 10.00 20.00 1289.00 1043.00\n"
@@ -459,6 +479,28 @@ def test_bids_timestamp_unit_inferred_and_bottom_left(tmp_path: Path) -> None:
     with pytest.raises(FormatError, match="fits none of s, ms, us, ns") as info:
         read_bids(root / f"{EYE1}.tsv.gz")
     assert info.value.field == "timestamp.Units"
+
+
+def test_bids_implicit_indexing_by_zero_based_foreign_index(tmp_path: Path) -> None:
+    """The specification's implicit indexing: no ForeignIndexColumn, a `foreign_index` column
+    holding the zero-based physio row, negative before the first (at SamplingFrequency)."""
+    root = bids_copy(tmp_path)
+    side = root / "task-freeview_physioevents.json"
+    data = json.loads(side.read_text())
+    del data["OnsetSource"]
+    data["Columns"] = ["foreign_index", "duration", "trial_type", "blink", "message"]
+    data["duration"] = {"Units": "ms"}
+    side.write_text(json.dumps(data))
+    for eye in (EYE1, EYE2):
+        with gzip.open(root / f"{eye}events.tsv.gz", "wt") as f:
+            f.write("-2\tn/a\tn/a\tn/a\tReady\n0\t4\tfixation\t0\tn/a\n3\tn/a\tn/a\tn/a\tend\n")
+    log = read_bids(root / f"{EYE1}.tsv.gz")
+    ms = 1_000_000
+    assert log.notes == [Note(7186795 * ms, "Ready"), Note(7186805 * ms, "end")]  # 500 Hz
+    assert [(e.kind, e.t_ns, e.eye) for e in log.events if e.eye == "left"] == [
+        ("fixation_start", 7186799 * ms, "left"),  # row 0: the first sample
+        ("fixation_end", 7186803 * ms, "left"),
+    ]
 
 
 @pytest.mark.parametrize(

@@ -20,10 +20,13 @@ What the files are:
   `EnvironmentCoordinates`, and per column a `Units`. Sidecars are inherited: a
   `task-x_physio.json` at the dataset root applies to every file whose entities include its
   own, the more specific file winning (BIDS inheritance principle).
-- `<matches>_recording-<label>_physioevents.tsv.gz` + `.json`: columns `onset` (required),
-  `duration`, `trial_type`, `message`, ... With `ForeignIndexColumn` (or `OnsetSource`, as in
-  the example dataset) naming the physio file's `timestamp` column, `onset` is in that
-  column's units; without it, `onset` is the one-based row number of the physio file.
+- `<matches>_recording-<label>_physioevents.tsv.gz` + `.json`: columns `onset`, `duration`,
+  `trial_type`, `message`, ... With `ForeignIndexColumn` (or `OnsetSource`, as in the example
+  dataset) naming the physio file's `timestamp` column, the events' column of that name (the
+  specification's "Explicit indexing"), or `onset` (eye2bids), is in that column's units.
+  Without it, a `foreign_index` column is the zero-based row of the physio file, negative
+  before its first row (the specification's "Implicit indexing"); lacking one, `onset` is
+  taken as the one-based row.
 - The screen: `StimulusPresentation` (`ScreenResolution` px, `ScreenSize`, `ScreenDistance`)
   in the sidecars or in the task's `_events.json`.
 
@@ -91,6 +94,7 @@ from drivers.sessionlog import (
 
 UNITS_NS = {"s": 10**9, "ms": 10**6, "us": 10**3, "µs": 10**3, "μs": 10**3, "ns": 1}
 NA = "n/a"
+_ROW = "foreign_index"  # implicit indexing: the zero-based row of the physio file
 _ENTITY = re.compile(r"[a-zA-Z0-9]+-[a-zA-Z0-9]+")
 _EVENT_COLUMNS = [
     "onset",
@@ -493,9 +497,18 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
         side = _sidecar(path, "physioevents", r.entities)
         sidecar_path = path.with_name(path.name.split(".", 1)[0] + ".json")
         columns = side.get("Columns")
-        if not isinstance(columns, list) or "onset" not in columns:
-            raise FormatError(sidecar_path, None, "Columns", "required, with an 'onset' column")
         index = side.get("ForeignIndexColumn") or side.get("OnsetSource")
+        if index:  # the spec names the events' column after it; eye2bids calls it onset
+            when = index if isinstance(columns, list) and index in columns else "onset"
+        else:  # implicit indexing: foreign_index, the zero-based physio row
+            when = "foreign_index" if isinstance(columns, list) and _ROW in columns else "onset"
+        if not isinstance(columns, list) or when not in columns:
+            raise FormatError(
+                sidecar_path,
+                None,
+                "Columns",
+                "required, with an 'onset' or 'foreign_index' column (or the ForeignIndexColumn)",
+            )
         if index is not None and index != "timestamp":
             raise FormatError(
                 sidecar_path, None, "ForeignIndexColumn", f"{index!r}; supported: timestamp"
@@ -516,16 +529,17 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
         duration_unit = UNITS_NS[duration_units] if duration_units else onset_unit or 10**9
         sample_times = [s.t_ns for s in log.samples] if not index else []
         file_eye = r.eye if r.eye in ("left", "right") else None
+        first_row = 0 if when == _ROW else 1
         for line, row in _rows(path, columns):
-            onset_text = row["onset"]
+            onset_text = row[when]
             try:
                 if onset_unit is not None:
                     t = decimal_ns(onset_text, onset_unit)
                 else:
-                    t = _row_time(decimal_ns(onset_text, 1), sample_times, r.fs)
+                    t = _row_time(decimal_ns(onset_text, 1) + 1 - first_row, sample_times, r.fs)
             except ValueError:
                 raise FormatError(
-                    path, line, "onset", f"expected a number, got {onset_text!r}"
+                    path, line, when, f"expected a number, got {onset_text!r}"
                 ) from None
             duration = None
             if row.get("duration", NA) not in (NA, ""):
@@ -577,7 +591,7 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
 
 
 def _row_time(row: int, sample_times: list[int], fs: float | None) -> int:
-    """Implicit indexing: one-based row number of the physio file → its time."""
+    """A one-based row number of the physio file (beyond it: at SamplingFrequency) → its time."""
     if 1 <= row <= len(sample_times):
         return sample_times[row - 1]
     if not sample_times or fs is None:

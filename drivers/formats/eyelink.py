@@ -16,7 +16,10 @@ and checked against the column layout the `eyelinker` R package derives from the
   <ypl> <psl> <xpr> <ypr> <psr> ...`; velocity, resolution, input, CR flags and remote-mode
   columns may follow and are ignored. A missing value is `.` (or the string given to `edf2asc
   -miss`, our `missing`). Times are milliseconds on the tracker clock, possibly with a
-  fraction (`-ftime`, 2000 Hz): we keep them exactly, as integer ns (ms × 10⁶).
+  fraction (`-ftime`, 2000 Hz): we keep them exactly, as integer ns (ms × 10⁶). Without
+  `-ftime` a 2000 Hz file has two consecutive rows per time stamp, "the second row refers to
+  the sample collected at 0.5 ms after the reported time stamp" (manual §4.9.2): it gets
+  that time.
 - Position values are divided by `PRESCALER` (always 1 for EDF2ASC) and shifted so that the
   screen's top-left is 0, 0.
 - Validity: a monocular sample is valid when x and y are present; a binocular one when either
@@ -28,9 +31,13 @@ and checked against the column layout the `eyelinker` R package derives from the
   the gaze averages follow three HREF columns. `SBLINK`/`EBLINK` become `blink_start` /
   `blink_end`. Events keep their eye; a fixation's or blink's start and end share an id. An
   end whose start is missing (`edf2asc -nse`) gets a start at its `<stime>`.
-- `MSG <time> <message>` becomes a note. The screen comes from the `GAZE_COORDS <left> <top>
-  <right> <bottom>` message (the space gaze positions are in; width = right − left + 1), else
-  from `DISPLAY_COORDS`; the file records no physical size or distance (`geometry` gives them).
+- `MSG <time> <message>` becomes a note. A message that begins with an integer carries a
+  time offset (SR Research FAQ "How can I take advantage of the timing offset in sending
+  messages?", sr-research.com/support/thread-170; EyeLink Data Viewer and Experiment Builder
+  write them): the event happened at `<time> − offset`, and the note holds the rest. The
+  screen comes from the `GAZE_COORDS <left> <top> <right> <bottom>` message (the space gaze
+  positions are in; width = right − left + 1), else from `DISPLAY_COORDS`; the file records
+  no physical size or distance (`geometry` gives them).
 - `START`/`END` delimit recording blocks; at each `END` an invalid sample is added, so a replay
   does not hold a stale gaze through the unrecorded gap before the next block.
 """
@@ -53,6 +60,8 @@ from drivers.sessionlog import (
 )
 
 _MS = 1_000_000
+_HALF_MS = _MS // 2  # the second sample of a 2000 Hz time stamp (manual §4.9.2)
+_OFFSET = re.compile(r"(-?\d+)\s+(\S.*)")
 _EYE = {"L": "left", "R": "right"}
 _COORDS = re.compile(r"\b(DISPLAY_COORDS|GAZE_COORDS)\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)")
 _PREAMBLE = {
@@ -90,6 +99,7 @@ class _Parser:
         self.open: dict[tuple[str, str], int] = {}
         self.next_id = {"fixation": 1, "blink": 1}
         self.block_samples = 0
+        self.last_stamp: str | None = None  # the previous sample's time text, for 2000 Hz pairs
 
     def error(self, line: int, field: str | None, reason: str) -> FormatError:
         return FormatError(self.path, line, field, reason)
@@ -195,6 +205,9 @@ class _Parser:
                 f"{', '.join(names)}; this line has {len(tokens)} fields",
             )
         t = self.time(number, tokens[0])
+        if tokens[0] == self.last_stamp and "." not in tokens[0]:
+            t += _HALF_MS  # the second row of a 2000 Hz time stamp without -ftime
+        self.last_stamp = None if tokens[0] == self.last_stamp else tokens[0]
         if self.samples and t < self.samples[-1].t_ns:
             raise self.error(number, "time", f"{tokens[0]} ms goes back in time")
         values = [
@@ -223,6 +236,10 @@ class _Parser:
             raise self.error(number, "time", "MSG needs a time")
         t = self.time(number, parts[1])
         body = parts[2] if len(parts) > 2 else ""
+        offset = _OFFSET.fullmatch(body)
+        if offset:  # "MSG <time> <offset> <text>": the event was at time - offset
+            t -= int(offset[1]) * _MS
+            body = offset[2]
         self.notes.append(Note(t, body))
         match = _COORDS.search(body)
         if match:
@@ -313,5 +330,5 @@ class _Parser:
         )
         log = SessionLog(header, self.samples, path=self.path)
         log.events = sorted(self.events, key=lambda e: e.t_ns)
-        log.notes = self.notes
+        log.notes = sorted(self.notes, key=lambda n: n.t_ns)
         return log
