@@ -99,6 +99,11 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         help="cd/m^2 per EXR pixel unit, overriding the file's whiteLuminance",
     )
     p.add_argument("--exr", action="store_true", help="also write undithered float32 EXR")
+    p.add_argument(
+        "--video",
+        action="store_true",
+        help="also write DIR/render.apng, the frames as one lossless animated PNG",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace frames already in DIR")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -133,6 +138,7 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
         acuity=models.acuity,
         out_dir=args.out,
         exr=args.exr,
+        video=args.video,
         progress=not args.quiet,
         params=params,
         overwrite=args.overwrite,

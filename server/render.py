@@ -7,6 +7,7 @@ advances by exactly `1/fps` per frame, never by the wall clock.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass
@@ -17,14 +18,17 @@ from PIL import Image
 from tqdm import tqdm
 
 from drivers.samples import GazeTrack
+from server.apng import ApngWriter
 from server.dither import dither8
 from server.scenes import Scene
 from server.scenes.exr import write_exr
 from server.sim import Params, Simulator
 from server.sim.layout import check_frame_size
 
-#: Frame files this module writes; `overwrite` removes exactly these and nothing else.
-FRAME_PATTERNS = ("frame_*.png", "frame_*.exr")
+#: The animation `video` writes beside the frames.
+VIDEO_NAME = "render.apng"
+#: Files this module writes; `overwrite` removes exactly these and nothing else.
+FRAME_PATTERNS = ("frame_*.png", "frame_*.exr", VIDEO_NAME)
 #: zlib level for the PNGs: dithered frames barely compress, and level 1 writes them about 4x
 #: faster than Pillow's default 6 for files about a quarter larger (they are intermediates).
 PNG_COMPRESS_LEVEL = 1
@@ -86,6 +90,7 @@ def render(
     afterimage: str = "jacobs",
     acuity: str = "stochastic",
     exr: bool = False,
+    video: bool = False,
     progress: bool = True,
     params: Params | None = None,
     overwrite: bool = False,
@@ -93,8 +98,10 @@ def render(
     """Simulate `seconds` of viewing; write `frame_NNNNN.png`, the dithered 8-bit display values.
 
     With `exr`, also `frame_NNNNN.exr`: the undithered display values as float32, for analysis
-    and figures. Frame i shows the eye at t = i/fps: frame 0 is the equilibrium for the scene
-    and the first gaze, each later frame steps 1/fps towards the gaze and scene at its own t.
+    and figures. With `video`, also `render.apng`: the PNG frames as one lossless animation at
+    `fps` that browsers play (server.apng). Frame i shows the eye at t = i/fps: frame 0 is the
+    equilibrium for the scene and the first gaze, each later frame steps 1/fps towards the gaze
+    and scene at its own t.
     With `overwrite`, frames left in `out_dir` by an earlier render are removed first, so the
     directory holds one clean sequence. `afterimage` and `acuity` name the models
     (`server.sim.models`).
@@ -114,23 +121,30 @@ def render(
     dt = 1.0 / fps
 
     loaded: object = None
-    for i in tqdm(range(n), desc=scene.name, unit="frame", disable=not progress):
-        t = i / fps
-        x, y, eyes_open = track.at(t)
-        gaze = (x * width, y * height)
-        if i == 0:
-            # Settle the gaze before loading, so the eye starts in equilibrium where it looks.
-            sim.step(0.0, gaze=gaze, eyes_open=eyes_open)
-            sim.load_scene(scene.render(t, width, height), reset=True)
-            loaded = scene.state_at(t)
-        elif scene.animated and scene.state_at(t) != loaded:
-            sim.load_scene(scene.render(t, width, height), reset=False)
-            loaded = scene.state_at(t)
-        v = sim.step(dt if i else 0.0, gaze=gaze, eyes_open=eyes_open)
-        stem = out_dir / f"frame_{i:0{digits}d}"
-        Image.fromarray(dither8(v, dither_rng)).save(
-            stem.with_suffix(".png"), compress_level=PNG_COMPRESS_LEVEL
-        )
-        if exr:
-            write_exr(stem.with_suffix(".exr"), v)
+    with contextlib.ExitStack() as stack:
+        movie = None
+        if video:
+            movie = stack.enter_context(
+                ApngWriter(out_dir / VIDEO_NAME, n, fps, compress_level=PNG_COMPRESS_LEVEL)
+            )
+        for i in tqdm(range(n), desc=scene.name, unit="frame", disable=not progress):
+            t = i / fps
+            x, y, eyes_open = track.at(t)
+            gaze = (x * width, y * height)
+            if i == 0:
+                # Settle the gaze before loading, so the eye starts in equilibrium where it looks.
+                sim.step(0.0, gaze=gaze, eyes_open=eyes_open)
+                sim.load_scene(scene.render(t, width, height), reset=True)
+                loaded = scene.state_at(t)
+            elif scene.animated and scene.state_at(t) != loaded:
+                sim.load_scene(scene.render(t, width, height), reset=False)
+                loaded = scene.state_at(t)
+            v = sim.step(dt if i else 0.0, gaze=gaze, eyes_open=eyes_open)
+            stem = out_dir / f"frame_{i:0{digits}d}"
+            rgb = dither8(v, dither_rng)
+            Image.fromarray(rgb).save(stem.with_suffix(".png"), compress_level=PNG_COMPRESS_LEVEL)
+            if movie is not None:
+                movie.add(rgb)
+            if exr:
+                write_exr(stem.with_suffix(".exr"), v)
     return RenderSummary(n, out_dir, time.perf_counter() - started)

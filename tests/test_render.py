@@ -172,6 +172,41 @@ def test_cli_exr_holds_the_undithered_values(tmp_path: Path) -> None:
         assert np.isin(codes - low, (0, 1)).all()
 
 
+def test_cli_video_is_the_frames_as_one_lossless_animation(tmp_path: Path) -> None:
+    out = tmp_path / "video"
+    args = ["render", "flash", *TINY, "--fps", "24", "--seconds", "0.2", "--video"]
+    assert main([*args, "--out", str(out)]) == 0
+    frames = _frames(out)
+    assert len(frames) == 5
+    with Image.open(out / "render.apng") as movie:
+        assert movie.format == "PNG" and getattr(movie, "is_animated", False)
+        assert movie.n_frames == 5 and movie.info.get("loop") == 0
+        for k, path in enumerate(frames):
+            movie.seek(k)
+            assert movie.info["duration"] == pytest.approx(1000 / 24, abs=0.5)
+            with Image.open(path) as still:
+                np.testing.assert_array_equal(np.asarray(movie.convert("RGB")), np.asarray(still))
+    # --overwrite removes the old animation with the old frames; without it, nothing is mixed.
+    assert main([*args, "--out", str(out), "--overwrite", "--seconds", "0.1"]) == 0
+    with Image.open(out / "render.apng") as movie:
+        assert movie.n_frames == 3
+
+
+def test_apng_writer_refuses_a_short_or_ragged_animation(tmp_path: Path) -> None:
+    from server.apng import ApngWriter
+
+    frame = np.zeros((4, 6, 3), np.uint8)
+    writer = ApngWriter(tmp_path / "short.apng", frames=2, fps=30)
+    writer.add(frame)
+    with pytest.raises(ValueError, match="1 of 2 frames"):
+        writer.close()
+    with ApngWriter(tmp_path / "ragged.apng", frames=2, fps=30) as writer:
+        writer.add(frame)
+        with pytest.raises(ValueError, match="frame 1 is 5x4"):
+            writer.add(np.zeros((4, 5, 3), np.uint8))
+        writer.add(frame)
+
+
 def test_cli_reads_a_csv_gaze_track(tmp_path: Path) -> None:
     csv = tmp_path / "gaze.csv"
     csv.write_text("t,x,y,eyes_open\n0,0.2,0.5,1\n0.05,0.8,0.5,0\n")
