@@ -62,9 +62,20 @@ Windows the `hid` module uses the native backend, so it is the one used there.
 
 Unplug shows as an `OSError` from `read`: the source closes the device and reconnects with
 exponential back-off; samples already yielded stay yielded (the generator never buffers), and a
-note with the count so far is logged. Timestamps are the tracker's Sensor Timestamp in ns; a
-counter narrower than 64 bits is unwrapped, and a tracker whose clock restarts after a re-plug is
-shifted so that time keeps increasing (logged).
+note with the count so far is logged.
+
+Timestamps are host `time.monotonic_ns()`, the clock of every live source (the daemon's clock
+echo maps it to the server's). The Sensor Timestamp (a counter narrower than 64 bits unwrapped)
+gives the spacing; `TrackerClock` places it on the host clock. Each report is read at
+host = sensor + offset + latency with latency ≥ 0 (the tracker's work after stamping, USB
+polling, the OS), so the smallest host − sensor over the last `clock_window_s` (2 s) of reads is
+the offset plus the least latency in that window: a sample lands late by that least latency,
+typically well under a millisecond on USB HID at 1 kHz polling, and the spacing of samples is the
+tracker's own except where the window's minimum changes. The window, rather than all time,
+follows the drift between the two crystals: a tracker running fast is followed at once, one
+running slow by r lags by at most r · window (0.2 ms at 100 ppm). The estimate restarts after a
+re-plug and when the tracker's clock goes back (it rebooted); times are kept strictly increasing
+and never later than the read. A tracker without a Sensor Timestamp gets the host time of the read.
 """
 
 from __future__ import annotations
@@ -78,6 +89,7 @@ import math
 import os
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -636,13 +648,47 @@ class HidTracker:
 # --- the source -------------------------------------------------------------------------------
 
 
+class TrackerClock:
+    """Tracker time → host time: the sensor gives the spacing, the window's minimum the placement.
+
+    A report stamped `sensor_ns` and read at `host_ns` has host − sensor = offset + latency, the
+    latency ≥ 0 and varying; the smallest difference over the last `window_ns` of host time is
+    the offset plus the least latency in the window (a monotone deque of the candidates, O(1)
+    amortised per report). A window rather than all time follows crystal drift. The mapped time
+    is never later than its read: the current report is in the window.
+    """
+
+    def __init__(self, window_ns: int) -> None:
+        if window_ns <= 0:
+            raise ValueError(f"the clock window must be positive, got {window_ns} ns")
+        self.window_ns = window_ns
+        self._mins: deque[tuple[int, int]] = deque()  # (host ns, host − sensor), both increasing
+
+    def restart(self) -> None:
+        """Forget the offset (a re-plug, or a tracker clock that went back)."""
+        self._mins.clear()
+
+    def to_host(self, sensor_ns: int, host_ns: int) -> int:
+        d = host_ns - sensor_ns
+        mins = self._mins
+        while mins and mins[-1][1] >= d:
+            mins.pop()
+        mins.append((host_ns, d))
+        while mins[0][0] <= host_ns - self.window_ns:
+            mins.popleft()
+        return sensor_ns + mins[0][1]
+
+
 class HidGazeSource:
     """Gaze samples from a HID eye tracker, reconnecting after an unplug.
 
-    Iterate it (or call `samples()`) for `GazeSample`s: `t_ns` is the Sensor Timestamp in ns on
-    the tracker's clock, x/y are screen pixels (µm over the calibrated screen size from the
-    Configuration feature report, times the screen's size in pixels from `geometry`); a report
-    whose gaze is out of the logical range (the tracker has no gaze) gives an invalid sample.
+    Iterate it (or call `samples()`) for `GazeSample`s: `t_ns` is host monotonic ns (`clock_ns`),
+    spaced by the tracker's Sensor Timestamp and placed by the smallest host − sensor difference
+    over the last `clock_window_s` of reads (late by the least latency in that window; see the
+    module docstring and `TrackerClock`); x/y are screen pixels (µm over the calibrated screen
+    size from the Configuration feature report, times the screen's size in pixels from
+    `geometry`); a report whose gaze is out of the logical range (the tracker has no gaze) gives
+    an invalid sample.
 
     `path` picks a device (else the first with usage page 0x12), `backend` is the hidapi module
     (`hidraw` on Linux; tests pass a fake with `enumerate()` and `device()`), `mode` the Device
@@ -650,7 +696,8 @@ class HidGazeSource:
     `give_up_after_s` ends the iteration with an OSError when no tracker answered for that long
     (None: retry forever). With `open_now` (the default) the constructor opens the tracker and
     raises OSError when there is none (DescriptorError when it is not usable): only a tracker
-    that was there and went away is waited for. `sleep` and `clock` are injectable for tests.
+    that was there and went away is waited for. `sleep` and `clock` (s, for the back-off) and
+    `clock_ns` (the host clock samples are stamped with) are injectable for tests.
     `info` is a `drivers.sources.SourceInfo`; `tracker_info` what the tracker reported.
     """
 
@@ -668,6 +715,8 @@ class HidGazeSource:
         open_now: bool = True,
         sleep: Callable[[float], None] = time.sleep,
         clock: Callable[[], float] = time.monotonic,
+        clock_ns: Callable[[], int] = time.monotonic_ns,
+        clock_window_s: float = 2.0,
     ) -> None:
         self.geometry = geometry or ScreenGeometry()
         self.path = path
@@ -679,6 +728,10 @@ class HidGazeSource:
         self.give_up_after_s = give_up_after_s
         self._sleep = sleep
         self._clock = clock
+        self._clock_ns = clock_ns
+        if not (math.isfinite(clock_window_s) and clock_window_s > 0):
+            raise ValueError(f"clock_window_s must be a positive number, got {clock_window_s}")
+        self._tracker_clock = TrackerClock(round(clock_window_s * 1e9))
         self.tracker: HidTracker | None = None
         self.tracker_info: TrackerInfo | None = None
         self.samples_yielded = 0
@@ -687,7 +740,7 @@ class HidGazeSource:
         self._running = False
         self._last_raw: int | None = None
         self._wraps = 0
-        self._offset_ns = 0
+        self._last_sensor_ns: int | None = None
         self._last_t_ns: int | None = None
         if open_now:
             self.connect()
@@ -780,13 +833,11 @@ class HidGazeSource:
         um_per_px = g.screen_diagonal_m * 1e6 / diag_px
         return g.screen_width_px * um_per_px, g.screen_height_px * um_per_px
 
-    def _time_ns(self, ts: Value | None, reconnected: bool) -> int:
-        if ts is None:
-            return time.monotonic_ns() + self._offset_ns  # tracker without a Sensor Timestamp
+    def _sensor_ns(self, ts: Value) -> int:
+        """The Sensor Timestamp in ns, unwrapped when the counter is narrower than 64 bits."""
         raw = ts.raw & ((1 << ts.bits) - 1) if ts.bits < 64 else ts.raw
         if (
             self._last_raw is not None
-            and not reconnected
             and ts.bits < 64
             and self._last_raw - raw > (1 << (ts.bits - 1))
         ):
@@ -794,25 +845,33 @@ class HidGazeSource:
         self._last_raw = raw
         unwrapped = raw + (self._wraps << ts.bits) if ts.bits < 64 else raw
         scale = ts.value / ts.raw if ts.value is not None and ts.raw else 1.0
-        t_ns = round(unwrapped * scale * 1000.0) + self._offset_ns
+        return round(unwrapped * scale * 1000.0)
+
+    def _time_ns(self, ts: Value | None, host_ns: int, reconnected: bool) -> int:
+        """Host time of a report read at `host_ns`; strictly after the previous sample's."""
+        if ts is None:
+            t_ns = host_ns  # tracker without a Sensor Timestamp
+        else:
+            if reconnected:  # the tracker's clock may have restarted: anchor afresh
+                self._last_raw, self._wraps, self._last_sensor_ns = None, 0, None
+                self._tracker_clock.restart()
+            sensor_ns = self._sensor_ns(ts)
+            if self._last_sensor_ns is not None and sensor_ns < self._last_sensor_ns:
+                log.warning(
+                    "tracker clock went back by %d ns; re-anchoring it on the host clock",
+                    self._last_sensor_ns - sensor_ns,
+                )
+                self._tracker_clock.restart()
+            self._last_sensor_ns = sensor_ns
+            t_ns = self._tracker_clock.to_host(sensor_ns, host_ns)
         if self._last_t_ns is not None and t_ns <= self._last_t_ns:
-            # The tracker's clock restarted (re-plug): keep time increasing.
-            hz = (
-                self.tracker_info.sampling_hz
-                if self.tracker_info and self.tracker_info.sampling_hz
-                else 0.0
-            )
-            step = round(1e9 / hz) if hz > 0 else 1
-            shift = self._last_t_ns + step - t_ns
-            self._offset_ns += shift
-            t_ns += shift
-            log.warning("tracker clock went back; shifted by %d ns to stay monotonic", shift)
+            t_ns = self._last_t_ns + 1  # a coarse host clock, or a repeated timestamp
         self._last_t_ns = t_ns
         return t_ns
 
-    def sample(self, decoded: DecodedReport, reconnected: bool = False) -> GazeSample:
-        """The GazeSample of one decoded Tracking Data report."""
-        t_ns = self._time_ns(decoded.find(SENSOR_TIMESTAMP), reconnected)
+    def sample(self, decoded: DecodedReport, host_ns: int, reconnected: bool = False) -> GazeSample:
+        """The GazeSample of one decoded Tracking Data report, read at host time `host_ns`."""
+        t_ns = self._time_ns(decoded.find(SENSOR_TIMESTAMP), host_ns, reconnected)
         x = decoded.find(POSITION_X, inside=GAZE_POINT)
         y = decoded.find(POSITION_Y, inside=GAZE_POINT)
         if x is None or y is None or x.value is None or y.value is None:
@@ -863,6 +922,7 @@ class HidGazeSource:
                 continue
             if not data:
                 continue  # read timeout
+            host_ns = self._clock_ns()
             try:
                 decoded = tracker.decode(data)
             except ReportError as e:
@@ -870,7 +930,7 @@ class HidGazeSource:
                 continue
             if decoded is None:
                 continue
-            s = self.sample(decoded, reconnected)
+            s = self.sample(decoded, host_ns, reconnected)
             reconnected = False
             self.samples_yielded += 1
             yield s

@@ -11,8 +11,10 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+import random
 import struct
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import pytest
@@ -442,7 +444,11 @@ class UnpluggedError(OSError):
 
 
 class FakeTracker:
-    """The device side: descriptor, feature reports, and a queue of input reports."""
+    """The device side: descriptor, feature reports, and a queue of input reports.
+
+    `read_at_ns` runs parallel to `queue`: reading a report moves the host clock `now_ns` (what
+    the tests pass as the source's `clock_ns`) to the time that report is read at.
+    """
 
     def __init__(self, path: bytes, descriptor: bytes, features: dict[int, bytes]) -> None:
         self.path = path
@@ -450,6 +456,8 @@ class FakeTracker:
         self.features = dict(features)
         self.sent: list[list[int]] = []
         self.queue: list[bytes] = []
+        self.read_at_ns: list[int] = []
+        self.now_ns = 0
         self.plugged = True
         self.unplug_after: int | None = None  # unplug after this many more reads
         self.reads = 0
@@ -525,11 +533,14 @@ class FakeDevice:
                 t.plugged = False
                 t.unplug_after = None
                 t.queue.clear()  # whatever the device held is gone with it
+                t.read_at_ns.clear()
                 raise UnpluggedError("read error")
             t.unplug_after -= 1
         t.reads += 1
         if not t.queue:
             return []
+        if t.read_at_ns:
+            t.now_ns = t.read_at_ns.pop(0)
         return list(t.queue.pop(0)[:max_length])
 
     def close(self) -> None:
@@ -543,11 +554,52 @@ def make_tracker(descriptor: bytes | None = None) -> FakeTracker:
     return FakeTracker(PATH, descriptor or tracker_descriptor(), FEATURES)
 
 
-def gaze_reports(n: int, t0_us: int = 1_000_000, step_us: int = 8_333) -> list[bytes]:
-    return [
-        tracking_report(t0_us + i * step_us, (0, 0, 0), (10_000 * (i + 1), 5_000 * (i + 1)))
-        for i in range(n)
+#: The host's monotonic clock when a stream starts: far from the tracker's own clock.
+HOST0_NS = 7_000_000_000_000
+
+
+@dataclass
+class Stream:
+    """Reports of a tracker sampling at host times `taken_ns`, read at host times `read_ns`."""
+
+    reports: list[bytes]
+    sensor_us: list[int]
+    taken_ns: list[int]
+    read_ns: list[int]
+
+    def queue(self, t: FakeTracker) -> None:
+        t.queue, t.read_at_ns = list(self.reports), list(self.read_ns)
+
+
+def timed_stream(
+    n: int,
+    *,
+    t0_us: int = 1_000_000,
+    period_ns: int = 8_333_000,
+    host0_ns: int = HOST0_NS,
+    ppm: float = 0.0,
+    latency_ns: Callable[[int], int] = lambda i: 200_000,
+) -> Stream:
+    """`n` gaze samples taken every `period_ns` of host time by a tracker whose clock runs `ppm`
+    fast (sensor = t0 + elapsed · (1 + ppm · 10⁻⁶), whole µs, wrapping at 32 bits), sample i
+    read `latency_ns(i)` after it was taken."""
+    taken = [host0_ns + i * period_ns for i in range(n)]
+    sensor = [t0_us + round(i * period_ns * (1 + ppm * 1e-6) / 1000) for i in range(n)]
+    reports = [
+        tracking_report(us % (1 << 32), (0, 0, 0), (10_000 * (i + 1), 5_000 * (i + 1)))
+        for i, us in enumerate(sensor)
     ]
+    read = [h + latency_ns(i) for i, h in enumerate(taken)]
+    return Stream(reports, sensor, taken, read)
+
+
+def timed_source(t: FakeTracker, **options: Any) -> hid.HidGazeSource:
+    """A source on `t` whose host clock is the fake's (moved by each read)."""
+    return hid.HidGazeSource(backend=FakeBus(t), clock_ns=lambda: t.now_ns, **options)
+
+
+def diffs(values: list[int]) -> list[int]:
+    return [b - a for a, b in itertools.pairwise(values)]
 
 
 # --- the source -------------------------------------------------------------------------------
@@ -555,9 +607,10 @@ def gaze_reports(n: int, t0_us: int = 1_000_000, step_us: int = 8_333) -> list[b
 
 def test_source_reads_features_sets_mode_and_yields_pixels() -> None:
     t = make_tracker()
-    t.queue = gaze_reports(3)
+    stream = timed_stream(3)
+    stream.queue(t)
     geometry = ScreenGeometry(screen_width_px=1920, screen_height_px=1080)
-    src = hid.HidGazeSource(geometry, backend=FakeBus(t))
+    src = timed_source(t, geometry=geometry)
     samples = list(itertools.islice(src, 3))
     info = src.tracker_info
     assert info is not None
@@ -574,7 +627,10 @@ def test_source_reads_features_sets_mode_and_yields_pixels() -> None:
     # Device Mode: gaze point | eye position (the tracker reports eye positions; max is 7)
     assert t.sent == [[0x14, 3]]
     assert info.device_mode == 3
-    assert [s.t_ns for s in samples] == [1_000_000_000, 1_008_333_000, 1_016_666_000]
+    # Host clock, spaced as the Sensor Timestamps (8 333 µs); with a constant latency the
+    # smallest host − sensor is every report's, so each sample sits at its read.
+    assert [s.t_ns for s in samples] == stream.read_ns
+    assert diffs([s.t_ns for s in samples]) == [8_333_000, 8_333_000]
     s0 = samples[0]
     assert s0.valid
     assert s0.x == pytest.approx(10_000 / 527_040 * 1920)
@@ -584,29 +640,34 @@ def test_source_reads_features_sets_mode_and_yields_pixels() -> None:
 
 def test_open_source_builds_the_hid_source() -> None:
     t = make_tracker()
-    t.queue = gaze_reports(1)
-    src = open_source("hid:" + PATH.decode(), backend=FakeBus(t))
+    stream = timed_stream(1)
+    stream.queue(t)
+    src = open_source("hid:" + PATH.decode(), backend=FakeBus(t), clock_ns=lambda: t.now_ns)
     assert isinstance(src, hid.HidSource) and src.tracker_info is not None
     assert src.tracker_info.path == PATH.decode()
     (s,) = itertools.islice(src, 1)
-    assert s.t_ns == 1_000_000_000
+    assert s.t_ns == stream.read_ns[0]
 
 
 def test_no_gaze_gives_an_invalid_sample() -> None:
     t = make_tracker()
-    t.queue = [tracking_report(10, (0, 0, 0), (2_000_000, 0))]
-    src = hid.HidGazeSource(backend=FakeBus(t))
+    t.queue, t.read_at_ns = [tracking_report(10, (0, 0, 0), (2_000_000, 0))], [HOST0_NS]
+    src = timed_source(t)
     (s,) = itertools.islice(src, 1)
-    assert not s.valid and math.isnan(s.x) and math.isnan(s.y) and s.t_ns == 10_000
+    assert not s.valid and math.isnan(s.x) and math.isnan(s.y) and s.t_ns == HOST0_NS
 
 
 def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     t = make_tracker()
-    before = gaze_reports(5)
-    after = gaze_reports(4, t0_us=3_000_000)
-    t.queue = [*before, tracking_report(2_000_000, (0, 0, 0), (1, 1))]  # never read
+    before = timed_stream(5)
+    # Re-plugged 1.5 s of host time later, the tracker's clock 0.5 s on (it may have restarted
+    # or stood still): the old offset would put these samples 1 s early; time is re-anchored.
+    after = timed_stream(4, t0_us=1_533_000, host0_ns=before.taken_ns[-1] + 1_500_000_000)
+    before.queue(t)
+    t.queue.append(tracking_report(2_000_000, (0, 0, 0), (1, 1)))  # never read
+    t.read_at_ns.append(before.read_ns[-1] + 8_333_000)
     t.unplug_after = 5  # five reads succeed, the sixth finds the tracker gone
     bus = FakeBus(t)
     now = [0.0]
@@ -617,21 +678,19 @@ def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
         now[0] += s
         if len(sleeps) == 3:  # re-plugged during the third wait
             t.plugged = True
-            t.queue = list(after)
+            after.queue(t)
 
     src = hid.HidGazeSource(
         backend=bus,
         sleep=sleep,
         clock=lambda: now[0],
+        clock_ns=lambda: t.now_ns,
         backoff_initial_s=0.25,
         backoff_max_s=0.75,
     )
     with caplog.at_level(logging.INFO, logger="drivers.hid"):
         got = list(itertools.islice(src, 9))
-    expected_us = [1_000_000 + i * 8_333 for i in range(5)] + [
-        3_000_000 + i * 8_333 for i in range(4)
-    ]
-    assert [s.t_ns for s in got] == [us * 1000 for us in expected_us]  # once each, in order
+    assert [s.t_ns for s in got] == before.read_ns + after.read_ns  # once each, in order
     assert [s.x for s in got[:5]] == pytest.approx(
         [10_000 * (i + 1) / 527_040 * 1920 for i in range(5)]
     )
@@ -642,33 +701,148 @@ def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
     src.close()
 
 
-def test_clock_restart_after_replug_stays_monotonic() -> None:
+def test_clock_restart_after_replug_reanchors() -> None:
     t = make_tracker()
-    t.queue = gaze_reports(2, t0_us=5_000_000)
+    before = timed_stream(2, t0_us=5_000_000)
+    before.queue(t)
     t.unplug_after = 2
-    replugged = gaze_reports(2, t0_us=100)  # the tracker rebooted: its clock starts over
+    # The tracker rebooted: its clock starts over at 100 µs, 0.3 s of host time later.
+    replugged = timed_stream(2, t0_us=100, host0_ns=before.taken_ns[-1] + 300_000_000)
 
     def sleep(s: float) -> None:
         t.plugged = True
-        t.queue = list(replugged)
+        replugged.queue(t)
 
-    src = hid.HidGazeSource(backend=FakeBus(t), sleep=sleep)
+    src = timed_source(t, sleep=sleep)
     ts = [s.t_ns for s in itertools.islice(src, 4)]
-    assert ts[:2] == [5_000_000_000, 5_008_333_000]
-    assert ts[2] == ts[1] + round(1e9 / 120)  # one sample period on, at 120 Hz
-    assert ts[3] - ts[2] == 8_333_000
+    assert ts == before.read_ns + replugged.read_ns
+    assert ts[3] - ts[2] == 8_333_000  # the new clock's spacing
+    src.close()
+
+
+def test_clock_going_back_without_replug_reanchors(caplog: pytest.LogCaptureFixture) -> None:
+    t = make_tracker()
+    first = timed_stream(3, t0_us=5_000_000)
+    rebooted = timed_stream(3, t0_us=100, host0_ns=first.taken_ns[-1] + 8_333_000)
+    t.queue, t.read_at_ns = first.reports + rebooted.reports, first.read_ns + rebooted.read_ns
+    src = timed_source(t)
+    with caplog.at_level(logging.WARNING, logger="drivers.hid"):
+        ts = [s.t_ns for s in itertools.islice(src, 6)]
+    assert ts == first.read_ns + rebooted.read_ns
+    assert "tracker clock went back by 5016566000 ns" in caplog.text
     src.close()
 
 
 def test_32_bit_timestamp_wraps_forward() -> None:
     t = make_tracker()
-    t.queue = [
-        tracking_report(0xFFFF_FFF0, (0, 0, 0), (0, 0)),
-        tracking_report(0x0000_0010, (0, 0, 0), (0, 0)),
+    latency = [100_000, 100_000, 400_000, 400_000]
+    stream = timed_stream(
+        4, t0_us=0xFFFF_FFD0, period_ns=0x20 * 1000, latency_ns=latency.__getitem__
+    )
+    stream.queue(t)
+    assert [us % (1 << 32) for us in stream.sensor_us] == [0xFFFF_FFD0, 0xFFFF_FFF0, 0x10, 0x30]
+    src = timed_source(t)
+    ts = [s.t_ns for s in itertools.islice(src, 4)]
+    # Spaced by the sensor across the wrap, placed by the smallest latency (the first reads'):
+    # a wrap taken for a clock going back would re-anchor on the later, slower reads.
+    assert diffs(ts) == [0x20 * 1000] * 3
+    assert ts == [taken + 100_000 for taken in stream.taken_ns]
+    src.close()
+
+
+def test_constant_latency_keeps_the_sensor_spacing_on_the_host_clock() -> None:
+    t = make_tracker()
+    stream = timed_stream(1000, period_ns=1_000_000, latency_ns=lambda i: 150_000)
+    stream.queue(t)
+    src = timed_source(t)
+    ts = [s.t_ns for s in itertools.islice(src, 1000)]
+    # On the host clock: no earlier than the first read (less the latency), no later than the
+    # last read; spaced exactly as the tracker stamped them.
+    assert stream.read_ns[0] - 150_000 <= min(ts) and max(ts) <= stream.read_ns[-1]
+    assert diffs(ts) == [1000 * d for d in diffs(stream.sensor_us)]
+    src.close()
+    with pytest.raises(ValueError, match="clock_window_s"):
+        timed_source(make_tracker(), clock_window_s=0.0)
+
+
+def test_latency_jitter_stays_out_of_the_spacing() -> None:
+    """1 kHz, each report read 100 µs + U(0, 3 ms) after it was taken (seeded).
+
+    The mapped time is taken + 100 µs + the least jitter in the 2 s window, so it is never
+    earlier than taken + 100 µs, never later than the read, and once the window holds 200 reports
+    its least jitter is below 0.1 ms (P(exceeded) = (29/30)^200 ≈ 0.1 % per window): the
+    spacing then differs from the sensor's by at most 0.1 ms, where the reads' differs by up
+    to 3 ms.
+    """
+    rng = random.Random(7)
+    jitter = [rng.randrange(3_000_000) for _ in range(3000)]
+    stream = timed_stream(3000, period_ns=1_000_000, latency_ns=lambda i: 100_000 + jitter[i])
+    t = make_tracker()
+    stream.queue(t)
+    src = timed_source(t)
+    ts = [s.t_ns for s in itertools.islice(src, 3000)]
+    late = [t_ - taken for t_, taken in zip(ts, stream.taken_ns, strict=True)]
+    assert all(t_ <= read for t_, read in zip(ts, stream.read_ns, strict=True))
+    assert min(late) >= 100_000
+    assert max(late[200:]) <= 200_000
+    sensor_spacing = [1000 * d for d in diffs(stream.sensor_us)]
+    off = [abs(a - b) for a, b in zip(diffs(ts), sensor_spacing, strict=True)]
+    assert max(off) <= 3_000_000 and max(off[200:]) <= 100_000
+    read_off = [abs(a - b) for a, b in zip(diffs(stream.read_ns), sensor_spacing, strict=True)]
+    assert max(read_off[200:]) > 2_000_000  # what stamping at the read would have given
+    src.close()
+
+
+@pytest.mark.parametrize("ppm", [100.0, -100.0])
+def test_clock_drift_is_followed(ppm: float) -> None:
+    """A tracker clock 100 ppm fast (or slow) over 60 s at 120 Hz, read 200 µs after each sample.
+
+    Unmapped, the tracker's time would drift 6 ms from the host's by the end; so would an offset
+    taken as the minimum over all time for the slow tracker. The 2 s window lags a slow tracker
+    by at most 2 s · 100 ppm = 0.2 ms and follows a fast one at once (the sensor's whole µs add
+    ±1 µs).
+    """
+    n = 60 * 120
+    stream = timed_stream(n, ppm=ppm)
+    t = make_tracker()
+    stream.queue(t)
+    src = timed_source(t)
+    ts = [s.t_ns for s in itertools.islice(src, n)]
+    late = [t_ - taken for t_, taken in zip(ts, stream.taken_ns, strict=True)]
+    lag = 200_000 if ppm < 0 else 0
+    assert min(late) >= 200_000 - lag - 1_000 and max(late) <= 200_000 + 1_000
+    assert all(d > 0 for d in diffs(ts))
+    src.close()
+
+
+def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
+    no_timestamp = b"".join(
+        [
+            usage_page(0x12),
+            usage(0x01),
+            collection(1),
+            usage(0x24),
+            collection(0),
+            usage(0x21),
+            usage(0x22),
+            logical(-32767, 32767),
+            size(16),
+            count(2),
+            input_(DATA),
+            END,
+            END,
+        ]
+    )
+    t = FakeTracker(PATH, no_timestamp, {})
+    report = struct.pack("<2h", 100, 200)
+    t.queue = [report] * 3
+    t.read_at_ns = [HOST0_NS, HOST0_NS, HOST0_NS + 5_000_000]  # a coarse host clock repeats
+    src = timed_source(t)
+    assert [s.t_ns for s in itertools.islice(src, 3)] == [
+        HOST0_NS,
+        HOST0_NS + 1,  # kept strictly increasing
+        HOST0_NS + 5_000_000,
     ]
-    src = hid.HidGazeSource(backend=FakeBus(t))
-    a, b = itertools.islice(src, 2)
-    assert b.t_ns - a.t_ns == 0x20 * 1000
     src.close()
 
 
