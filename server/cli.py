@@ -198,6 +198,12 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--backend", choices=("opencl", "reference"), default="opencl")
     _add_model_options(p, " of new sessions (the viewer's panel changes it)")
+    p.add_argument(
+        "--split",
+        metavar="AFTERIMAGE[+ACUITY]",
+        help="start new sessions in split view with this model in the right pane, e.g. "
+        "ritschel or jacobs+thompson (the left pane: --afterimage, --acuity)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
 
 
@@ -226,6 +232,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         backend=args.backend,
         afterimage=args.afterimage,
         acuity=args.acuity,
+        split=args.split,
         seed=args.seed,
     )
 

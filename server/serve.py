@@ -42,6 +42,7 @@ def build_config(
     seed: int,
     afterimage: str = "jacobs",
     acuity: str = "stochastic",
+    split: str | None = None,
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
     if not (math.isfinite(fps) and 0 < fps <= 240):
@@ -50,6 +51,7 @@ def build_config(
         raise ValueError(f"port must be in [0, 65535], got {port}")
     check_frame_size(*size)
     model = Models(afterimage, acuity)  # unknown names: a ValueError listing the choices
+    right = Models.parse(split) if split else None  # the right pane's, in split view
     params = Params()
     if params_file:
         try:
@@ -68,6 +70,7 @@ def build_config(
         scene=scene,
         gaze_source=gaze,
         model=model,
+        split=right,
         params=params,
         seed=seed,
         backend=backend,

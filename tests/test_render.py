@@ -292,6 +292,7 @@ def _bad_params(tmp_path: Path) -> str:
         (["render", "flash", "--frobnicate"], "unrecognized arguments: --frobnicate"),
         (["render", "flash", "--out", "{tmp}/file.txt/sub"], "file.txt"),
         (["serve", "--acuity", "blurry"], "unknown acuity model 'blurry'; choose one of"),
+        (["serve", "--split", "ritschel+sharp"], "unknown acuity model 'sharp'; choose one of"),
         (["launch"], "invalid choice"),
         ([], "required: COMMAND"),
     ],

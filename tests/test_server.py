@@ -495,3 +495,28 @@ def test_a_viewer_that_acks_gets_at_most_two_frames_in_flight(live_server) -> No
         await client.ws.close()
 
     run(check())
+
+
+def test_serve_can_start_sessions_in_split_view(live_server, tmp_path) -> None:
+    """`gazehdr serve --split MODEL`: new sessions open with MODEL in the right pane."""
+    from server.serve import build_config
+    from server.sim.models import Models
+
+    options = dict(
+        host="127.0.0.1", port=0, scene="flash", scale=None, gaze="mouse", fps=30.0,
+        size=(96, 54), fit_viewport=False, params_file=None, token="t", data_dir=tmp_path,
+        allow_origins=(), encoding="rgb10a2", backend="reference", seed=0,
+    )  # fmt: skip
+    assert build_config(**options).session.split is None
+    config = build_config(**options, split="jacobs+thompson")
+    assert config.session.split == Models("jacobs", "thompson")
+    server = live_server(split=config.session.split, size=(96, 54), fit_viewport=False)
+
+    async def check() -> None:
+        client = await Client.open(server)
+        assert client.hello["split"] == {"afterimage": "jacobs", "acuity": "thompson"}
+        header, _ = await client.frame()
+        assert header.split and header.width == 96
+        await client.ws.close()
+
+    run(check())
