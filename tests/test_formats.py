@@ -7,6 +7,7 @@ times in ns, positions in pixels and coordinate flips.
 
 from __future__ import annotations
 
+import csv
 import gzip
 import json
 import math
@@ -503,6 +504,43 @@ def test_bids_implicit_indexing_by_zero_based_foreign_index(tmp_path: Path) -> N
     ]
 
 
+def test_bids_explicit_indexing_third_party_files(tmp_path: Path) -> None:
+    """Explicit indexing in the specification's shape (only the ForeignIndexColumn): events at
+    those sample times. An extra `onset` with Units is taken, exactly, only when it lies in the
+    sample interval its `timestamp` names (gazehdr's files), not when it is on another clock."""
+    ms = 1_000_000
+    cases = [  # Columns, onset Units, rows, the notes' times
+        (["timestamp", "message"], None, ["7186801", "7186805"], [7186801 * ms, 7186805 * ms]),
+        (
+            ["onset", "timestamp", "message"],
+            "ms",
+            ["7186801.5\t7186801", "7186806.25\t7186805"],
+            [7186801 * ms + ms // 2, 7186806 * ms + ms // 4],
+        ),
+        (
+            ["onset", "timestamp", "message"],
+            "s",  # seconds from the start, as BIDS _events.tsv: not the physio clock
+            ["2.5\t7186801", "6.25\t7186805"],
+            [7186801 * ms, 7186805 * ms],
+        ),
+    ]
+    for case, (columns, onset_units, rows, times) in enumerate(cases):
+        root = bids_copy(tmp_path / str(case))
+        sidecar = {
+            "Columns": columns,
+            "Description": "Messages logged by the measurement device",
+            "ForeignIndexColumn": "timestamp",
+        }
+        if onset_units:
+            sidecar["onset"] = {"Units": onset_units}
+        (root / "task-freeview_physioevents.json").write_text(json.dumps(sidecar))
+        for eye in (EYE1, EYE2):
+            with gzip.open(root / f"{eye}events.tsv.gz", "wt") as f:
+                f.write(f'{rows[0]}\t"Recalibrate"\n{rows[1]}\tNew block\n')
+        log = read_bids(root / f"{EYE1}.tsv.gz")
+        assert log.notes == [Note(times[0], "Recalibrate"), Note(times[1], "New block")], case
+
+
 @pytest.mark.parametrize(
     ("target", "line", "text", "field", "reason"),
     [
@@ -641,6 +679,43 @@ def test_native_bids_native_round_trip(tmp_path: Path) -> None:
         ("fixation_start", 3, log.events[7].t_ns, None, None, None, None),
     ]
     assert [e.dispersion_deg for e in back.events if e.kind == "fixation_end"] == [0.07, 0.1]
+
+
+def gz_rows(path: Path) -> list[list[str]]:
+    with gzip.open(path, "rt", encoding="utf-8", newline="") as f:
+        return list(csv.reader(f, delimiter="\t"))
+
+
+def test_bids_export_explicit_indexing_is_conformant(tmp_path: Path) -> None:
+    """The specification's MUST: every physioevents `timestamp` (the ForeignIndexColumn) is in
+    the physio file's `timestamp` column; it is the sample at or before the exact `onset`, the
+    first sample for an earlier event."""
+    log = native_log()
+    log.add(Note(log.samples[-1].t_ns + 10**9, "after the last sample"))
+    written = write_bids(log, tmp_path)
+    cases = set()
+    for physio in (p for p in written if p.name.endswith("_physio.tsv.gz")):
+        events = physio.with_name(physio.name.replace("_physio.", "_physioevents."))
+        side = json.loads(events.with_name(events.name.replace(".tsv.gz", ".json")).read_text())
+        assert side["ForeignIndexColumn"] == "timestamp"
+        assert side["Columns"][0] == "onset" and "timestamp" in side["Columns"]
+        stamps = [int(row[0]) for row in gz_rows(physio)]  # physio Columns[0] is timestamp
+        rows = [dict(zip(side["Columns"], row, strict=True)) for row in gz_rows(events)]
+        for row in rows:
+            onset, stamp = int(row["onset"]), int(row["timestamp"])
+            assert stamp in stamps
+            earlier = [s for s in stamps if s <= onset]
+            assert stamp == (max(earlier) if earlier else stamps[0])
+            cases.add("before" if not earlier else "on" if onset in stamps else "between")
+    assert cases == {"before", "on", "between"}
+
+
+def test_bids_export_refuses_a_log_without_samples(tmp_path: Path) -> None:
+    log = native_log()
+    log.samples = []
+    with pytest.raises(ValueError, match="no samples"):
+        write_bids(log, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
 
 
 def test_round_trip_without_per_eye_data_and_reproducible_gzip(tmp_path: Path) -> None:

@@ -20,13 +20,14 @@ What the files are:
   `EnvironmentCoordinates`, and per column a `Units`. Sidecars are inherited: a
   `task-x_physio.json` at the dataset root applies to every file whose entities include its
   own, the more specific file winning (BIDS inheritance principle).
-- `<matches>_recording-<label>_physioevents.tsv.gz` + `.json`: columns `onset`, `duration`,
-  `trial_type`, `message`, ... With `ForeignIndexColumn` (or `OnsetSource`, as in the example
-  dataset) naming the physio file's `timestamp` column, the events' column of that name (the
-  specification's "Explicit indexing"), or `onset` (eye2bids), is in that column's units.
-  Without it, a `foreign_index` column is the zero-based row of the physio file, negative
-  before its first row (the specification's "Implicit indexing"); lacking one, `onset` is
-  taken as the one-based row.
+- `<matches>_recording-<label>_physioevents.tsv.gz` + `.json`: columns `onset` (first, the
+  schema requires it), `duration`, `trial_type`, `message`, ... With `ForeignIndexColumn` (or
+  `OnsetSource`, as in the example dataset) naming the physio file's `timestamp` column, the
+  events' column of that name (the specification's "Explicit indexing": each value MUST be one
+  of the physio file's timestamps), or `onset` (eye2bids), is in that column's units. Without
+  it, a `foreign_index` column is the zero-based row of the physio file, negative before its
+  first row (the specification's "Implicit indexing"); lacking one, `onset` is taken as the
+  one-based row.
 - The screen: `StimulusPresentation` (`ScreenResolution` px, `ScreenSize`, `ScreenDistance`)
   in the sidecars or in the task's `_events.json`.
 
@@ -49,13 +50,23 @@ Import, and what it assumes:
   `gazehdr clock {json}` messages become scene, parameter and clock records). Event ids are
   numbered 1, 2, ... per kind in onset order. `duration` is in its sidecar `Units`, else in
   the onset's units when `ForeignIndexColumn` is used (eye2bids), else seconds.
+- Event times: the ForeignIndexColumn's column names a sample, so it is exact only to a sample
+  period. A file that also has an `onset` with `Units` (gazehdr's own) gives the exact time
+  from it, provided every onset lies in the sample interval its timestamp names (the sample at
+  or before it, or the first sample for an earlier one); otherwise (an onset on another clock,
+  such as seconds from the start) the timestamp column is used.
 
 Export (`write_bids`): `recording-eye1` holds the gaze (`RecordedEye` cyclopean) when the log
 has no per-eye data; otherwise `eye1` left, `eye2` right, `eye3` cyclopean. Timestamps are the
 log's integer ns (`Units` "ns"), positions pixels top-left, pupil mm; each recording's
-physioevents hold its eye's fixations and blinks (one row each: onset, duration, mean
-position, dispersion), and the cyclopean one also the events of no particular eye and the
-notes, scenes, parameters and clock updates as messages. The native header rides along in the
+physioevents hold its eye's fixations and blinks (one row each: onset, timestamp, duration,
+mean position, dispersion), and the cyclopean one also the events of no particular eye and
+the notes, scenes, parameters and clock updates as messages. The physioevents use explicit
+indexing (`"ForeignIndexColumn": "timestamp"`): `timestamp` is the physio timestamp of the
+sample at or before the event (the first sample's for an earlier event), so every value is in
+the physio file as the specification requires; `onset` (ns) is the exact event time on the
+same clock, an extra column. A log without samples is refused (ValueError): there would be no
+timestamp to index by, nor a row for implicit indexing. The native header rides along in the
 sidecars as `GazehdrHeader`, so native → BIDS → native gives back the same samples, fixations
 (start and end times, mean position, dispersion; not the start position nor `fixation_update`,
 which BIDS rows do not hold), blinks, notes, scenes, parameters and header. gzip output is
@@ -64,6 +75,7 @@ reproducible (no name or time in the gzip header).
 
 from __future__ import annotations
 
+import bisect
 import csv
 import gzip
 import io
@@ -98,6 +110,7 @@ _ROW = "foreign_index"  # implicit indexing: the zero-based row of the physio fi
 _ENTITY = re.compile(r"[a-zA-Z0-9]+-[a-zA-Z0-9]+")
 _EVENT_COLUMNS = [
     "onset",
+    "timestamp",
     "duration",
     "trial_type",
     "blink",
@@ -213,6 +226,7 @@ class _Recording:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.entities, _ = _split_name(path.name)
+        self.times: list[int] = []  # the rows' times, once read
         self.sidecar = _sidecar(path, "physio", self.entities)
         side = self.sidecar
         columns = side.get("Columns")
@@ -267,12 +281,13 @@ class _Recording:
         return self.path.with_name(self.path.name.split(".", 1)[0] + ".json")
 
     def read(self, flip_height: int | None) -> list[tuple[int, EyeSample]]:
-        """(t_ns, position) per row; a lost position is NaN."""
+        """(t_ns, position) per row; a lost position is NaN. Keeps the row times in `times`."""
         rows = list(_rows(self.path, self.columns))
         times = self._times(rows)
         has_pupil = "pupil_size" in self.columns and str(
             _units(self.sidecar, "pupil_size")
         ).lower() in ("mm", "millimeter", "millimetre")
+        self.times = times
         out = []
         for t, (line, row) in zip(times, rows, strict=True):
             x = _float(self.path, line, row, "x_coordinate")
@@ -501,7 +516,7 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
         if index:  # the spec names the events' column after it; eye2bids calls it onset
             when = index if isinstance(columns, list) and index in columns else "onset"
         else:  # implicit indexing: foreign_index, the zero-based physio row
-            when = "foreign_index" if isinstance(columns, list) and _ROW in columns else "onset"
+            when = _ROW if isinstance(columns, list) and _ROW in columns else "onset"
         if not isinstance(columns, list) or when not in columns:
             raise FormatError(
                 sidecar_path,
@@ -517,30 +532,25 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
             raise FormatError(
                 sidecar_path, None, "ForeignIndexColumn", "the physio file has no timestamp"
             )
-        onset_unit = getattr(r, "timestamp_unit_ns", None) if index else None
-        duration_units = _units(side, "duration")
-        if duration_units is not None and duration_units not in UNITS_NS:
-            raise FormatError(
-                sidecar_path,
-                None,
-                "duration.Units",
-                f"{duration_units!r}; supported: {', '.join(UNITS_NS)}",
-            )
-        duration_unit = UNITS_NS[duration_units] if duration_units else onset_unit or 10**9
-        sample_times = [s.t_ns for s in log.samples] if not index else []
-        file_eye = r.eye if r.eye in ("left", "right") else None
+        time_unit = r.timestamp_unit_ns if index else None
+        duration_unit = _unit_ns(side, "duration", sidecar_path) or time_unit or 10**9
         first_row = 0 if when == _ROW else 1
+        timed = []
         for line, row in _rows(path, columns):
-            onset_text = row[when]
-            try:
-                if onset_unit is not None:
-                    t = decimal_ns(onset_text, onset_unit)
-                else:
-                    t = _row_time(decimal_ns(onset_text, 1) + 1 - first_row, sample_times, r.fs)
-            except ValueError:
-                raise FormatError(
-                    path, line, when, f"expected a number, got {onset_text!r}"
-                ) from None
+            t = _event_time(path, line, row, when, time_unit, r, first_row)
+            timed.append((line, row, t))
+        onset_units = UNITS_NS.get(_units(side, "onset"))
+        if r.times and when == index and "onset" in columns and onset_units:
+            # explicit indexing snaps to a sample; an onset with Units on the same clock (what
+            # gazehdr writes) is exact. Taken only when every onset lies in the sample interval
+            # its index names, so an onset on another clock (s from the start) is not mistaken.
+            exact = [
+                _event_time(path, line, row, "onset", onset_units, r, 1) for line, row, _ in timed
+            ]
+            if all(_sample_at(r.times, o) == t for o, (_, _, t) in zip(exact, timed, strict=True)):
+                timed = [(line, row, o) for o, (line, row, _) in zip(exact, timed, strict=True)]
+        file_eye = r.eye if r.eye in ("left", "right") else None
+        for line, row, t in timed:
             duration = None
             if row.get("duration", NA) not in (NA, ""):
                 try:
@@ -588,6 +598,40 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
     log.events.sort(key=lambda e: e.t_ns)
     for items in (log.notes, log.scenes, log.params, log.clocks):
         items.sort(key=lambda r: r.t_ns)
+
+
+def _unit_ns(side: dict[str, Any], column: str, sidecar_path: Path) -> int | None:
+    """ns per unit of a column's sidecar `Units`; None without one."""
+    units = _units(side, column)
+    if units is not None and units not in UNITS_NS:
+        raise FormatError(
+            sidecar_path, None, f"{column}.Units", f"{units!r}; supported: {', '.join(UNITS_NS)}"
+        )
+    return UNITS_NS[units] if units is not None else None
+
+
+def _event_time(
+    path: Path,
+    line: int,
+    row: dict[str, str],
+    column: str,
+    unit_ns: int | None,
+    r: _Recording,
+    first_row: int,
+) -> int:
+    """An event's time from `column`: a time in `unit_ns`, or without a unit a physio row."""
+    text = row[column]
+    try:
+        if unit_ns is not None:
+            return decimal_ns(text, unit_ns)
+        return _row_time(decimal_ns(text, 1) + 1 - first_row, r.times, r.fs)
+    except ValueError:
+        raise FormatError(path, line, column, f"expected a number, got {text!r}") from None
+
+
+def _sample_at(times: list[int], t: int) -> int:
+    """The time of the sample at or before `t` (the first sample's for an earlier `t`)."""
+    return times[max(bisect.bisect_right(times, t) - 1, 0)]
 
 
 def _row_time(row: int, sample_times: list[int], fs: float | None) -> int:
@@ -645,8 +689,10 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     path.write_text(json.dumps(data, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
 
 
-def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]]:
-    """This recording's physioevents rows, sorted by onset."""
+def _event_rows(
+    log: SessionLog, eye: str, own_eyes: set[str], stamps: list[int]
+) -> list[list[str]]:
+    """This recording's physioevents rows, sorted by onset; `stamps`: the physio timestamps."""
     mine = [e for e in log.events if (e.eye if e.eye in own_eyes else "cyclopean") == eye]
     rows: list[tuple[int, int, list[str]]] = []
     starts: dict[tuple[str, int, str | None], GazeEvent] = {}
@@ -663,10 +709,10 @@ def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]
             e.duration_ns if e.duration_ns is not None else (e.t_ns - start.t_ns if start else None)
         )
         onset = start.t_ns if start else e.t_ns - (duration or 0)
-        rows.append((onset, len(rows), _event_row(onset, duration, family, e)))
+        rows.append((onset, len(rows), _event_row(duration, family, e)))
     for start in starts.values():
         family = start.kind.partition("_")[0]
-        rows.append((start.t_ns, len(rows), _event_row(start.t_ns, None, family, start)))
+        rows.append((start.t_ns, len(rows), _event_row(None, family, start)))
     if eye == "cyclopean":
         messages: list[tuple[int, str]] = [(n.t_ns, n.text) for n in log.notes]
         messages += [(s.t_ns, f"gazehdr scene {s.name}") for s in log.scenes]
@@ -689,15 +735,15 @@ def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]
             for c in log.clocks
         ]
         for t, text in messages:
-            rows.append((t, len(rows), [str(t), NA, NA, NA, text, NA, NA, NA, NA]))
+            rows.append((t, len(rows), [NA, NA, NA, text, NA, NA, NA, NA]))
     rows.sort(key=lambda r: (r[0], r[1]))
-    return [r[2] for r in rows]
+    return [[str(t), str(_sample_at(stamps, t)), *rest] for t, _, rest in rows]
 
 
-def _event_row(onset: int, duration: int | None, family: str, e: GazeEvent) -> list[str]:
+def _event_row(duration: int | None, family: str, e: GazeEvent) -> list[str]:
+    """The columns after onset and timestamp."""
     fixation = family == "fixation"
     return [
-        str(onset),
         _number_text(duration),
         family,
         "0" if fixation else "1",
@@ -721,6 +767,11 @@ def write_bids(
         raise ValueError(f"prefix {prefix!r}: expected BIDS entities such as sub-01_task-name")
     if "recording" in _split_name(prefix + "_x")[0]:
         raise ValueError("prefix must not hold the recording entity: it is added per eye")
+    if not log.samples:
+        raise ValueError(
+            "the log has no samples: a BIDS physio file needs some, and the physioevents "
+            "are indexed by their timestamps"
+        )
     out = Path(out_dir)
     per_eye = any(s.left is not None or s.right is not None for s in log.samples)
     labels = (
@@ -741,6 +792,7 @@ def write_bids(
     out.mkdir(parents=True, exist_ok=True)
 
     times = [s.t_ns for s in log.samples]
+    stamps = sorted(times)
     steps = [b - a for a, b in itertools.pairwise(times) if b > a]
     fs: float | str = round(1e9 / statistics.median(steps), 6) if steps else NA
     screen = log.header.screen
@@ -805,7 +857,8 @@ def write_bids(
 
         events_base = out / f"{prefix}_recording-{label}_physioevents"
         _gzip_tsv(
-            events_base.with_name(events_base.name + ".tsv.gz"), _event_rows(log, eye, own_eyes)
+            events_base.with_name(events_base.name + ".tsv.gz"),
+            _event_rows(log, eye, own_eyes, stamps),
         )
         _write_json(
             events_base.with_name(events_base.name + ".json"),
@@ -813,7 +866,16 @@ def write_bids(
                 "Columns": _EVENT_COLUMNS,
                 "Description": "Fixations, blinks and messages recorded with gazehdr.",
                 "ForeignIndexColumn": "timestamp",
-                "onset": {"Description": "Start, on the physio timestamp clock.", "Units": "ns"},
+                "onset": {
+                    "Description": "Exact time of the event (a fixation's or blink's start), "
+                    "on the clock of the physio timestamp.",
+                    "Units": "ns",
+                },
+                "timestamp": {
+                    "Description": "The physio timestamp of the sample at or before the onset "
+                    "(the first sample's for an earlier event): the ForeignIndexColumn.",
+                    "Units": "ns",
+                },
                 "duration": {"Description": "Duration of the fixation or blink.", "Units": "ns"},
                 "trial_type": {
                     "Description": "Event type.",
