@@ -180,15 +180,20 @@ def test_a_remote_session_follows_the_daemons_fixations(live_server) -> None:
     assert near(seen[-1][:2], targets[2])
 
 
-def test_restarted_server_gets_everything_the_buffer_kept(live_server, received, tmp_path):
-    first = live_server(token="t")
-    port = first.port
-    config = ServerConfig(
+def _second_server_config(tmp_path: Path) -> ServerConfig:
+    """A server started on the port of one that was killed, as after a crash."""
+    return ServerConfig(
         token="t",
         session=SessionSettings(width=160, height=96, fps=20.0),
         data_dir=tmp_path / "data2",
         session_grace_s=0.0,
     )
+
+
+def test_restarted_server_gets_everything_the_buffer_kept(live_server, received, tmp_path):
+    first = live_server(token="t")
+    port = first.port
+    config = _second_server_config(tmp_path)
     record = tmp_path / "rec.jsonl"
     source = SyntheticSource(4, 1000.0)  # live, endless, real time
     bound = 300
@@ -348,12 +353,7 @@ def test_a_reconnect_forgets_the_old_servers_clock(live_server, monkeypatch, tmp
         return reply
 
     monkeypatch.setattr(app_module._GazeLink, "handle", handle)
-    config = ServerConfig(
-        token="t",
-        session=SessionSettings(width=160, height=96, fps=20.0),
-        data_dir=tmp_path / "data2",
-        session_grace_s=0.0,
-    )
+    config = _second_server_config(tmp_path)
     record = tmp_path / "rec.jsonl"
     daemon = Daemon(
         SyntheticSource(5, 500.0),
