@@ -108,6 +108,10 @@ class Params:
     mikamo_reference_xy: tuple[float, float] = (0.43, 0.40)  # Padgham's light, Yxy chromaticity
     mikamo_drop_log10: float = 1.0  # ours: "drops sharply" = falls a log unit within one step
     mikamo_lowpass_deg: float = 0.25  # ours: the fixed Gaussian low-pass of the afterimage
+    # Ours: Eq. 1 divides by delta E, which amplifies rounding noise near the reference colour
+    # and jumps there; below this many Delta E units (1: about a just-noticeable difference) it
+    # divides by this instead, so (Delta a, Delta b) shrinks continuously to 0 there.
+    mikamo_delta_e_floor: float = 1.0
     mikamo_strength: float = 1.0  # ours: scale of the added afterimage (display units)
     mikamo_sequence: str = ""  # a CSV of Padgham's sequence; "" = the shipped data file
 
@@ -129,7 +133,7 @@ class Params:
     def __post_init__(self) -> None:
         positive = ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps")
         acuity = ("acuity_sigma_max_deg", "bilateral_sigma_r", "thompson_noise_hz")
-        baselines = ("ritschel_L_ref", "mikamo_gamma", "mikamo_drop_log10")
+        baselines = ("ritschel_L_ref", "mikamo_gamma", "mikamo_drop_log10", "mikamo_delta_e_floor")
         for name in positive + acuity + baselines:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -221,7 +225,7 @@ SECTIONS: dict[str, list[str]] = {
     ],
     "Mikamo et al. 2012": [
         "mikamo_top_fraction", "mikamo_gamma", "mikamo_reference_xy", "mikamo_drop_log10",
-        "mikamo_lowpass_deg", "mikamo_strength", "mikamo_sequence",
+        "mikamo_lowpass_deg", "mikamo_delta_e_floor", "mikamo_strength", "mikamo_sequence",
     ],
     "Acuity baselines": [
         "acuity_cutoff_response", "acuity_sigma_max_deg", "bilateral_sigma_r",
@@ -237,6 +241,7 @@ OURS = frozenset(
         "retina_cell_deg", "alpha_eps", "Y_min", "radiance_max", "geometry",
         "ritschel_L_ref", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
         "ritschel_strength", "mikamo_drop_log10", "mikamo_lowpass_deg", "mikamo_strength",
+        "mikamo_delta_e_floor",
         "acuity_cutoff_response", "acuity_sigma_max_deg", "bilateral_sigma_r",
         "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     }

@@ -41,10 +41,6 @@ XYZ_TO_RGB = np.linalg.inv(RGB_TO_XYZ)
 LMS_TO_XYZ = RGB_TO_XYZ @ LMS_TO_RGB
 #: The L*a*b* white: display white, D65 with Y = 1 (1 = display white in the additive map).
 WHITE_XYZ = RGB_TO_XYZ.sum(axis=1)
-#: Ours: Eq. 1 divides by delta E, which amplifies rounding noise near the reference colour
-#: and jumps there; below one Delta E unit (about a just-noticeable difference) we divide by 1
-#: instead, so (Delta a, Delta b) shrinks continuously to 0 at the reference colour.
-DELTA_E_FLOOR = 1.0
 _KNEE = (6.0 / 29.0) ** 3
 LUMINANCE_EPS = 1e-12  # display units; a clamped colour darker than this is black
 #: Ours: the mask keeps cells within this relative distance below the threshold, so that the
@@ -245,7 +241,7 @@ def delta_ab(lms: np.ndarray, ref_ab: tuple[float, float], p: Params) -> np.ndar
     lit = Y > p.Y_min
     _, a, b = lab_of_ratios(xyz / (WHITE_XYZ[:, None, None] * np.where(lit, Y, 1.0)))
     da, db = a - ref_ab[0], b - ref_ab[1]
-    norm = np.maximum(np.hypot(da, db), DELTA_E_FLOOR)
+    norm = np.maximum(np.hypot(da, db), p.mikamo_delta_e_floor)
     return np.where(lit, np.stack([da, db]) / norm, 0.0)
 
 

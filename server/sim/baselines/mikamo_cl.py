@@ -9,7 +9,6 @@ import numpy as np
 import pyopencl as cl
 
 from server.sim.baselines.mikamo import (
-    DELTA_E_FLOOR,
     LUMINANCE_EPS,
     WHITE_XYZ,
     XYZ_TO_RGB,
@@ -31,7 +30,13 @@ class MikamoOpenCL(MikamoModel):
             [
                 RGB_TO_XYZ.ravel(),
                 XYZ_TO_RGB.ravel(),
-                [WHITE_XYZ[0], WHITE_XYZ[2], *self.ref_ab, DELTA_E_FLOOR, LUMINANCE_EPS],
+                [
+                    WHITE_XYZ[0],
+                    WHITE_XYZ[2],
+                    *self.ref_ab,
+                    backend.p.mikamo_delta_e_floor,
+                    LUMINANCE_EPS,
+                ],
             ]
         ).astype(np.float32)
         seq = np.ascontiguousarray(np.column_stack([self.sequence.t, self.lab]), np.float32)
