@@ -29,6 +29,7 @@ from server.sim.layout import (
     gaussian_taps,
 )
 from server.sim.params import Params
+from server.sim.pocl_cpu import name_cpu_for_pocl
 from server.sim.reference import adaptation_window
 
 KERNEL_FILES = (
@@ -89,6 +90,7 @@ def pack_params(p: Params) -> np.ndarray:
 
 def pick_device() -> cl.Device:
     """GAZEHDR_CL_DEVICE if set, else the first GPU, else the first device of any kind."""
+    name_cpu_for_pocl()  # before PoCL sets up its devices
     devices = [d for platform in cl.get_platforms() for d in platform.get_devices()]
     if not devices:
         raise RuntimeError("no OpenCL device found; install pyopencl[pocl] for the CPU")

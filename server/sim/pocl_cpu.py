@@ -1,0 +1,138 @@
+"""Name the CPU for PoCL when its LLVM cannot, so that kernels build on new CPUs.
+
+pyopencl's wheels bundle PoCL 3.0 built on LLVM 14, which cannot name CPUs newer than itself
+(AMD family 1Ah, Zen 5, among them): `llvm::sys::getHostCPUName()` answers "generic", PoCL passes
+`-target-cpu generic` to its clang, and clang 14 refuses it, so every kernel build fails with
+"unknown target CPU 'generic'" (pocl/pocl#1049). PoCL 3.0 has no setting for the name and filters
+`-target-cpu` out of build options.
+
+So, before PoCL sets up its devices and only when it would say "generic", LLVM's
+`getHostCPUName` is made to answer the x86-64 micro-architecture level (x86-64-v2/-v3/-v4,
+known to LLVM since 12) that this CPU's flags satisfy: kernels are built for features the CPU
+has. `GAZEHDR_POCL_CPU` names an LLVM CPU to use instead, on any CPU (e.g. `znver3`).
+The patch is the function's first 16 bytes: `movabs rax, name; mov edx, len; ret`, the
+StringRef it returns in rax:rdx. It is made only to the PoCL build it was written against
+(checked by its code bytes), and checked by asking PoCL again.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import mmap
+import os
+import platform
+import re
+import struct
+from functools import cache
+from pathlib import Path
+
+# x86-64 psABI levels, each adding to the one before, with flags as /proc/cpuinfo names them
+# (abm is LZCNT).
+LEVELS = (
+    ("x86-64-v2", {"cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}),
+    ("x86-64-v3", {"avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave"}),
+    ("x86-64-v4", {"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl"}),
+)
+# pocl_get_llvm_cpu_name in PoCL 3.0: push rbp; push rbx; sub rsp, 8; call getHostCPUName
+PROLOGUE = bytes.fromhex("5553 4883ec08 e8")
+_NAME_RE = re.compile(r"[a-z0-9][a-z0-9_.-]{0,63}")
+_keep: list[ctypes.Array] = []  # the name the patched function returns must outlive it
+
+
+def level_for_flags(flags: set[str]) -> str:
+    """The highest x86-64 level whose features are all in `flags`."""
+    level = "x86-64"
+    for name, needs in LEVELS:
+        if not needs <= flags:
+            break
+        level = name
+    return level
+
+
+def cpu_flags(cpuinfo: str) -> set[str]:
+    """The first `flags` line of /proc/cpuinfo as a set."""
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() == "flags":
+            return set(value.split())
+    return set()
+
+
+def _bundled_pocl() -> Path | None:
+    """pyopencl's own libpocl (its wheels ship one beside an ICD file), or None."""
+    import pyopencl
+
+    libs = Path(pyopencl.__file__).parent / ".libs"
+    icd = libs / "pocl.icd"
+    if not icd.is_file():
+        return None
+    lib = libs / icd.read_text().strip()
+    return lib if lib.is_file() else None
+
+
+def _ask(fn: ctypes._CFuncPtr) -> str:
+    libc = ctypes.CDLL(None)
+    libc.free.argtypes = [ctypes.c_void_p]
+    ptr = fn()
+    try:
+        return ctypes.string_at(ptr).decode()
+    finally:
+        libc.free(ptr)
+
+
+def _patch(target: int, name: str) -> None:
+    buf = ctypes.create_string_buffer(name.encode())
+    _keep.append(buf)
+    stub = (
+        b"\x48\xb8" + struct.pack("<Q", ctypes.addressof(buf))  # movabs rax, name
+        + b"\xba" + struct.pack("<I", len(name))  # mov edx, len
+        + b"\xc3"  # ret
+    )  # fmt: skip
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mprotect.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    page = target & ~(mmap.PAGESIZE - 1)
+    length = target + len(stub) - page
+    rw, rx = mmap.PROT_READ | mmap.PROT_WRITE, mmap.PROT_READ | mmap.PROT_EXEC
+    if libc.mprotect(page, length, rw) != 0:
+        raise OSError(ctypes.get_errno(), "mprotect")
+    ctypes.memmove(target, stub, len(stub))
+    if libc.mprotect(page, length, rx) != 0:
+        raise OSError(ctypes.get_errno(), "mprotect")
+
+
+@cache
+def name_cpu_for_pocl() -> str | None:
+    """Before the first `cl.get_platforms()`: give PoCL a CPU name if it needs one.
+
+    Returns the name given, or None when nothing was changed (PoCL knows the CPU, or this is
+    not pyopencl's bundled PoCL on Linux x86-64)."""
+    wanted = os.environ.get("GAZEHDR_POCL_CPU", "").strip()
+    if wanted and not _NAME_RE.fullmatch(wanted):
+        raise RuntimeError(f"GAZEHDR_POCL_CPU={wanted!r} is not an LLVM CPU name")
+    if platform.system() != "Linux" or platform.machine() != "x86_64":
+        return None
+    lib = _bundled_pocl()
+    if lib is None:
+        return None
+    # The ICD loader later opens the same file by its soname and gets this same instance.
+    pocl = ctypes.CDLL(str(lib), mode=ctypes.RTLD_GLOBAL)
+    ask = pocl.pocl_get_llvm_cpu_name
+    ask.restype = ctypes.c_void_p
+    if not wanted:
+        if _ask(ask) != "generic":
+            return None
+        wanted = level_for_flags(cpu_flags(Path("/proc/cpuinfo").read_text()))
+    start = ctypes.cast(ask, ctypes.c_void_p).value
+    code = ctypes.string_at(start, len(PROLOGUE) + 4)
+    why = "PoCL's LLVM does not know this CPU (pocl/pocl#1049)"
+    if code[: len(PROLOGUE)] != PROLOGUE:
+        raise RuntimeError(f"{why}, and {lib.name} is not the PoCL build gazehdr can name it for")
+    (rel,) = struct.unpack("<i", code[len(PROLOGUE) :])
+    get_host_cpu_name = start + len(PROLOGUE) + 4 + rel
+    try:
+        _patch(get_host_cpu_name, wanted)
+    except OSError as exc:
+        raise RuntimeError(f"{why}, and naming it failed: {exc}") from exc
+    if _ask(ask) != wanted:
+        raise RuntimeError(f"{why}, and naming it {wanted!r} did not take")
+    return wanted

@@ -1,0 +1,93 @@
+"""PoCL gets a CPU name its LLVM knows (server/sim/pocl_cpu.py), so kernels build on new CPUs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from server.sim.pocl_cpu import cpu_flags, level_for_flags
+
+V2 = {"cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}
+V3 = V2 | {"avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave"}
+V4 = V3 | {"avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl"}
+
+
+@pytest.mark.parametrize(
+    ("flags", "level"),
+    [
+        (set(), "x86-64"),
+        (V2 - {"popcnt"}, "x86-64"),
+        (V2, "x86-64-v2"),
+        (V3 - {"movbe"}, "x86-64-v2"),
+        (V3 | {"avx512f"}, "x86-64-v3"),
+        (V4, "x86-64-v4"),
+        (V4 - V3 | V2, "x86-64-v2"),  # AVX-512 without AVX2 is not v4
+    ],
+)
+def test_level_is_the_highest_whose_flags_all_present(flags: set[str], level: str) -> None:
+    assert level_for_flags(flags) == level
+
+
+def test_cpu_flags_reads_the_first_flags_line() -> None:
+    text = "processor\t: 0\nflags\t\t: fpu sse2 avx2\nbugs\t: x\n\nflags\t: other\n"
+    assert cpu_flags(text) == {"fpu", "sse2", "avx2"}
+    assert cpu_flags("processor : 0\n") == set()
+
+
+PROBE = textwrap.dedent(
+    """
+    import numpy as np, pyopencl as cl
+    from server.sim.pocl_cpu import name_cpu_for_pocl
+    given = name_cpu_for_pocl()
+    pocl = [p for p in cl.get_platforms() if "Portable Computing Language" in p.name][0]
+    dev = pocl.get_devices()[0]
+    ctx = cl.Context([dev])
+    prg = cl.Program(ctx, "__kernel void k(__global float *a) { a[get_global_id(0)] *= 2.0f; }")
+    prg = prg.build()
+    a = np.arange(8, dtype=np.float32)
+    buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+    q = cl.CommandQueue(ctx)
+    prg.k(q, a.shape, None, buf)
+    cl.enqueue_copy(q, a, buf)
+    assert (a == 2 * np.arange(8)).all(), a
+    print(given, dev.version.split("HSTR:")[1].split()[0])
+    """
+)
+
+
+def _probe(env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-c", PROBE],
+        env={**os.environ, **env},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_a_named_cpu_is_what_pocl_builds_for() -> None:
+    """The override patches PoCL on any CPU: kernels build for that name and run correctly."""
+    done = _probe({"GAZEHDR_POCL_CPU": "x86-64-v2"})
+    assert done.returncode == 0, done.stderr
+    given, hstr = done.stdout.split()
+    assert given == "x86-64-v2"
+    assert hstr.endswith("-x86-64-v2")
+
+
+def test_without_override_pocl_never_builds_for_generic() -> None:
+    done = _probe({"GAZEHDR_POCL_CPU": ""})
+    assert done.returncode == 0, done.stderr
+    given, hstr = done.stdout.split()
+    assert not hstr.endswith("-generic")
+    # a name is given only where PoCL's own was "generic", and then it is an x86-64 level
+    assert given == "None" or given.startswith("x86-64")
+
+
+def test_a_malformed_name_is_refused_clearly() -> None:
+    done = _probe({"GAZEHDR_POCL_CPU": "not a cpu!"})
+    assert done.returncode != 0
+    assert "GAZEHDR_POCL_CPU='not a cpu!' is not an LLVM CPU name" in done.stderr
