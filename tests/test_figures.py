@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -89,6 +90,27 @@ def test_fig9_ours_is_a_dark_spot_ritschels_a_bright_one(figs: tuple[Path, dict]
     assert ratio["jacobs"] < 0.95 and ratio["ritschel"] > 1.5
 
 
+def test_fig9_blue_squares_leave_opponent_afterimages(figs: tuple[Path, dict]) -> None:
+    """Bottom row: both afterimages of the blue squares lean to yellow on the yellow-blue axis
+    (R + G > 2B in linear light, against a neutral grey); Ritschel's adds to the grey in every
+    channel, ours modulates it (darker in blue)."""
+    squares = figs[1]["9"]["squares"]
+    for model in ("jacobs", "ritschel"):
+        m = {k: np.array(v) for k, v in squares[model].items()}
+        blue = m["fixating_rgb"]
+        assert blue[2] > 1.5 * blue[:2].max(), f"{model}: the stimulus shown is not blue"
+        for grey in (m["surround_rgb"], m["without_afterimage_rgb"]):
+            assert np.ptp(grey) < 1e-3 * grey.mean(), f"{model}: the field is not neutral"
+        r, g, b = m["afterimage_rgb"]
+        assert r + g > 1.03 * 2 * b, f"{model}: afterimage not yellowish: {m['afterimage_rgb']}"
+    ours, theirs = ({k: np.array(v) for k, v in squares[m].items()} for m in ("jacobs", "ritschel"))
+    # Ritschel: strictly added on top (1e-6: figures.json rounds to 6 decimals) and visible.
+    assert (theirs["afterimage_rgb"] >= theirs["surround_rgb"] - 1e-6).all()
+    assert theirs["afterimage_rgb"].sum() > 1.05 * theirs["surround_rgb"].sum()
+    # Ours: the grey is modulated, the blue channel darker than around it.
+    assert ours["afterimage_rgb"][2] < 0.97 * ours["surround_rgb"][2]
+
+
 def test_fig10_purkinje_brightens_blue_against_red_as_light_falls(figs: tuple[Path, dict]):
     ratio = figs[1]["10"]["blue_over_red_luminance"]
     assert np.ptp(ratio["photopic"]) < 0.02 * ratio["photopic"][0]
@@ -109,6 +131,11 @@ def test_fig12_only_the_stochastic_model_varies_in_patches(figs: tuple[Path, dic
     fig = figs[1]["12"]
     change, kept = fig["frame_to_frame_change"], fig["contrast_kept"]
     assert change["stochastic"] > 5 * change["gaussian"]
+    # Thompson's temporal noise changes the frames; the Gaussian blur hardly does.
+    assert change["thompson"] > 3 * change["gaussian"]
+    # The bilateral filter keeps the bars' edges: far more contrast than the Gaussian blur.
+    for period in ("2", "3", "4"):
+        assert min(kept["bilateral"][period]) > max(kept["gaussian"][period]) + 0.3, period
     # Ours keeps a different amount of fine detail in each frame; a Gaussian blur the same.
     varies = {m: max(np.ptp(c) for c in kept[m].values()) for m in ("stochastic", "gaussian")}
     assert varies["gaussian"] < 0.005 and varies["stochastic"] > 0.02
@@ -129,6 +156,27 @@ def test_only_selects_and_bad_options_exit_2(tmp_path: Path, capsys) -> None:
         assert "error" in capsys.readouterr().err
     (tmp_path / "file").write_text("")
     assert main(["figures", "--out", str(tmp_path / "file"), "--only", "4"]) == 2
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    """`gazehdr ARGS` in a child process: the real entry point with real stdout and stderr."""
+    entry = "import sys; from server.cli import main; sys.exit(main())"
+    return subprocess.run(
+        [sys.executable, "-c", entry, *args],
+        capture_output=True, text=True, timeout=300, cwd=Path(__file__).resolve().parent.parent,
+    )  # fmt: skip
+
+
+def test_progress_bar_on_stderr_unless_quiet(tmp_path: Path) -> None:
+    small = ["--only", "4", "--size", "128x72"]
+    loud = _cli("figures", "--out", str(tmp_path / "loud"), *small)
+    quiet = _cli("figures", "--out", str(tmp_path / "quiet"), *small, "--quiet")
+    for run in (loud, quiet):
+        assert run.returncode == 0, run.stderr
+        assert re.search(r"wrote 3 files to .* in [\d.]+ s", run.stdout), run.stdout
+        assert "%|" not in run.stdout  # the bar never mixes into the summary
+    assert re.search(r"Fig\. 4: 100%\|.*\| 1/1 ", loud.stderr), loud.stderr
+    assert "Fig. 4" not in quiet.stderr and "%|" not in quiet.stderr, quiet.stderr
 
 
 def test_missing_matplotlib_names_the_extra(tmp_path: Path, monkeypatch, capsys) -> None:

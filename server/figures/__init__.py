@@ -148,13 +148,28 @@ FIGURES: tuple[Figure, ...] = (
         "but our model does so by modulating the background appearance, while Ritschel and "
         "Eisemann overlay an afterimage which is strictly brighter than the background. In other "
         "words, their model only predicts positive afterimages.",
-        "The same lamp run as Fig. 8 for both models: 3 s on the bulb (frames of 0.25 s), then "
-        "0.3 s on the book (frames of 0.1 s). Columns: the frame while fixating; the book "
-        "without any afterimage (the reference compose with neutral maps, same adaptation); "
-        "the book with the model's afterimage. The number below compares the luminance inside "
-        "the bulb's afterimage with and without it.",
-        "Matches the top row: ours is a dark spot on the book, Ritschel's a bright one. The "
-        "bottom row (a coloured stimulus) is not reproduced: no built-in scene has one.",
+        "Top row (first image): the same lamp run as Fig. 8 for both models: 3 s on the bulb "
+        "(frames of 0.25 s), then 0.3 s on the book (frames of 0.1 s). Columns: the frame "
+        "while fixating; the book without any afterimage (the reference compose with neutral "
+        "maps, same adaptation); the book with the model's afterimage. The number below "
+        "compares the luminance inside the bulb's afterimage with and without it. Bottom row "
+        "(second image): a procedural stimulus, four squares of saturated blue (the sRGB blue "
+        "primary, 433 cd/m²) on a 100 cd/m² grey, fixated for 3 s, then 0.3 s on the plain "
+        "grey field to their right, so that their afterimage lands on grey; same columns. "
+        "The display shows the squares pale blue: its blue primary alone cannot reach that "
+        "luminance, so compose brings them into gamut by adding white. The numbers below give "
+        "the grey field where the squares' afterimage lies, per channel relative to the grey "
+        "around it.",
+        "Matches the top row: ours is a dark spot on the book, Ritschel's a bright one. Bottom "
+        "row: matches in kind. Both afterimages are opponent to blue on the yellow-blue axis "
+        "(R + G > 2B in linear light); ours modulates the grey (darker in blue and green, "
+        "brighter in red) while Ritschel's is added on top (no channel darker, all brighter "
+        "or equal). Differs: neither is the paper's yellow; both come out red-orange to "
+        "pinkish (hue about 5-15°): the blue primary excites M cones about twice as much as L "
+        "cones, so afterwards M is more adapted (or bleached) than L, and through the L − M "
+        "opponent term of LMS → RGB red dominates. The stimulus and its luminances are ours "
+        "(the paper's picture is not given); a blue no brighter than the grey leaves "
+        "Ritschel's model almost nothing.",
         afterimage.fig9,
     ),
     Figure(

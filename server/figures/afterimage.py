@@ -2,7 +2,7 @@
 
 Fig. 4 and 5 follow one point of the retina through a flash; Fig. 6/7 close the eyes after the
 built-in `flash` scene; Fig. 8 and 9 fixate the bulb of the built-in `lamp` scene and then look
-at the book.
+at the book; the bottom row of Fig. 9 fixates blue squares on grey, then the grey beside them.
 """
 
 from __future__ import annotations
@@ -144,15 +144,20 @@ _HUES = (
 )  # fmt: skip
 
 
-def hue_name(rgb: np.ndarray) -> str:
-    """A coarse name for the colour of linear RGB."""
+def hue_angle(rgb: np.ndarray) -> float:
+    """HSV hue of linear RGB (negatives clipped), degrees: 0 red, 60 yellow, 240 blue."""
+    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
+    return colorsys.rgb_to_hsv(*(rgb / max(rgb.max(), 1e-12)))[0] * 360
+
+
+def hue_name(rgb: np.ndarray, min_saturation: float = 0.15) -> str:
+    """A coarse name for the colour of linear RGB ("grey" below `min_saturation`)."""
     rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
     if rgb.max() <= 1e-6:
         return "black"
-    if saturation(rgb) < 0.15:
+    if saturation(rgb) < min_saturation or saturation(rgb) == 0:
         return "grey"
-    hue = colorsys.rgb_to_hsv(*(rgb / rgb.max()))[0] * 360
-    return next(name for limit, name in _HUES if hue < limit)
+    return next(name for limit, name in _HUES if hue_angle(rgb) < limit)
 
 
 def fig5(ctx: Context) -> Result:
@@ -218,8 +223,7 @@ def flash_sequence(ctx: Context, model: str, speed: float) -> tuple[np.ndarray, 
     scene, (w, h) = Flash(), (ctx.width, ctx.height)
     sim = simulator(ctx, afterimage=model)
     gaze = (scene.flash_centre[0] * w, scene.flash_centre[1] * h)
-    sim.step(0.0, gaze=gaze)
-    sim.load_scene(scene.render(0.0, w, h))
+    sim.start(scene.render(0.0, w, h), gaze)
     advance(sim, 2 * FRAME_DT, FRAME_DT)
     sim.load_scene(scene.render(scene.first, w, h), reset=False)
     flash = advance(sim, scene.duration, FRAME_DT)
@@ -276,33 +280,47 @@ LOOK_DT = 0.1  # frames after the gaze moved
 BOOK_CROP_CENTRE, LAMP_CROP_CENTRE, BOOK_CROP = (0.5, 0.78), (0.5, 0.36), (0.6, 0.45)
 
 
-def _scale(ctx: Context) -> int:
-    """Enlargement of the crops: at least 300 px wide, whole pixels."""
-    return max(1, math.ceil(300 / (BOOK_CROP[0] * ctx.width)))
+def _scale(ctx: Context, crop_width: float) -> int:
+    """Enlargement of crops `crop_width` frame widths wide: at least 300 px, whole pixels."""
+    return max(1, math.ceil(300 / (crop_width * ctx.width)))
 
 
 SPOT_RADIUS = 0.04  # frame heights: the inside of the bulb's afterimage (the bulb is 0.06)
 
 
 @dataclass(frozen=True)
-class LampRun:
-    fixating: np.ndarray  # v while fixating the bulb
-    after: np.ndarray  # v AFTER_MOVE_SECONDS after the gaze moved to the book
-    gaze: tuple[float, float]  # the gaze on the book, screen px
-    sim: Simulator  # in the state of `after`, for the reference recomposition of Fig. 8
+class LookRun:
+    """A scene fixated for FIXATION_SECONDS, then AFTER_MOVE_SECONDS with the gaze elsewhere."""
+
+    fixating: np.ndarray  # v at the end of the first fixation
+    after: np.ndarray  # v AFTER_MOVE_SECONDS after the gaze moved
+    gaze: tuple[float, float]  # the second gaze, screen px
+    sim: Simulator  # in the state of `after`, for the reference recompositions
+
+
+def look_away(
+    ctx: Context,
+    model: str,
+    scene: np.ndarray,
+    first: tuple[float, float],
+    second: tuple[float, float],
+) -> LookRun:
+    """The gaze is set before the scene loads, so the load's reset settles the retina at the
+    first fixation: moving there afterwards would itself leave an afterimage."""
+    sim = simulator(ctx, afterimage=model)
+    sim.start(scene, first)
+    fixating = advance(sim, FIXATION_SECONDS, FIXATION_DT, gaze=first)
+    after = advance(sim, AFTER_MOVE_SECONDS, LOOK_DT, gaze=second)
+    return LookRun(fixating, after, second, sim)
 
 
 @functools.lru_cache(maxsize=4)
-def lamp_run(ctx: Context, model: str) -> LampRun:
+def lamp_run(ctx: Context, model: str) -> LookRun:
+    """The bulb of the `lamp` scene, then the left page of the book (Fig. 8 and 9, top row)."""
     w, h = ctx.width, ctx.height
     bulb = (Lamp.bulb_centre[0] * w, Lamp.bulb_centre[1] * h)
     page = ((Lamp.book_centre[0] - 0.16 * h / w) * w, Lamp.book_centre[1] * h)  # left page
-    sim = simulator(ctx, afterimage=model)
-    sim.step(0.0, gaze=bulb)
-    sim.load_scene(Lamp().render(0.0, w, h))
-    fixating = advance(sim, FIXATION_SECONDS, FIXATION_DT, gaze=bulb)
-    after = advance(sim, AFTER_MOVE_SECONDS, LOOK_DT, gaze=page)
-    return LampRun(fixating, after, page, sim)
+    return look_away(ctx, model, Lamp().render(0.0, w, h), bulb, page)
 
 
 def _arrays(sim: Simulator) -> dict[str, np.ndarray]:
@@ -340,8 +358,13 @@ def _spot(v: np.ndarray, gaze: tuple[float, float]) -> np.ndarray:
     return linear(v, _PARAMS)[inside].mean(axis=0)
 
 
-def _book(ctx: Context, v: np.ndarray, centre: tuple[float, float] = BOOK_CROP_CENTRE):
-    return zoom(crop(v, centre, BOOK_CROP), _scale(ctx))
+def _panel(
+    ctx: Context,
+    v: np.ndarray,
+    centre: tuple[float, float] = BOOK_CROP_CENTRE,
+    size: tuple[float, float] = BOOK_CROP,
+) -> np.ndarray:
+    return zoom(crop(v, centre, size), _scale(ctx, size[0]))
 
 
 def fig8(ctx: Context) -> Result:
@@ -350,7 +373,7 @@ def fig8(ctx: Context) -> Result:
     eq7 = recompose(run.sim, calcium=False)
     eq12 = recompose(run.sim, calcium=True)
     columns = ["scene (no afterimage)", "Eq. 7: without C/C_max", "Eq. 12: with C/C_max"]
-    panels = [_book(ctx, v) for v in (original, eq7, run.after)]
+    panels = [_panel(ctx, v) for v in (original, eq7, run.after)]
     alt = "Bleaching afterimage of the bulb without and with the calcium term"
     save(ctx, res, "fig08_calcium.png", grid([panels], [""], columns), alt)
     scene = _spot(original, run.gaze)
@@ -374,13 +397,86 @@ def _fmt(rgb: np.ndarray) -> str:
     return "({:+.4f}, {:+.4f}, {:+.4f})".format(*rgb)
 
 
-def fig9(ctx: Context) -> Result:
-    res, rows, ratios = Result(), [], {}
-    for model in ("jacobs", "ritschel"):
+# --- Fig. 9: the lamp (top row) and a strongly coloured stimulus (bottom row) ------------------
+
+FIG9_MODELS = ("jacobs", "ritschel")
+
+#: Ours (the paper's picture is not given): the sRGB blue primary, saturated, on a neutral grey
+#: at the adaptation floor A_min (100 cd/m^2). The blue is 433 cd/m^2 (6000 in its channel):
+#: bright enough for Ritschel's kinetics to bleach the S pigment well beyond the grey's level
+#: (S input ~ L_ref); a blue no brighter than the grey leaves their model almost nothing: its
+#: L pigment bleaches less than under the grey, M barely more, and the opponent colour of an S
+#: excess alone is negative in R and B and only faintly green, so little survives the clamp.
+GREY_FIELD = 100.0
+BLUE = (0.0, 0.0, 6000.0)
+#: The fixation on the squares and then on the plain grey field (frame fractions): the
+#: afterimage lands 0.4 frame widths right of the squares, on grey everywhere around it.
+SQUARES_GAZE, FIELD_GAZE = (0.3, 0.5), (0.7, 0.5)
+SQUARE_SIDE, SQUARE_GAP = 0.16, 0.08  # frame heights: 2 x 2 squares around the gaze
+SQUARES_CROP = (0.4, 0.7)  # the panels: the squares or their afterimage with grey around
+
+
+def square_rects(width: int, height: int, centre: tuple[float, float]):
+    """The four squares, 2 x 2 around `centre`, as (x0, y0, x1, y1) frame fractions."""
+    sx, gx = SQUARE_SIDE * height / width, SQUARE_GAP * height / width
+    sy, gy = SQUARE_SIDE, SQUARE_GAP
+    cx, cy = centre
+    return [
+        (cx + dx, cy + dy, cx + dx + sx, cy + dy + sy)
+        for dy in (-gy / 2 - sy, gy / 2)
+        for dx in (-gx / 2 - sx, gx / 2)
+    ]
+
+
+def surround_rects(width: int, height: int, centre: tuple[float, float]):
+    """Four grey strips around the squares at `centre`, half a square away, one square wide:
+    the background the afterimage is seen against."""
+    rects = square_rects(width, height, centre)
+    x0, y0 = min(r[0] for r in rects), min(r[1] for r in rects)
+    x1, y1 = max(r[2] for r in rects), max(r[3] for r in rects)
+    sx, sy = SQUARE_SIDE * height / width, SQUARE_SIDE
+    return [
+        (x0 - 1.5 * sx, y0, x0 - 0.5 * sx, y1),
+        (x1 + 0.5 * sx, y0, x1 + 1.5 * sx, y1),
+        (x0, y0 - 1.5 * sy, x1, y0 - 0.5 * sy),
+        (x0, y1 + 0.5 * sy, x1, y1 + 1.5 * sy),
+    ]
+
+
+def blue_squares(width: int, height: int) -> np.ndarray:
+    """Grey field with the blue squares around SQUARES_GAZE (pixels whose centre is inside)."""
+    scene = np.full((height, width, 3), GREY_FIELD, np.float32)
+    xs, ys = (np.arange(width) + 0.5) / width, (np.arange(height) + 0.5) / height
+    for x0, y0, x1, y1 in square_rects(width, height, SQUARES_GAZE):
+        inside = ((ys >= y0) & (ys < y1))[:, None] & ((xs >= x0) & (xs < x1))[None, :]
+        scene[inside] = BLUE
+    return scene
+
+
+def _mean_over(v: np.ndarray, rects, keep: float) -> np.ndarray:
+    """Mean linear RGB over rectangles (frame fractions), each its central `keep` fraction."""
+    J = linear(v, _PARAMS)
+    return np.mean([rect_mean(J, r, keep) for r in rects], axis=0)
+
+
+def squares_run(ctx: Context, model: str) -> LookRun:
+    """The blue squares, then the plain grey field (Fig. 9, bottom row)."""
+    w, h = ctx.width, ctx.height
+    first, second = (
+        (SQUARES_GAZE[0] * w, SQUARES_GAZE[1] * h),
+        (FIELD_GAZE[0] * w, FIELD_GAZE[1] * h),
+    )
+    return look_away(ctx, model, blue_squares(w, h), first, second)
+
+
+def _lamp_row(ctx: Context, res: Result) -> dict[str, float]:
+    """Fig. 9, top row; returns each model's luminance ratio inside the bulb's afterimage."""
+    rows, ratios = [], {}
+    for model in FIG9_MODELS:
         run = lamp_run(ctx, model)
         plain = without_afterimage(run.sim)
-        lamp = _book(ctx, run.fixating, LAMP_CROP_CENTRE)
-        rows.append([lamp, _book(ctx, plain), _book(ctx, run.after)])
+        lamp = _panel(ctx, run.fixating, LAMP_CROP_CENTRE)
+        rows.append([lamp, _panel(ctx, plain), _panel(ctx, run.after)])
         ratios[model] = float(_spot(run.after, run.gaze) @ LUMA / (_spot(plain, run.gaze) @ LUMA))
     columns = [
         f"fixating the lamp {FIXATION_SECONDS:g} s",
@@ -388,11 +484,69 @@ def fig9(ctx: Context) -> Result:
         "with the model's afterimage",
     ]
     alt = "Adaptation afterimage of the lamp on the book: ours dark, Ritschel bright"
-    save(ctx, res, "fig09_adaptation.png", grid(rows, ["jacobs", "ritschel"], columns), alt)
-    res.measures = {"spot_luminance_ratio": {k: round(v, 4) for k, v in ratios.items()}}
+    save(ctx, res, "fig09_adaptation.png", grid(rows, list(FIG9_MODELS), columns), alt)
+    return ratios
+
+
+def _squares_row(ctx: Context, res: Result) -> dict[str, dict[str, np.ndarray]]:
+    """Fig. 9, bottom row; returns each model's mean linear RGB on the squares while fixating,
+    where their afterimage lies (with and without it) and on the grey around that."""
+    w, h = ctx.width, ctx.height
+    stimulus, where = square_rects(w, h, SQUARES_GAZE), square_rects(w, h, FIELD_GAZE)
+    around = surround_rects(w, h, FIELD_GAZE)
+    rows, colours = [], {}
+    for model in FIG9_MODELS:
+        run = squares_run(ctx, model)
+        plain = without_afterimage(run.sim)
+        rows.append(
+            [_panel(ctx, run.fixating, SQUARES_GAZE, SQUARES_CROP)]
+            + [_panel(ctx, v, FIELD_GAZE, SQUARES_CROP) for v in (plain, run.after)]
+        )
+        colours[model] = {
+            "fixating_rgb": _mean_over(run.fixating, stimulus, 0.5),
+            "afterimage_rgb": _mean_over(run.after, where, 0.5),
+            "surround_rgb": _mean_over(run.after, around, 1.0),
+            "without_afterimage_rgb": _mean_over(plain, where, 0.5),
+        }
+    columns = [
+        f"fixating the blue squares {FIXATION_SECONDS:g} s",
+        f"{AFTER_MOVE_SECONDS:g} s on the grey field: no afterimage",
+        "with the model's afterimage",
+    ]
+    alt = "Adaptation afterimage of blue squares on grey: ours modulates, Ritschel adds"
+    save(ctx, res, "fig09_colour.png", grid(rows, list(FIG9_MODELS), columns), alt)
+    return colours
+
+
+def _squares_finding(model: str, colours: dict[str, np.ndarray]) -> str:
+    ratio = colours["afterimage_rgb"] / colours["surround_rgb"]
+    r, g, b = colours["afterimage_rgb"]
+    # Changes under 0.1 % are not named: the ratios are shown to three decimals.
+    darker = ", ".join(c for c, x in zip("RGB", ratio, strict=True) if x < 1 - 1e-3) or "none"
+    brighter = ", ".join(c for c, x in zip("RGB", ratio, strict=True) if x > 1 + 1e-3) or "none"
+    return (
+        f"Blue squares, {model}: where they were, the grey field is "
+        f"({ratio[0]:.3f}, {ratio[1]:.3f}, {ratio[2]:.3f}) times the grey around it in linear "
+        f"R, G, B (darker: {darker}; brighter: {brighter}); "
+        f"(R + G) / 2B = {(r + g) / (2 * b):.3f} (above 1: towards yellow); hue of the change "
+        f"{hue_angle(ratio):.0f}° ({hue_name(ratio, 0.0)})."
+    )
+
+
+def fig9(ctx: Context) -> Result:
+    res = Result()
+    ratios = _lamp_row(ctx, res)
+    colours = _squares_row(ctx, res)
+    res.measures = {
+        "spot_luminance_ratio": {k: round(v, 4) for k, v in ratios.items()},
+        "squares": {
+            m: {k: np.round(x, 6).tolist() for k, x in d.items()} for m, d in colours.items()
+        },
+    }
     res.findings = [
-        f"{m}: the afterimage region has {r:.2f}x the luminance it has without the afterimage "
-        f"({'darker' if r < 1 else 'brighter'})."
+        f"Lamp, {m}: the afterimage region has {r:.2f}x the luminance it has without the "
+        f"afterimage ({'darker' if r < 1 else 'brighter'})."
         for m, r in ratios.items()
     ]
+    res.findings += [_squares_finding(m, c) for m, c in colours.items()]
     return res

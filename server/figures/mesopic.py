@@ -53,8 +53,7 @@ def checker(ctx: Context, white: float, photopic: bool) -> np.ndarray:
     params = Params(**PHOTOPIC) if photopic else Params()
     sim = simulator(ctx, params=params)
     scene = CheckerNight(white_luminance=white).render(0.0, w, h)
-    sim.step(0.0, gaze=(w / 2, h / 2))
-    sim.load_scene(scene)
+    sim.start(scene, (w / 2, h / 2))
     return normalise(sim.step(0.0), params, _target(scene, white))
 
 
@@ -98,8 +97,7 @@ def _inset(ctx: Context, white: float) -> np.ndarray:
     scene = full[y0 : y0 + h, x0 : x0 + w]
     params = native_geometry(w, h)
     sim = simulator(ctx, params=params)
-    sim.step(0.0, gaze=(w / 2, h / 2))
-    sim.load_scene(scene)
+    sim.start(scene, (w / 2, h / 2))
     return normalise(sim.step(0.0), params, _target(scene, white))
 
 
@@ -195,8 +193,7 @@ def fig12(ctx: Context) -> Result:
     change, detail = {}, {}
     for model in ACUITY_MODELS:
         sim = simulator(ctx, params=params, acuity=model)
-        sim.step(0.0, gaze=(w / 2, h / 2))
-        sim.load_scene(scene)
+        sim.start(scene, (w / 2, h / 2))
         frames, now = [], 0.0
         for t in FRAME_TIMES:
             frames.append(normalise(sim.step(t - now), params, target))

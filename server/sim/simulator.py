@@ -133,6 +133,21 @@ class Simulator:
         self._backend.adapt(self._gaze, 0.0, True)
         self._afterimage.retina(self._gaze, 0.0, True)
 
+    def start(
+        self,
+        rgb: np.ndarray,
+        gaze: Sequence[float],
+        eyes_open: bool = True,
+        continue_from: Simulator | None = None,
+    ) -> None:
+        """Look at `rgb` from `gaze`, settled there (the gaze is set before the scene, so no
+        start-up afterimage); with `continue_from`, go on with that eye (`carry_state_from`):
+        how a new simulator takes over after a parameter or model change."""
+        self.step(0.0, gaze=gaze, eyes_open=eyes_open)
+        self.load_scene(rgb, reset=True)
+        if continue_from is not None:
+            self.carry_state_from(continue_from)
+
     def carry_state_from(self, other: Simulator) -> None:
         """Continue `other`'s eye (after a parameter change): its time and adaptation, and its
         retinal state when both retina grids and afterimage models are the same; else the
