@@ -9,11 +9,13 @@ Tolerances, OpenCL (float32, relaxed math) vs reference (float64):
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from server.figures.common import native_geometry
 from server.sim import Params, Simulator
 from server.sim.baselines.mikamo import (
     XYZ_TO_RGB,
@@ -23,6 +25,7 @@ from server.sim.baselines.mikamo import (
     xyY_to_XYZ,
 )
 from server.sim.layout import RGB_TO_XYZ
+from tests.measures import spread
 
 W, H = 64, 48
 CENTRE = (32.0, 24.0)
@@ -253,6 +256,126 @@ def test_colour_of_the_light_steers_the_afterimage() -> None:
     assert not np.allclose(later, first, rtol=1e-3)
     flash_then_off(ref, reset=False)
     np.testing.assert_allclose(additive(ref), first, rtol=1e-9)
+
+
+# Independent CIE L*a*b* (the model's own conversions are what these tests check).
+_EPS = (6 / 29) ** 3
+DISPLAY_WHITE = RGB_TO_XYZ.sum(axis=1)  # XYZ of RGB (1, 1, 1): the L*a*b* white, Y = 1
+
+
+def cie_lab(xyz: np.ndarray, white: np.ndarray) -> np.ndarray:
+    t = np.asarray(xyz, np.float64) / white
+    f = np.where(t > _EPS, np.cbrt(t), t * (29 / 6) ** 2 / 3 + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def cie_xyz(lab: np.ndarray, white: np.ndarray) -> np.ndarray:
+    L, a, b = lab
+    f = np.array([(L + 16) / 116 + a / 500, (L + 16) / 116, (L + 16) / 116 - b / 200])
+    return white * np.where(f > 6 / 29, f**3, 3 * (6 / 29) ** 2 * (f - 4 / 29))
+
+
+def test_image_term_is_tau_times_delta_at_a_middle_row() -> None:
+    """Eq. 1-4 in closed form for a light redder than Padgham's: at the light's centre Z = 1
+    (it is the brightest part of I_on); Eq. 1: (Delta a, Delta b) = the unit vector from the
+    reference chromaticity to the light's, in L*a*b* with the white at the light's luminance;
+    at a middle row's time L_A = L_M, a_A = a_M + tau_M Delta a, b_A = b_M + tau_M Delta b,
+    tau_M = L_M / L_M(0); then XYZ -> RGB and the gamut fix. The afterimage of a light of the
+    reference colour (Delta = 0) differs from it by exactly tau_M Delta in L*a*b*."""
+    seq, p = load_sequence(""), Params()
+    k = (len(seq.t) - 1) // 2
+    red = flash_scene(colour(1e5, 0.55, 0.33))[24, 32].astype(np.float64)  # as the sim sees it
+    seen = {}
+    for name, rgb in (("red", red), ("reference", None)):
+        sim = make()
+        flash_then_off(sim, rgb=rgb)
+        seen[name] = follow(sim, [seq.t[k]], "scene")[0]
+
+    xyz = RGB_TO_XYZ @ red
+    white = DISPLAY_WHITE * xyz[1]  # L* = 100 for the light and for the reference at its Y
+    light = cie_lab(xyz, white)[1:]
+    ref = cie_lab(xyY_to_XYZ(xyz[1], *p.mikamo_reference_xy), white)[1:]
+    delta = (light - ref) / np.hypot(*(light - ref))
+    row = cie_lab(xyY_to_XYZ(seq.Y[k], seq.x[k], seq.y[k]), DISPLAY_WHITE)
+    tau = row[0] / cie_lab(xyY_to_XYZ(seq.Y[0], seq.x[0], seq.y[0]), DISPLAY_WHITE)[0]
+    assert 0.2 < tau < 0.8 and np.hypot(*(light - ref)) > 10  # a middle row, a real colour
+    lab_A = np.array([row[0], row[1] + tau * delta[0], row[2] + tau * delta[1]])
+    xyz_A = cie_xyz(lab_A, DISPLAY_WHITE)
+    rgb_A = XYZ_TO_RGB @ xyz_A
+    assert rgb_A.min() > 0  # in gamut: the gamut fix leaves it alone, so L*a*b* compares exactly
+    np.testing.assert_allclose(seen["red"], rgb_A, rtol=1e-7)
+    shift = cie_lab(RGB_TO_XYZ @ seen["red"], DISPLAY_WHITE) - cie_lab(
+        RGB_TO_XYZ @ seen["reference"], DISPLAY_WHITE
+    )
+    # 1e-5: the reference light, rounded to float32, is ~1e-6 Delta E off the reference colour,
+    # below the Delta E floor, so its own Delta is ~1e-6 rather than exactly 0.
+    np.testing.assert_allclose(shift, [0.0, *(tau * delta)], atol=1e-5)
+
+
+def one_cell_light(backend: str, **params) -> tuple[Simulator, tuple[float, float]]:
+    """Darkness but one low-resolution cell lit with Padgham's light for a second, fixated so
+    that a single retina cell sees it (the gaze on its corner), then the light goes off. At
+    the paper's pixel density (64 px/°, 6-px cells): 0.25° is 2.7 cells."""
+    w, h = 128, 96
+    sim = Simulator(
+        w, h, params=native_geometry(w, h).replace(**params), backend=backend, afterimage="mikamo"
+    )
+    lay, c = sim.layout, sim.layout.cell
+    gx, gy = lay.low_w // 2, lay.low_h // 2
+    gaze = (float(gx * c), float(gy * c))
+    scene = np.zeros((h, w, 3), np.float32)
+    scene[gy * c : (gy + 1) * c, gx * c : (gx + 1) * c] = colour(1e5, *Params().mikamo_reference_xy)
+    sim.step(0.0, gaze=gaze)  # the eye is there before the light: no retinal move fires
+    sim.load_scene(scene)
+    sim.step(1.0, gaze=gaze)
+    sim.load_scene(np.zeros_like(scene), reset=False)
+    sim.step(0.0, gaze=gaze)
+    return sim, gaze
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_fixed_low_pass_spreads_one_cell_by_its_sigma(backend: str) -> None:
+    """The afterimage of one retina cell is the low-pass kernel: its spread is
+    mikamo_lowpass_deg in cells (2 %: a sampled, truncated Gaussian), around that cell; and
+    the low-pass is fixed: 5 s later the afterimage has another colour, the same spread."""
+    sim, gaze = one_cell_light(backend)
+    lay = sim.layout
+    expect = lay.px(Params().mikamo_lowpass_deg) / lay.cell
+    assert 2 < expect < 4
+    for later in (False, True):
+        if later:
+            sim.step(5.0, gaze=gaze)
+        maps = sim._backend.get("maps")[3:].astype(np.float64)
+        assert maps.sum() > 0.1
+        for plane in maps:
+            for axis, centre in ((0, lay.grid_w // 2), (1, lay.grid_h // 2)):
+                mean, sigma = spread(plane, axis, centre)  # axis 0: along x
+                assert mean == pytest.approx(0.0, abs=1e-3)
+                assert sigma == pytest.approx(expect, rel=0.02)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_background_dark_adapts_while_the_afterimage_plays(backend: str) -> None:
+    """The blend is over a dark-adapting background: a lamp in a dim room (1 cd/m^2) goes
+    off; while its afterimage plays, the global adaptation A falls step after step (at a2, so
+    0.1 log units per 0.5 s) and the room, unchanged, is shown brighter each step."""
+    p = Params()
+    scene = flash_scene(colour(1e5, *p.mikamo_reference_xy), background=1.0)
+    room = scene.copy()
+    room[16:32, 24:40] = 1.0
+    sim = make(backend)
+    sim.load_scene(scene)
+    sim.step(1.0, gaze=CENTRE)
+    sim.load_scene(room, reset=False)
+    A, wall = [], []
+    for _ in range(8):
+        v = sim.step(0.5, gaze=CENTRE)
+        assert luminance(additive(sim)) > 0.05  # the afterimage is playing
+        A.append(sim.adaptation)
+        wall.append(float(v[4:8, 4:8].mean()))
+    assert A[-1] > p.A_min + 0.5  # never reached the floor: A fell all the time
+    np.testing.assert_allclose(np.diff(A), -0.5 * p.a2, rtol=1e-3)
+    assert all(b > a for a, b in itertools.pairwise(wall)), wall
 
 
 # --- OpenCL, edges, determinism ------------------------------------------------------------

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from server.figures.common import native_geometry
 from server.sim import Params, Simulator
 from server.sim.baselines.ritschel import (
     hue_forward,
@@ -21,7 +22,8 @@ from server.sim.baselines.ritschel import (
     orgb_to_rgb,
     rgb_to_orgb,
 )
-from server.sim.layout import LMS_TO_RGB
+from server.sim.layout import LMS_TO_RGB, RGB_TO_LMS
+from tests.measures import spread
 
 BACKENDS = ["reference", "opencl"]
 W, H = 64, 48
@@ -109,6 +111,89 @@ def test_kernel_orgb_round_trip(backend: str) -> None:
     assert (s._backend.get("maps")[:3] == 1.0).all()
 
 
+# --- the kinetics of Listing 1 -------------------------------------------------------------------
+
+
+def test_defaults_are_the_papers() -> None:
+    """Sec. 3.1: c_a = 0.3 and c_d = 1.0 c_a; Listing 1 with a single iteration (n = 1)."""
+    p = Params()
+    assert p.c_a == 0.3 and p.c_d == p.c_a and p.ritschel_steps == 1
+
+
+def cone_input(scene: np.ndarray, s: Simulator, gaze: tuple[int, int]) -> np.ndarray:
+    """L of Eq. 3 at every retina cell, for 1-px cells and a whole-pixel gaze: cell (i, j)
+    sees pixel (gaze + (i, j) - grid/2) exactly, nothing off screen; divided by L_ref."""
+    lay = s.layout
+    assert lay.cell == 1
+    lms = np.einsum("ij,hwj->ihw", RGB_TO_LMS, scene.astype(np.float64))
+    L = np.zeros((3, lay.grid_h, lay.grid_w))
+    y0, x0 = lay.grid_h // 2 - gaze[1], lay.grid_w // 2 - gaze[0]
+    L[:, y0 : y0 + H, x0 : x0 + W] = lms / s.params.ritschel_L_ref
+    return L
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize(
+    ("dt", "c_a", "c_d", "n"),
+    [(0.2, 0.3, 0.3, 1), (5.0, 0.3, 0.3, 1), (3.0, 0.5, 0.2, 3)],
+    ids=["small step", "clamped step", "c_a != c_d, n = 3, each clamped"],
+)
+def test_one_frame_is_listing_1(backend: str, dt: float, c_a: float, c_d: float, n: int) -> None:
+    """With both blurs off, a frame from a random state is n explicit Euler steps of Eq. 3 of
+    length dt/n, each clamped to [0, 1], per cell and cone, in closed form here. c_a != c_d
+    tells the two constants apart. Tolerance: 1e-12 (float64), 2e-6 (float32 kernel)."""
+    p = Params(
+        c_a=c_a, c_d=c_d, ritschel_steps=n, ritschel_N_sigma_deg=0.0, ritschel_saccade_sigma_deg=0.0
+    )
+    s = sim(backend, p)
+    rng = np.random.default_rng(7)
+    scene = np.exp(rng.uniform(np.log(10.0), np.log(3e4), (H, W, 3))).astype(np.float32)
+    gaze = (32, 24)
+    s.load_scene(scene)
+    s.step(0.0, gaze=gaze)
+    s._backend.put("state", rng.uniform(0.0, 1.0, s._backend.get("state").shape))
+    r = s._backend.get("state").astype(np.float64)  # as stored (float32 on OpenCL)
+    s.step(dt, gaze=gaze)
+    L = cone_input(scene, s, gaze)
+    for _ in range(n):
+        r = np.clip(r + dt / n * (c_a * L * (1.0 - r) - c_d * r), 0.0, 1.0)
+    got = s._backend.get("state").astype(np.float64)
+    assert np.abs(got - r).max() < (1e-12 if backend == "reference" else 2e-6)
+    if dt == 5.0:  # the clamp was exercised at both ends: dark cells off screen, bright on it
+        assert (r == 0.0).mean() > 0.5 and (r == 1.0).mean() > 0.01
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("sigma_deg", [Params().ritschel_saccade_sigma_deg, 0.4])
+def test_micro_saccade_blur_has_its_sigma(backend: str, sigma_deg: float) -> None:
+    """One lit retina cell: after one step from r = 0 (c_d = 0, no diffusion) r = dt c_a L of
+    the blurred input, so the spread of r is the micro-saccade sigma, ritschel_saccade_sigma_deg
+    in cells (within 2 %: a sampled, truncated Gaussian), and the blur keeps the input's sum.
+    At the paper's pixel density (64 px/°, 6-px cells), where 0.08° is 0.85 cells."""
+    w, h = 192, 128
+    p = native_geometry(w, h).replace(
+        c_d=0.0, ritschel_N_sigma_deg=0.0, ritschel_saccade_sigma_deg=sigma_deg
+    )
+    s = Simulator(w, h, params=p, backend=backend, afterimage="ritschel")
+    lay, c = s.layout, s.layout.cell
+    gx, gy = lay.low_w // 2, lay.low_h // 2
+    gaze = (float(gx * c), float(gy * c))  # a cell corner: the lit cell's centre is sampled
+    scene = np.zeros((h, w, 3), np.float32)
+    s.load_scene(scene)
+    s.step(0.0, gaze=gaze)  # darkness: r = 0
+    scene[gy * c : (gy + 1) * c, gx * c : (gx + 1) * c] = p.ritschel_L_ref  # L = 1, all cones
+    s.load_scene(scene, reset=False)
+    s.step(1.0, gaze=gaze)
+    expect = lay.px(sigma_deg) / c
+    for plane in s._backend.get("state").astype(np.float64):
+        assert plane.sum() == pytest.approx(p.c_a, rel=1e-4) and plane.max() < 1.0
+        for axis, centre in ((0, lay.grid_w // 2), (1, lay.grid_h // 2)):
+            offset, sigma = spread(plane, axis, centre)
+            assert offset == pytest.approx(0.0, abs=1e-4) and sigma == pytest.approx(
+                expect, rel=0.02
+            )
+
+
 # --- behaviour -----------------------------------------------------------------------------------
 
 
@@ -180,9 +265,8 @@ def test_diffusion_after_one_second_is_independent_of_frame_rate(backend: str) -
         for _ in range(fps):
             s.step(1.0 / fps, gaze=GAZE, eyes_open=False)
         plane = s._backend.get("state")[1].astype(np.float64)
-        xs = np.arange(lay.grid_w) - lay.grid_w // 2
         assert plane.sum() == pytest.approx(1.0, rel=1e-4)
-        spreads.append(math.sqrt((plane.sum(axis=0) * xs**2).sum() / plane.sum()))
+        spreads.append(spread(plane, 0, lay.grid_w // 2)[1])
     expect = lay.px(n_sigma_deg) / lay.cell
     assert spreads == pytest.approx([expect] * 3, rel=0.02)
 
