@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import json
 import math
 import os
 import socket
 import struct
 import threading
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -349,6 +351,48 @@ def test_split_view_from_the_panel(live_server, open_viewer) -> None:
     viewer.wait("() => !window.gazehdr.lastHeader.split")
     viewer.wait("() => document.getElementById('split-overlay').hidden")
     assert viewer.js("() => document.getElementById('marker-right').hidden")
+
+
+def test_panel_chooses_afterimage_and_acuity_models(live_server, open_viewer) -> None:
+    """The panel's choosers switch the session's models on the server, OpenCL backend: the
+    state the page gets, the HUD and /api/sessions name them, and frames keep coming."""
+    from server.sim.reference import ReferenceBackend
+
+    srv = live_server(scene="lamp", size=(160, 96))
+    viewer = open_viewer(srv.url, 800, 600)
+    page = viewer.page
+    state = viewer.js("() => window.gazehdr.state")
+    assert state["device"] != ReferenceBackend.device_name  # the kernels run, not NumPy
+    assert state["model"] == {"afterimage": "jacobs", "acuity": "stochastic"}
+
+    def on_server() -> dict[str, Any]:
+        with urllib.request.urlopen(f"{srv.url}/api/sessions", timeout=10) as answer:
+            sessions = json.load(answer)
+        return next(s for s in sessions if s["id"] == state["session"])
+
+    assert on_server()["model"] == "jacobs+stochastic"
+    page.keyboard.press("p")
+    page.select_option("#afterimage-select", "mikamo")
+    viewer.wait("() => window.gazehdr.state.model.afterimage === 'mikamo'")
+    page.select_option("#acuity-select", "thompson")
+    viewer.wait("() => window.gazehdr.state.model.acuity === 'thompson'")
+    assert viewer.js("() => window.gazehdr.state.split") is None  # one model, whole frames
+    served = on_server()
+    assert served["model"] == "mikamo+thompson" and served["split"] is None
+    viewer.wait(
+        "() => /model mikamo \\+ thompson/.test(document.getElementById('hud').textContent)"
+    )
+
+    # Frames keep arriving from the switched session, whole frames, its clock running on.
+    first = viewer.header()
+    later = viewer.next_frame(first["frame"] + 3)
+    assert later["time"] > first["time"] and not later["split"]
+    assert on_server()["frame"] > first["frame"]
+    # The choosers show what the server runs (refreshed from its state).
+    values = (
+        "() => ['afterimage-select', 'acuity-select'].map(i => document.getElementById(i).value)"
+    )
+    assert viewer.js(values) == ["mikamo", "thompson"]
 
 
 # --- 2. the pointer is the gaze; afterimages stay on the retina -------------------------------
