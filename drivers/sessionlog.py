@@ -8,7 +8,7 @@ malformed anywhere else is an error naming the file, the line and the field.
 
 Line 1, the header::
 
-    {"format": "gazehdr-session", "version": 1, "created": "2024-05-01T12:00:00.000+00:00",
+    {"format": "gazehdr-session", "version": 2, "created": "2024-05-01T12:00:00.000+00:00",
      "tracker": {...free-form: name, model, serial, where it was imported from...},
      "screen": {"screen_diagonal_m": 0.6, "screen_width_px": 1920, "screen_height_px": 1080,
                 "viewing_distance_m": 1.0},
@@ -29,12 +29,19 @@ Then records, each with its kind `k` and its time `t` (integer nanoseconds on th
   `x`, `y` (pixels), `duration` (ns), `dispersion` (degrees, Salvucci and Goldberg's
   (max x − min x) + (max y − min y)) and `eye` (`"left"`/`"right"`) are optional. The events of
   one fixation or blink share their `id` (the fields of `drivers.fixations.Event`).
-- `{"k":"scene","t":T,"name":"lamp"}`, `{"k":"params","t":T,"values":{...}}`,
+- `{"k":"scene","t":T,"name":"lamp"}`, `{"k":"params","t":T,"values":{...}}` (the parameters
+  that changed, by their `server.sim.Params` names), `{"k":"model","t":T,"model":"jacobs+
+  stochastic","split":null}` (the simulation's models, `AFTERIMAGE+ACUITY`, and the right
+  pane's in split view or null), `{"k":"reset","t":T}` (the eye put back to equilibrium),
   `{"k":"note","t":T,"text":"..."}` and `{"k":"clock","t":T,"offset_ns":N,
   "offset_uncertainty_ns":N}`.
 
+A server recording a viewing session (`gazehdr serve --record`) writes times on the session's
+simulation clock (`clock.source` "simulation_ns"), each change and gaze at the end of the first
+step it drove, and the gaze it followed as samples plus one `fixation_start` per position.
+
 Unknown kinds and unknown fields are errors: a reader never guesses what a newer version meant
-(it bumps `version`).
+(it bumps `version`). Version 2 added `model` and `reset`; this reader reads 1 and 2.
 
 `SessionLog.fixation_track()` is the log as a `GazeTrack` (normalised coordinates, seconds since
 the first sample) that follows its fixations, not its samples (SPEC §4): `gazehdr render SCENE
@@ -54,12 +61,13 @@ from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field, fields
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 from drivers.samples import EyeSample, GazePoint, GazeSample, ScreenGeometry
 
 FORMAT = "gazehdr-session"
-VERSION = 1
+VERSION = 2
+READS = (1, 2)  # versions this reader understands
 EVENT_KINDS: tuple[str, ...] = (
     "fixation_start",
     "fixation_update",
@@ -157,6 +165,20 @@ class ParamsChange:
 
 
 @dataclass(frozen=True)
+class ModelChange:
+    """The models from `t` on, as `AFTERIMAGE+ACUITY` names (`server.sim.models` checks them)."""
+
+    t_ns: int
+    model: str
+    split: str | None = None
+
+
+@dataclass(frozen=True)
+class EyeReset:
+    t_ns: int
+
+
+@dataclass(frozen=True)
 class Note:
     t_ns: int
     text: str
@@ -169,7 +191,16 @@ class ClockUpdate:
     offset_uncertainty_ns: int | None = None
 
 
-Record = GazeSample | GazeEvent | SceneChange | ParamsChange | Note | ClockUpdate
+Record = (
+    GazeSample
+    | GazeEvent
+    | SceneChange
+    | ParamsChange
+    | ModelChange
+    | EyeReset
+    | Note
+    | ClockUpdate
+)
 
 
 def _finite(value: float | None) -> bool:
@@ -201,6 +232,10 @@ def encode_record(record: Any) -> dict[str, Any]:
         return {"k": "scene", "t": int(record.t_ns), "name": record.name}
     if isinstance(record, ParamsChange):
         return {"k": "params", "t": int(record.t_ns), "values": record.values}
+    if isinstance(record, ModelChange):
+        return {"k": "model", "t": int(record.t_ns), "model": record.model, "split": record.split}
+    if isinstance(record, EyeReset):
+        return {"k": "reset", "t": int(record.t_ns)}
     if isinstance(record, Note):
         return {"k": "note", "t": int(record.t_ns), "text": record.text}
     if isinstance(record, ClockUpdate):
@@ -341,6 +376,13 @@ def decode_record(obj: Any, path: Path, line: int) -> Record:
         if not isinstance(values, dict):
             raise f.error("values", f"must be an object, got {values!r}")
         return ParamsChange(f.integer("t"), values)
+    if kind == "model":
+        f.only(("k", "t", "model", "split"))
+        split = None if obj.get("split") is None else f.text("split")
+        return ModelChange(f.integer("t"), f.text("model"), split)
+    if kind == "reset":
+        f.only(("k", "t"))
+        return EyeReset(f.integer("t"))
     if kind == "note":
         f.only(("k", "t", "text"))
         return Note(f.integer("t"), f.text("text"))
@@ -351,7 +393,7 @@ def decode_record(obj: Any, path: Path, line: int) -> Record:
             f.integer("offset_ns", optional=True),
             f.integer("offset_uncertainty_ns", optional=True, minimum=0),
         )
-    known = ", ".join(("s", *EVENT_KINDS, "scene", "params", "note", "clock"))
+    known = ", ".join(("s", *EVENT_KINDS, "scene", "params", "model", "reset", "note", "clock"))
     raise f.error("k", f"unknown record kind {kind!r}; known: {known}")
 
 
@@ -366,8 +408,9 @@ def decode_header(obj: Any, path: Path) -> SessionHeader:
     f = _Fields({"k": "header", **obj}, path, 1)
     f.only(("k", "format", "version", "created", "tracker", "screen", "clock"))
     version = obj.get("version")
-    if version != VERSION:
-        raise f.error("version", f"version {version!r}; this reader reads version {VERSION}")
+    if version not in READS or isinstance(version, bool):
+        readable = " and ".join(map(str, READS))
+        raise f.error("version", f"version {version!r}; this reader reads versions {readable}")
     created = f.text("created")
     tracker = obj.get("tracker")
     if not isinstance(tracker, dict):
@@ -574,6 +617,8 @@ class SessionLog:
     events: list[GazeEvent] = field(default_factory=list)
     scenes: list[SceneChange] = field(default_factory=list)
     params: list[ParamsChange] = field(default_factory=list)
+    models: list[ModelChange] = field(default_factory=list)
+    resets: list[EyeReset] = field(default_factory=list)
     notes: list[Note] = field(default_factory=list)
     clocks: list[ClockUpdate] = field(default_factory=list)
     truncated: bool = False
@@ -588,6 +633,10 @@ class SessionLog:
             self.scenes.append(record)
         elif isinstance(record, ParamsChange):
             self.params.append(record)
+        elif isinstance(record, ModelChange):
+            self.models.append(record)
+        elif isinstance(record, EyeReset):
+            self.resets.append(record)
         elif isinstance(record, Note):
             self.notes.append(record)
         elif isinstance(record, ClockUpdate):
@@ -599,7 +648,10 @@ class SessionLog:
 
     def records(self) -> Iterator[Record]:
         """Every record, merged in time order (samples first at equal times)."""
-        lists = (self.samples, self.events, self.scenes, self.params, self.notes, self.clocks)
+        lists = (
+            self.samples, self.events, self.scenes, self.params, self.models, self.resets,
+            self.notes, self.clocks,
+        )  # fmt: skip
 
         def keyed(rank: int, items: list[Any]) -> Iterator[tuple[int, int, int, Any]]:
             return ((r.t_ns, rank, i, r) for i, r in enumerate(items))
@@ -630,30 +682,20 @@ class SessionLog:
     def fixation_track(self) -> SessionTrack:
         """The gaze as the log's fixations: each fixation's mean position from its start until
         the next one starts, so a saccade never sweeps the simulated retina (SPEC §4). A log
-        without fixation events is run through I-VT first; one with none found falls back to
-        the samples. Its time line is `track()`'s: from the first sample to the last."""
+        whose events place no fixation (none, only blinks, or fixations without positions) is
+        run through I-VT first, as a daemon replaying it does; one where I-VT finds none falls
+        back to the samples. Its time line is `track()`'s: from the first sample to the last."""
         events = self.events
-        if not any(e.kind.startswith("fixation") for e in events):
-            from drivers.fixations import detect  # only logs without events need it
+        points = _fixation_points(events)
+        if not points:
+            from drivers.fixations import detect  # only logs that place no fixation need it
 
             found = detect(self.samples, "ivt", self.header.screen)
             events = [
                 GazeEvent(e.kind, e.id, e.t_ns, e.x, e.y, e.duration_ns, e.dispersion_deg)
                 for e in found
             ]
-        eye = next((e.eye for e in events if e.kind.startswith("fixation")), None)
-        fixations: dict[int, dict[str, float]] = {}
-        for e in sorted(events, key=lambda e: e.t_ns):
-            if not e.kind.startswith("fixation") or e.eye != eye:
-                continue
-            f = fixations.setdefault(e.id, {})
-            if e.kind == "fixation_start":
-                f.setdefault("t", e.t_ns)
-            elif e.kind == "fixation_end" and e.duration_ns is not None:
-                f.setdefault("t", e.t_ns - e.duration_ns)
-            if _finite(e.x) and _finite(e.y):
-                f["x"], f["y"] = e.x, e.y  # later events know more: the end's mean wins
-        points = sorted((f["t"], f["x"], f["y"]) for f in fixations.values() if len(f) == 3)
+            points = _fixation_points(events)
         if not points:
             return self.track()
         held = [GazeSample(int(t), x, y) for t, x, y in points]
@@ -662,6 +704,42 @@ class SessionLog:
             span = (min(span[0], self.samples[0].t_ns), max(span[1], self.samples[-1].t_ns))
         blinks = self.blinks() or _blinks_of(events)
         return SessionTrack(held, blinks, self.header.screen, span_ns=span)
+
+
+def _fixation_points(events: list[GazeEvent]) -> list[FixationPlace]:
+    """The placed fixations of one eye (the first that fixates), in time order."""
+    eye = next((e.eye for e in events if e.kind.startswith("fixation")), None)
+    places = fixation_places(e for e in events if e.eye == eye)
+    return sorted(p for p in places.values() if p.start_ns is not None)
+
+
+class FixationPlace(NamedTuple):
+    """Where a recorded fixation was, and when it began (None: its events do not say)."""
+
+    start_ns: int | None
+    x: float
+    y: float
+
+
+def fixation_places(events: Iterable[GazeEvent]) -> dict[tuple[int, str | None], FixationPlace]:
+    """Each fixation of `events`, keyed by (id, eye): its start (its `fixation_start`'s time,
+    else its end's less its duration) and its position, that of its last event with one (later
+    events know more: the end's mean wins). Recorders such as EyeLink (`SFIX`) and BIDS
+    physioevents (an onset) give a fixation's start no position; this is where it was. A
+    fixation none of whose events has a position is left out. `fixation_track` holds these
+    places; a daemon replaying a recording sends them (`drivers.replay`)."""
+    found: dict[tuple[int, str | None], dict[str, Any]] = {}
+    for e in sorted(events, key=lambda e: e.t_ns):
+        if not e.kind.startswith("fixation"):
+            continue
+        f = found.setdefault((e.id, e.eye), {})
+        if e.kind == "fixation_start":
+            f.setdefault("t", e.t_ns)
+        elif e.kind == "fixation_end" and e.duration_ns is not None:
+            f.setdefault("t", e.t_ns - e.duration_ns)
+        if _finite(e.x) and _finite(e.y):
+            f["x"], f["y"] = e.x, e.y
+    return {k: FixationPlace(f.get("t"), f["x"], f["y"]) for k, f in found.items() if "x" in f}
 
 
 def _blinks_of(events: list[GazeEvent]) -> list[tuple[int, float]]:
@@ -675,7 +753,15 @@ def read_session_log(path: str | Path) -> SessionLog:
         for record in reader:
             log.add(record)
         log.truncated, log.truncated_line = reader.truncated, reader.truncated_line
-    for items in (log.events, log.scenes, log.params, log.notes, log.clocks):
+    for items in (
+        log.events,
+        log.scenes,
+        log.params,
+        log.models,
+        log.resets,
+        log.notes,
+        log.clocks,
+    ):
         items.sort(key=lambda r: r.t_ns)
     return log
 
@@ -757,11 +843,15 @@ def read_session_track(path: Path) -> SessionTrack:
 __all__ = [
     "EVENT_KINDS",
     "FORMAT",
+    "READS",
     "VERSION",
     "ClockInfo",
     "ClockUpdate",
+    "EyeReset",
+    "FixationPlace",
     "FormatError",
     "GazeEvent",
+    "ModelChange",
     "Note",
     "ParamsChange",
     "Record",
@@ -773,6 +863,7 @@ __all__ = [
     "SessionTrack",
     "decode_record",
     "encode_record",
+    "fixation_places",
     "read_session_log",
     "read_session_track",
     "write_session_log",

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import NoReturn
 
 PROG = "gazehdr"
@@ -38,20 +40,24 @@ def _size(text: str) -> tuple[int, int]:
     return int(match[1]), int(match[2])
 
 
-def _add_model_options(p: argparse.ArgumentParser, whose: str) -> None:
+def _add_model_options(p: argparse.ArgumentParser, whose: str, default: str = "") -> None:
+    """--afterimage and --acuity; `default` words the default when it is not the paper's."""
     p.add_argument(
         "--afterimage",
-        default="jacobs",
         metavar="NAME",
-        help=f"afterimage model{whose}: jacobs, ritschel or mikamo (default: jacobs)",
+        help=f"afterimage model{whose}: jacobs, ritschel or mikamo "
+        f"(default: {default or 'jacobs'})",
     )
     p.add_argument(
         "--acuity",
-        default="stochastic",
         metavar="NAME",
         help=f"acuity model{whose}: stochastic, none, gaussian, bilateral or thompson "
-        "(default: stochastic)",
+        f"(default: {default or 'stochastic'})",
     )
+
+
+def _data_dir(given: str | None) -> Path:
+    return Path(given or os.environ.get("GAZEHDR_DATA_DIR") or Path.home() / ".local/share/gazehdr")
 
 
 # --- render -----------------------------------------------------------------------------------
@@ -74,7 +80,13 @@ def _add_size_and_backend(p: argparse.ArgumentParser, size: tuple[int, int], wha
 
 
 def _configure_render(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scene", metavar="SCENE", help="built-in scene name or EXR file")
+    p.add_argument(
+        "scene",
+        metavar="SCENE",
+        nargs="?",
+        help="built-in scene name or EXR file (default with a session log: the scenes it "
+        "recorded, looked up among the built-ins and DATA_DIR's uploads)",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
     p.add_argument(
         "--gaze",
@@ -82,16 +94,27 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         metavar="SPEC",
         help="synthetic (seeded scan path, fixation to fixation), fixed (centre), X,Y "
         "(normalised point), a CSV of t,x,y[,eyes_open] rows or a session log .jsonl "
+        "(its fixations; a recorded viewing session also brings its scene, parameter and "
+        "model changes and resets, unless SCENE, --params or a model option replaces them) "
         "(default: synthetic)",
     )
-    p.add_argument("--seconds", type=float, default=6.0, help="duration (default: 6)")
+    p.add_argument("--seconds", type=float, help="duration (default: a session log's, else 6)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
     _add_size_and_backend(p, (640, 360), "frame size")
     p.add_argument(
-        "--seed", type=int, default=0, help="seeds noise, dither and scan path (default: 0)"
+        "--seed",
+        type=int,
+        help="seeds noise, dither and scan path (default: the seed a recorded session ran "
+        "with, else 0)",
     )
-    _add_model_options(p, "")
+    _add_model_options(p, "", "a recorded session's, else the paper's")
     p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
+    p.add_argument(
+        "--data-dir",
+        metavar="DIR",
+        help="where a recorded session's uploaded scenes are (default: $GAZEHDR_DATA_DIR or "
+        "~/.local/share/gazehdr)",
+    )
     p.add_argument(
         "--scale",
         type=float,
@@ -109,30 +132,64 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
 
 
 def _render(args: argparse.Namespace, extra: list[str]) -> int:
+    from drivers.sessionlog import read_session_log
     from drivers.tracks import open_track
-    from server.render import render
+    from server.render import recorded_changes, render
     from server.scenes import open_scene
+    from server.scenes.library import SceneLibrary
     from server.sim import Params
     from server.sim.models import Models
 
-    models = Models(args.afterimage, args.acuity)  # a wrong name: exit 2 listing the choices
+    given_models = args.afterimage is not None or args.acuity is not None
+    # a wrong name: exit 2 listing the choices
+    models = Models(args.afterimage or "jacobs", args.acuity or "stochastic")
     params = None
     if args.params:
         try:
             params = Params.load(args.params)
         except (ValueError, TypeError) as e:
             raise UsageError(f"parameter preset {args.params}: {e}") from None
-    scene = open_scene(args.scene, scale=args.scale)
-    track = open_track(args.gaze, seed=args.seed, duration=args.seconds)
+    log, changes = None, []
+    if Path(args.gaze).suffix.lower() == ".jsonl":
+        if not Path(args.gaze).is_file():
+            raise UsageError(f"gaze file {args.gaze!r} not found")
+        log = read_session_log(args.gaze)
+        track = log.fixation_track()
+        changes = recorded_changes(
+            log, track.t0_ns, SceneLibrary(_data_dir(args.data_dir)),
+            scene=args.scene is None, params=params is None, models=not given_models,
+        )  # fmt: skip
+        if not given_models and any(m.split for m in log.models):
+            print(
+                f"{PROG}: note: the session ran in split view at times; this renders its left "
+                "pane (name the right pane's models with --afterimage/--acuity)",
+                file=sys.stderr,
+            )
+    seed = args.seed
+    if seed is None:
+        recorded = log.header.tracker.get("seed") if log else None
+        seed = recorded if isinstance(recorded, int) and recorded >= 0 else 0
+    seconds = args.seconds
+    if seconds is None and log is not None:  # to its last record, whatever its kind
+        seconds = (max(r.t_ns for r in log.records()) - track.t0_ns) / 1e9 + 1 / args.fps
+    seconds = 6.0 if seconds is None else seconds
+    if log is None:
+        track = open_track(args.gaze, seed=seed, duration=seconds)
+    if args.scene is not None:
+        scene = open_scene(args.scene, scale=args.scale)
+    elif not any(c.scene for c in changes):
+        raise UsageError("SCENE is needed: the gaze given is not a session log naming its scene")
+    else:  # the log's first scene; render takes it from the changes
+        scene = next(c.scene for c in changes if c.scene)
     width, height = args.size
     summary = render(
         scene,
         track,
-        seconds=args.seconds,
+        seconds=seconds,
         fps=args.fps,
         width=width,
         height=height,
-        seed=args.seed,
+        seed=seed,
         backend=args.backend,
         afterimage=models.afterimage,
         acuity=models.acuity,
@@ -142,6 +199,7 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
         progress=not args.quiet,
         params=params,
         overwrite=args.overwrite,
+        changes=changes,
     )
     print(f"wrote {summary.frames} frames to {summary.out_dir} in {summary.wall_seconds:.1f} s")
     return 0
@@ -205,16 +263,18 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         "ritschel or jacobs+thompson (the left pane: --afterimage, --acuity)",
     )
     p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
+    p.add_argument(
+        "--record",
+        action="store_true",
+        help="record each session (gaze followed, scene, parameter and model changes) as a "
+        "session log in DATA_DIR/recordings, replayable in the viewer and by 'gazehdr render'",
+    )
 
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
-    import os
-    from pathlib import Path
-
     from server.serve import serve
 
     token = args.token or os.environ.get("GAZEHDR_TOKEN") or None
-    data_dir = args.data_dir or os.environ.get("GAZEHDR_DATA_DIR")
     return serve(
         host=args.host,
         port=args.port,
@@ -226,14 +286,15 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         fit_viewport=not args.fixed_size,
         params_file=args.params,
         token=token,
-        data_dir=Path(data_dir) if data_dir else Path.home() / ".local/share/gazehdr",
+        data_dir=_data_dir(args.data_dir),
         allow_origins=tuple(args.allow_origin),
         encoding=args.encoding,
         backend=args.backend,
-        afterimage=args.afterimage,
-        acuity=args.acuity,
+        afterimage=args.afterimage or "jacobs",
+        acuity=args.acuity or "stochastic",
         split=args.split,
         seed=args.seed,
+        record=args.record,
     )
 
 
@@ -310,7 +371,6 @@ def _configure_figures(p: argparse.ArgumentParser) -> None:
 
 def _figures(args: argparse.Namespace, extra: list[str]) -> int:
     import importlib.util
-    from pathlib import Path
 
     if importlib.util.find_spec("matplotlib") is None:
         raise UsageError("figures needs matplotlib: pip install 'gazehdr[figures]'")

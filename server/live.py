@@ -1,7 +1,8 @@
 """Sessions at real time: a render loop per session, a newest-frame mailbox per viewer.
 
-The loop steps its `Session` on a worker thread with the wall-clock time since the last step,
-then hands the frame to every viewer's mailbox. A mailbox holds one frame: a viewer that reads
+The loop steps its `Session` on a worker thread with the wall-clock time since the last step
+(and, when the server records, appends what the step journaled to the session's log), then
+hands the frame to every viewer's mailbox. A mailbox holds one frame: a viewer that reads
 slowly skips frames (counted as dropped) instead of growing a queue, and because each viewer
 sends from its own task, one stuck socket never delays another viewer or session.
 """
@@ -12,11 +13,14 @@ import asyncio
 import contextlib
 import logging
 import secrets
+import threading
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Any
 
+from drivers.sessionlog import SessionLogWriter
 from server.metrics import Metrics
 from server.protocol import Control
 from server.recordings import RecordingLibrary
@@ -123,13 +127,56 @@ class Viewer:
 class LiveSession:
     """A `Session` stepped at real time for its viewers."""
 
-    def __init__(self, session: Session, metrics: Metrics) -> None:
+    def __init__(
+        self, session: Session, metrics: Metrics, log: SessionLogWriter | None = None
+    ) -> None:
         self.session = session
         self.viewers: set[Viewer] = set()
         self.controls: list[tuple[Control, float]] = []
         self.metrics = metrics
         self.task: asyncio.Task[None] | None = None
         self.closing: asyncio.TimerHandle | None = None
+        self.log = log
+        # A step may still be writing on its thread when the session ends and the log closes.
+        self._log_lock = threading.Lock()
+
+    def _tick(
+        self, dt: float, controls: list[tuple[Control, float]]
+    ) -> tuple[Frame, list[dict[str, Any]]]:
+        """One step, on the worker thread, with what it journaled appended to the log. A log
+        that cannot be written stops recording, not the session; the viewers are told."""
+        frame, notes = self.session.tick(dt, controls)
+        records = self.session.take_journal()
+        with self._log_lock:
+            if self.log is None:
+                return frame, notes
+            try:
+                self.log.write_all(records)
+            except OSError as e:
+                log.error("session %s: recording stopped: %s", self.session.id, e)
+                notes.append({"type": "error", "message": f"recording stopped: {e}", "in": None})
+                self._close_log()
+        return frame, notes
+
+    def close_log(self) -> None:
+        """End the session's log with its last records (`Session.end_journal`)."""
+        with self._log_lock:
+            if self.log is None:
+                return
+            try:
+                self.log.write_all(self.session.end_journal())
+            except OSError as e:
+                log.error("session %s: recording its end: %s", self.session.id, e)
+            self._close_log()
+
+    def _close_log(self) -> None:
+        if self.log is None:
+            return
+        try:
+            self.log.close()
+        except OSError as e:
+            log.error("session %s: closing its log: %s", self.session.id, e)
+        self.log = None
 
     def submit(self, control: Control) -> None:
         self.controls.append((control, time.monotonic()))
@@ -157,13 +204,14 @@ class LiveSession:
             last = started
             controls, self.controls = self.controls, []
             try:
-                frame, notes = await asyncio.to_thread(self.session.tick, dt, controls)
+                frame, notes = await asyncio.to_thread(self._tick, dt, controls)
             except Exception as e:  # a broken device or kernel: tell the viewers, then stop
                 log.exception("session %s stopped", self.session.id)
                 note = {"type": "error", "message": f"simulation failed: {e}", "in": None}
                 for viewer in self.viewers:
                     viewer.mailbox.put(None, [note])
                     viewer.mailbox.closed = True
+                self.close_log()
                 return
             m.sim_seconds.observe(frame.sim_seconds)
             m.encode_seconds.observe(frame.encode_seconds)
@@ -196,6 +244,8 @@ class SessionHub:
         self.sessions: dict[str, LiveSession] = {}
         self.grace_s = grace_s
         self.max_sessions = max_sessions
+        if settings.record and self.recordings.folder is None:
+            raise ValueError("recording sessions needs a data directory")
 
     async def join(self, session_id: str | None, viewer: Viewer) -> LiveSession:
         """The session `session_id` if it still runs, else a new one; `viewer` is added."""
@@ -207,7 +257,10 @@ class SessionHub:
             session = await asyncio.to_thread(
                 Session, new_id, self.settings, self.scenes, self.remote, self.recordings
             )
-            live = LiveSession(session, self.metrics)
+            recording = (
+                await asyncio.to_thread(self._record, session) if session.recording else None
+            )
+            live = LiveSession(session, self.metrics, recording)
             live.task = asyncio.create_task(live.run(), name=f"session {new_id}")
             self.sessions[new_id] = live
         if live.closing:
@@ -216,6 +269,11 @@ class SessionHub:
         live.viewers.add(viewer)
         self._count()
         return live
+
+    def _record(self, session: Session) -> SessionLogWriter:
+        """The session's log in the recordings, so a viewer can replay it (`replay:NAME`)."""
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        return self.recordings.create(f"session-{stamp}-{session.id}", session.log_header())
 
     def leave(self, live: LiveSession, viewer: Viewer) -> None:
         live.viewers.discard(viewer)
@@ -238,6 +296,7 @@ class SessionHub:
                 live.task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await live.task
+            live.close_log()
         self._count()
 
     def _end(self, live: LiveSession) -> None:
@@ -245,6 +304,7 @@ class SessionHub:
             return
         if live.task:
             live.task.cancel()
+        live.close_log()
         self.sessions.pop(live.session.id, None)
         self._count()
 

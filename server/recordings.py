@@ -3,7 +3,8 @@
 A recording is a native session log (`drivers/sessionlog.py`); it becomes the gaze source
 `replay:NAME` of any session, looping. The session follows the recording's fixations (detected
 with I-VT when the log has none), never the samples of a saccade.
-Uploads are checked by reading them whole before they are moved into place.
+Uploads are checked by reading them whole before they are moved into place; the server's own
+recordings of its sessions (`gazehdr serve --record`) are written here as they happen.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import os
 import uuid
 from pathlib import Path
 
-from drivers.sessionlog import SessionTrack, read_session_log
+from drivers.sessionlog import SessionHeader, SessionLogWriter, SessionTrack, read_session_log
 from server.scenes.library import check_name
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
@@ -47,6 +48,12 @@ class RecordingLibrary:
         finally:
             tmp.unlink(missing_ok=True)
         return path
+
+    def create(self, name: str, header: SessionHeader) -> SessionLogWriter:
+        """A new log `name` to write as a session runs (never replacing one)."""
+        path = self._path(name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return SessionLogWriter(path, header)
 
     def _path(self, name: str) -> Path:
         if self.folder is None:

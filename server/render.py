@@ -3,6 +3,10 @@
 A pure loop (scene → simulator → dither) with the file writing at its edge. The output depends
 only on the arguments: the simulator's noise and the dither both derive from `seed`, and time
 advances by exactly `1/fps` per frame, never by the wall clock.
+
+A recorded viewing session (`gazehdr serve --record`) also changed its scene, parameters and
+models and reset the eye as it ran; `recorded_changes` reads those from its log and `render`
+makes each before the first step that ends at or after its time, as the live session did.
 """
 
 from __future__ import annotations
@@ -10,20 +14,26 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
 from drivers.samples import GazeTrack
+from drivers.sessionlog import SessionLog
 from server.apng import ApngWriter
 from server.dither import dither8
 from server.scenes import Scene
 from server.scenes.exr import write_exr
+from server.scenes.library import SceneLibrary
 from server.sim import Params, Simulator
 from server.sim.layout import check_frame_size
+from server.sim.models import Models
 
 #: The animation `video` writes beside the frames.
 VIDEO_NAME = "render.apng"
@@ -32,6 +42,45 @@ FRAME_PATTERNS = ("frame_*.png", "frame_*.exr", VIDEO_NAME)
 #: zlib level for the PNGs: dithered frames barely compress, and level 1 writes them about 4x
 #: faster than Pillow's default 6 for files about a quarter larger (they are intermediates).
 PNG_COMPRESS_LEVEL = 1
+
+
+@dataclass(frozen=True)
+class Change:
+    """One thing a recorded session changed, `t_ns` into the render (whole nanoseconds, as
+    the log and its gaze track count): a scene, some parameters (the values that changed),
+    the models, or a reset of the eye."""
+
+    t_ns: int
+    scene: Scene | None = None
+    params: dict[str, Any] | None = None
+    models: Models | None = None
+    reset: bool = False
+
+
+def recorded_changes(
+    log: SessionLog,
+    t0_ns: int,
+    scenes: SceneLibrary,
+    *,
+    scene: bool = True,
+    params: bool = True,
+    models: bool = True,
+) -> list[Change]:
+    """The changes of `log` in time order, on a time line starting at `t0_ns` (the gaze
+    track's); leave out the kinds the caller sets itself. A scene, model or parameter the log
+    names that does not exist here is a ValueError now, before anything is rendered."""
+    changes = [Change(r.t_ns - t0_ns, reset=True) for r in log.resets]
+    if scene:
+        changes += [Change(r.t_ns - t0_ns, scene=scenes.open(r.name)) for r in log.scenes]
+    if models:
+        changes += [Change(r.t_ns - t0_ns, models=Models.parse(r.model)) for r in log.models]
+    if params:
+        merged = Params().to_dict()
+        for r in log.params:
+            merged |= r.values
+            Params.from_dict(merged)  # each step of the way must be valid
+            changes.append(Change(r.t_ns - t0_ns, params=r.values))
+    return sorted(changes, key=lambda c: c.t_ns)  # stable: at equal times, kinds in this order
 
 
 @dataclass(frozen=True)
@@ -94,6 +143,7 @@ def render(
     progress: bool = True,
     params: Params | None = None,
     overwrite: bool = False,
+    changes: Sequence[Change] = (),
 ) -> RenderSummary:
     """Simulate `seconds` of viewing; write `frame_NNNNN.png`, the dithered 8-bit display values.
 
@@ -104,15 +154,20 @@ def render(
     and scene at its own t.
     With `overwrite`, frames left in `out_dir` by an earlier render are removed first, so the
     directory holds one clean sequence. `afterimage` and `acuity` name the models
-    (`server.sim.models`).
+    (`server.sim.models`). `changes` are a recorded session's (`recorded_changes`), each made
+    before the first step that ends at or after its time; those at or before 0 set the start.
     """
     started = time.perf_counter()
     _check(seconds, fps, width, height, seed)
+    pending = deque(sorted(changes, key=lambda c: c.t_ns))
+    params, models = params or Params(), Models(afterimage, acuity)
+    while pending and pending[0].t_ns <= 0:
+        first = pending.popleft()
+        scene = first.scene or scene
+        params = Params.from_dict(params.to_dict() | first.params) if first.params else params
+        models = first.models or models
     # Before touching the directory: a model or backend that cannot be built leaves it alone.
-    sim = Simulator(
-        width, height, params=params or Params(), backend=backend, seed=seed,
-        afterimage=afterimage, acuity=acuity,
-    )  # fmt: skip
+    sim = _simulator(width, height, params, models, backend, seed)
     out_dir = Path(out_dir)
     _prepare_out_dir(out_dir, overwrite)
     dither_rng = np.random.default_rng([seed, 1])
@@ -132,11 +187,24 @@ def render(
             x, y, eyes_open = track.at(t)
             gaze = (x * width, y * height)
             if i == 0:
-                # Settle the gaze before loading, so the eye starts in equilibrium where it looks.
-                sim.step(0.0, gaze=gaze, eyes_open=eyes_open)
-                sim.load_scene(scene.render(t, width, height), reset=True)
+                sim.start(scene.render(t, width, height), gaze, eyes_open)
                 loaded = scene.state_at(t)
-            elif scene.animated and scene.state_at(t) != loaded:
+            while pending and pending[0].t_ns <= round(t * 1e9):  # as SessionTrack.at counts
+                change = pending.popleft()
+                now = sim.time  # as live: a change is made before the step it drives
+                if change.scene is not None:
+                    scene = change.scene
+                    sim.load_scene(scene.render(now, width, height), reset=True)
+                    loaded = scene.state_at(now)
+                if change.params is not None or change.models is not None:
+                    if change.params is not None:
+                        params = Params.from_dict(params.to_dict() | change.params)
+                    models = change.models or models
+                    old, sim = sim, _simulator(width, height, params, models, backend, seed)
+                    sim.start(scene.render(now, width, height), gaze, eyes_open, continue_from=old)
+                if change.reset:
+                    sim.reset()
+            if i and scene.animated and scene.state_at(t) != loaded:
                 sim.load_scene(scene.render(t, width, height), reset=False)
                 loaded = scene.state_at(t)
             v = sim.step(dt if i else 0.0, gaze=gaze, eyes_open=eyes_open)
@@ -148,3 +216,12 @@ def render(
             if exr:
                 write_exr(stem.with_suffix(".exr"), v)
     return RenderSummary(n, out_dir, time.perf_counter() - started)
+
+
+def _simulator(
+    width: int, height: int, params: Params, models: Models, backend: str, seed: int
+) -> Simulator:
+    return Simulator(
+        width, height, params=params, backend=backend, seed=seed,
+        afterimage=models.afterimage, acuity=models.acuity,
+    )  # fmt: skip

@@ -43,6 +43,7 @@ def build_config(
     afterimage: str = "jacobs",
     acuity: str = "stochastic",
     split: str | None = None,
+    record: bool = False,
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
     if not (math.isfinite(fps) and 0 < fps <= 240):
@@ -76,6 +77,7 @@ def build_config(
         backend=backend,
         encoding=Encoding[encoding],
         fit_viewport=fit_viewport,
+        record=record,
     )
     return ServerConfig(
         host=host,
@@ -139,5 +141,7 @@ def serve(**options) -> int:
     s = config.session
     print(f"gazehdr: open http://{shown}:{config.port}/ (scene {s.scene}, gaze {s.gaze_source})")
     print(f"gazehdr: gaze daemon token: {config.token}")
+    if s.record:
+        print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}")
     server.run()
     return 0

@@ -6,6 +6,12 @@ gaze and steps and a model each, so two models can be compared side by side.
 `Session` is synchronous and knows no sockets and no clock: the caller passes the elapsed
 time and the control messages that arrived, and gets back an encoded frame plus the JSON
 messages to tell the viewers. `server.live` runs it on a thread at real time.
+
+A session that records keeps a journal of session-log records (drivers/sessionlog.py) for its
+caller to write: the scene, parameters and models it ran with and every change to them, resets,
+and the gaze and eyes it followed, on its simulation clock. Each carries the end time of the
+first step it drove, so an offline render at any frame rate (server/render.py) meets each at
+the same step the live session did.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from drivers import sessionlog
+from drivers.samples import GazeSample, ScreenGeometry
 from drivers.tracks import open_track
 from server.protocol import (
     SIM_OUTPUT,
@@ -69,6 +77,8 @@ class SessionSettings:
     encoding: Encoding = Encoding.f16
     #: Take the viewer's aspect ratio for the frame, keeping width·height as the pixel budget.
     fit_viewport: bool = True
+    #: Keep a journal of session-log records (`Session.take_journal`).
+    record: bool = False
 
 
 @dataclass
@@ -162,6 +172,17 @@ class Session:
             self._check_split_width(self.size)
         #: One simulator per pane: the whole frame, or the left and right halves in split view.
         self.sims = self._new_simulators(self._pane_models())
+        # The journal: records not yet taken, the time the next ones carry (ns, the end of the
+        # coming step), and what it last said of the gaze and eyes.
+        self._journal: list[sessionlog.Record] | None = [] if settings.record else None
+        self._now_ns = 0
+        self._journaled: tuple[tuple[float, float] | None, bool] = (None, True)
+        self._fixations = self._blinks = 0
+        self.log_screen = ScreenGeometry(**dataclasses.asdict(self.params.geometry))
+        self._log(sessionlog.SceneChange(0, self.scene_name))
+        self._log_models()
+        self._log_params(Params())
+        self._log(sessionlog.Note(0, f"gaze source {self.gaze_source}"))
 
     @property
     def sim(self) -> Simulator:
@@ -190,6 +211,39 @@ class Session:
             "ours": sorted(OURS),
         }
 
+    def log_header(self) -> sessionlog.SessionHeader:
+        """The header of this session's log: its journal's times are simulation nanoseconds."""
+        s = self.settings
+        tracker = {
+            "name": "gazehdr serve", "session": self.id, "gaze_source": self.gaze_source,
+            "frame": list(self.size), "seed": s.seed, "backend": s.backend,
+        }  # fmt: skip
+        return sessionlog.SessionHeader(
+            tracker, self.log_screen, sessionlog.ClockInfo("simulation_ns")
+        )
+
+    @property
+    def recording(self) -> bool:
+        return self._journal is not None
+
+    def end_journal(self) -> list[sessionlog.Record]:
+        """The journal's last records, when the session ends: the gaze as it was held until
+        now (so its log spans the whole session, and a replay holds that gaze as long)."""
+        t = max(round(self.sim.time * 1e9), self._now_ns)
+        point, _ = self._journaled
+        if self._journal is None or point is None:
+            return self.take_journal()
+        self._log(GazeSample(t, *point))
+        self._log(sessionlog.Note(t, "session ended"))
+        return self.take_journal()
+
+    def take_journal(self) -> list[sessionlog.Record]:
+        """The records made since the last call (none when the session does not record)."""
+        if self._journal is None:
+            return []
+        records, self._journal = self._journal, []
+        return records
+
     # --- the step -----------------------------------------------------------------------------
 
     def tick(
@@ -202,6 +256,8 @@ class Session:
         """
         notes: list[dict[str, Any]] = []
         changed = False
+        dt = min(max(dt, 0.0), MAX_FRAME_DT)
+        self._now_ns = round((self.sim.time + dt) * 1e9)
         for control, received_at in controls:
             try:
                 changed |= self.apply(control, received_at)
@@ -209,7 +265,7 @@ class Session:
                 notes.append({"type": "error", "message": str(e), "in": _type_of(control)})
         if changed:
             notes.append({"type": "state", **self.state()})
-        return self._advance(min(max(dt, 0.0), MAX_FRAME_DT)), notes
+        return self._advance(dt), notes
 
     def apply(self, control: Control, received_at: float = 0.0) -> bool:
         """One control message; True when the viewers' `state` changed."""
@@ -224,6 +280,7 @@ class Session:
         if isinstance(control, Reset):
             for sim in self.sims:
                 sim.reset()
+            self._log(sessionlog.EyeReset(self._now_ns))
             return False
         if isinstance(control, Viewport):
             if not self.settings.fit_viewport:
@@ -234,7 +291,11 @@ class Session:
                 return False
             # Too narrow for two panes: one model again, and the state tells the viewers.
             split = self.split if size[0] >= 2 * MIN_SIZE else None
+            had = (self.model, self.split)
             self._rebuild(size=size, split=split)
+            self._log(sessionlog.Note(self._now_ns, f"frame {size[0]}x{size[1]}"))
+            if (self.model, self.split) != had:
+                self._log_models()
             return True
         if isinstance(control, ParamChange):
             return self._set_params(control.values)
@@ -251,16 +312,18 @@ class Session:
             self.scene = self.scenes.open(name)
             self.scene_name = name
             self._load_scene(reset=True)
-        elif name.startswith("replay:"):
+            self._log(sessionlog.SceneChange(self._now_ns, name))
+            return True
+        if name.startswith("replay:"):
             self._track = self.recordings.track(name.removeprefix("replay:"))
             self._track_start = self.sim.time
-            self.gaze_source = name
-        else:
-            if name not in GAZE_SOURCES:
-                known = ", ".join([*GAZE_SOURCES, "replay:NAME"])
-                raise ValueError(f"unknown gaze source {name!r}; available: {known}")
-            self.gaze_source = name
+        elif name in GAZE_SOURCES:
             self._track = None
+        else:
+            known = ", ".join([*GAZE_SOURCES, "replay:NAME"])
+            raise ValueError(f"unknown gaze source {name!r}; available: {known}")
+        self.gaze_source = name
+        self._log(sessionlog.Note(self._now_ns, f"gaze source {name}"))
         return True
 
     def _set_params(self, values: dict[str, Any]) -> bool:
@@ -272,7 +335,9 @@ class Session:
             raise ValueError(f"parameters refused: {e}") from None
         if params == self.params:
             return False
+        before = self.params
         self._rebuild(params=params)
+        self._log_params(before)
         return True
 
     def _set_models(self, pick: ModelPick, split: ModelPick | EllipsisType | None) -> bool:
@@ -291,6 +356,7 @@ class Session:
         if (model, right) == (self.model, self.split):
             return False
         self._rebuild(model=model, split=right)
+        self._log_models()
         return True
 
     def _rebuild(self, **changes: Any) -> None:
@@ -305,6 +371,42 @@ class Session:
             for name, value in before.items():
                 setattr(self, name, value)
             raise
+
+    def _log(self, record: sessionlog.Record) -> None:
+        if self._journal is not None:
+            self._journal.append(record)
+
+    def _log_models(self) -> None:
+        split = None if self.split is None else str(self.split)
+        self._log(sessionlog.ModelChange(self._now_ns, str(self.model), split))
+
+    def _log_params(self, before: Params) -> None:
+        """The parameters that differ from `before` (at the start: from the defaults)."""
+        old, new = before.to_dict(), self.params.to_dict()
+        changed = {name: value for name, value in new.items() if old[name] != value}
+        if changed:
+            self._log(sessionlog.ParamsChange(self._now_ns, changed))
+
+    def _log_gaze(self) -> None:
+        """The gaze and eyes this step follows, when they changed: the gaze in the scene's
+        terms (a pane's, in split view), as a sample in `log_screen` pixels and one fixation."""
+        panes = len(self.sims)
+        (gx, gy), (w, h) = self._pane_gaze(panes), self._pane_size(panes)
+        point = (
+            gx / w * self.log_screen.screen_width_px,
+            gy / h * self.log_screen.screen_height_px,
+        )
+        last_point, last_eyes = self._journaled
+        t = self._now_ns
+        if point != last_point:
+            self._fixations += 1
+            self._log(GazeSample(t, *point))
+            self._log(sessionlog.GazeEvent("fixation_start", self._fixations, t, *point))
+        if self.eyes_open != last_eyes:
+            self._blinks += not self.eyes_open
+            kind = "blink_end" if self.eyes_open else "blink_start"
+            self._log(sessionlog.GazeEvent(kind, self._blinks, t))
+        self._journaled = (point, self.eyes_open)
 
     def _pane_models(self) -> list[Models]:
         return [self.model] if self.split is None else [self.model, self.split]
@@ -346,10 +448,8 @@ class Session:
                 )  # fmt: skip
             except ImportError as e:  # a baseline that is not part of this installation
                 raise ValueError(f"model {model} is not available: {e}") from None
-            sim.step(0.0, gaze=gaze, eyes_open=self.eyes_open)
-            sim.load_scene(frame, reset=True)
-            if keep_from:
-                sim.carry_state_from(keep_from[min(i, len(keep_from) - 1)])
+            old = keep_from[min(i, len(keep_from) - 1)] if keep_from else None
+            sim.start(frame, gaze, self.eyes_open, continue_from=old)
             sims.append(sim)
         self._loaded = self.scene.state_at(t)
         return sims
@@ -389,6 +489,7 @@ class Session:
     def _advance(self, dt: float) -> Frame:
         started = time.perf_counter()
         tracker = self._current_gaze()
+        self._log_gaze()
         sim, (w, h) = self.sim, self.size
         gaze = self._pane_gaze(len(self.sims))
         # Split the step where the scene changes: a flash shorter than a frame is seen for

@@ -13,8 +13,10 @@ from drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from drivers.sessionlog import (
     ClockInfo,
     ClockUpdate,
+    EyeReset,
     FormatError,
     GazeEvent,
+    ModelChange,
     Note,
     ParamsChange,
     SceneChange,
@@ -125,13 +127,47 @@ def test_round_trip_every_record_kind(tmp_path: Path) -> None:
     assert [r.t_ns for r in log2.records()] == sorted(r.t_ns for r in log.records())
 
 
+def test_model_and_reset_records_round_trip(tmp_path: Path) -> None:
+    """Version 2's records: what a server recording a viewing session writes besides gaze."""
+    path = tmp_path / "s.jsonl"
+    changes = [
+        ModelChange(0, "jacobs+stochastic"),
+        ModelChange(500_000_000, "jacobs+thompson", split="ritschel+stochastic"),
+        EyeReset(500_000_000),
+    ]
+    with SessionLogWriter(path, header()) as w:
+        w.write_all(changes)
+    lines = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()[1:]]
+    assert lines == [
+        {"k": "model", "t": 0, "model": "jacobs+stochastic", "split": None},
+        {
+            "k": "model",
+            "t": 500_000_000,
+            "model": "jacobs+thompson",
+            "split": "ritschel+stochastic",
+        },
+        {"k": "reset", "t": 500_000_000},
+    ]
+    log = read_session_log(path)
+    assert (log.models, log.resets) == (changes[:2], changes[2:])
+    assert list(log.records()) == changes
+
+
+def test_a_version_1_log_still_reads(tmp_path: Path) -> None:
+    path = tmp_path / "s.jsonl"
+    write_example(path)
+    replace_line(path, 1, json.dumps({**header().to_json(), "version": 1}))
+    log = read_session_log(path)
+    assert log.header.version == 1 and len(log.samples) == len(SAMPLES)
+
+
 def test_file_layout_is_the_documented_one(tmp_path: Path) -> None:
     path = tmp_path / "s.jsonl"
     write_example(path)
     lines = path.read_text(encoding="utf-8").splitlines()
     assert json.loads(lines[0]) == {
         "format": "gazehdr-session",
-        "version": 1,
+        "version": 2,
         "created": "2024-05-01T12:00:00.000+00:00",
         "tracker": {"name": "test tracker", "serial": "T-1"},
         "screen": {
@@ -295,6 +331,9 @@ def replace_line(path: Path, number: int, text: str) -> None:
         (5, '{"k":"blink_end","id":1,"t":1,"eye":"both"}', "eye", "'left' or 'right'"),
         (2, '{"k":"scene","t":1,"name":7}', "name", "must be a string"),
         (3, '{"k":"params","t":1,"values":[1]}', "values", "must be an object"),
+        (3, '{"k":"model","t":1,"model":null}', "model", "must be a string"),
+        (3, '{"k":"model","t":1,"model":"jacobs","split":2}', "split", "must be a string"),
+        (3, '{"k":"reset","t":1,"hard":true}', "hard", "unknown field"),
         (4, '{"k":"s","t":1000000000,"v":1,"x":NaN,"y":1}', None, "not a JSON record"),
         (4, '{"k":"s","t":1000000000,"v":1,', None, "not a JSON record"),
         (4, "[1, 2]", None, "a record is a JSON object"),
@@ -330,7 +369,8 @@ def test_a_whole_but_malformed_last_line_is_an_error_not_a_truncation(tmp_path: 
     ("change", "field", "reason"),
     [
         ({"format": "other"}, "format", "not a gazehdr session log"),
-        ({"version": 2}, "version", "this reader reads version 1"),
+        ({"version": 3}, "version", "this reader reads versions 1 and 2"),
+        ({"version": True}, "version", "this reader reads versions 1 and 2"),
         ({"screen": {"screen_width_px": 10}}, "screen", "exactly"),
         ({"clock": {"source": "x", "offset_ns": "1"}}, "clock.offset_ns", "integer"),
         ({"extra": 1}, "extra", "unknown field"),
@@ -484,3 +524,30 @@ def test_fixation_track_places_end_only_fixations_at_their_start() -> None:
     assert track.at(0.1)[:2] == (0.5, 0.5)
     assert track.at(0.39)[:2] == (0.5, 0.5)
     assert track.at(0.41)[:2] == (0.25, 0.25)
+
+
+@pytest.mark.parametrize(
+    "events",
+    [[], [GazeEvent("fixation_start", 1, 0)], [GazeEvent("blink_start", 1, 700_000_000)]],
+    ids=["no events", "fixations without positions", "only blinks"],
+)
+def test_a_log_whose_events_place_no_fixation_is_followed_through_ivt(
+    events: list[GazeEvent],
+) -> None:
+    """As a daemon replaying it would: the track holds I-VT's fixations, so the saccade between
+    them never moves the gaze, where the raw samples would sweep it across."""
+    ms = 1_000_000
+    a, b = (100.0, 100.0), (900.0, 400.0)
+    samples = [GazeSample(t * 10 * ms, *a) for t in range(40)]
+    samples += [  # a 30 ms saccade, then B
+        GazeSample((400 + 10 * k) * ms, a[0] + (b[0] - a[0]) * k / 3, a[1] + (b[1] - a[1]) * k / 3)
+        for k in range(1, 3)
+    ]
+    samples += [GazeSample((430 + 10 * t) * ms, *b) for t in range(50)]
+    log = SessionLog(header(), samples=samples, events=events)
+    track = log.fixation_track()
+    w, h = SCREEN.screen_width_px, SCREEN.screen_height_px
+    assert track.at(0.2)[:2] == pytest.approx((a[0] / w, a[1] / h))
+    assert track.at(0.415)[:2] == pytest.approx((a[0] / w, a[1] / h))  # mid-saccade: still A
+    assert track.at(0.7)[:2] == pytest.approx((b[0] / w, b[1] / h))
+    assert log.track().at(0.415)[:2] != pytest.approx((a[0] / w, a[1] / h))  # the raw samples
