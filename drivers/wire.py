@@ -15,6 +15,14 @@ from typing import Any
 PROTOCOL = 1
 MAX_MESSAGE_BYTES = 1024 * 1024
 MAX_BATCH = 1000  # samples per `samples` message
+#: The `hello` screen fields (`ScreenGeometry`'s) that are sizes, so positive; others a later
+#: version may add need only be finite numbers.
+SCREEN_SIZES = (
+    "screen_diagonal_m",
+    "screen_width_px",
+    "screen_height_px",
+    "viewing_distance_m",
+)
 EVENT_KINDS = (
     "fixation_start",
     "fixation_update",
@@ -158,6 +166,9 @@ def parse(data: str | bytes) -> Message:
         for key, value in screen.items():
             if not isinstance(value, (int, float)) or isinstance(value, bool):
                 raise WireError(f"hello: 'screen.{key}' must be a number")
+            if not math.isfinite(value) or (key in SCREEN_SIZES and value <= 0):
+                what = "a positive" if key in SCREEN_SIZES else "a finite"
+                raise WireError(f"hello: 'screen.{key}' must be {what} number, got {value}")
         return Hello(PROTOCOL, tracker[:200], screen)
     if kind == "samples":
         batch = msg.get("samples")
@@ -167,13 +178,17 @@ def parse(data: str | bytes) -> Message:
     if kind == "event":
         if msg.get("kind") not in EVENT_KINDS:
             raise WireError(f"event: 'kind' must be one of {', '.join(EVENT_KINDS)}")
-        x, y = (
-            (_coord(msg, "x", "event"), _coord(msg, "y", "event"))
-            if msg["kind"].startswith("fixation")
-            else (math.nan, math.nan)
-        )
+        if msg["kind"].startswith("fixation"):
+            x, y = _coord(msg, "x", "event"), _coord(msg, "y", "event")
+        else:  # a blink has no position; one it carries anyway must still be a valid one
+            for key in ("x", "y"):
+                if key in msg:
+                    _coord(msg, key, "event")
+            x, y = math.nan, math.nan
         return Event(msg["kind"], _int(msg, "id", "event"), _int(msg, "t", "event"), x, y)
     if kind == "echo":
+        if "server_ns" in msg:  # what tells a request from the server's reply (the schema's rule)
+            raise WireError("echo: a request has no 'server_ns'; that is the server's reply")
         return Echo(_int(msg, "t0", "echo"))
     raise WireError(f"unknown message type {kind!r}; known: hello, samples, event, echo")
 

@@ -23,6 +23,7 @@ def _validator(part: str | None = None):
 TO_SERVER = [
     wire.Hello(1, "Tobii Pro Fusion", {"screen_width_px": 1920.0, "screen_height_px": 1080.0}),
     wire.Hello(1, "", {}),
+    wire.Hello(1, "rig", {"screen_width_px": 1280.0, "refresh_hz": 0.0}),  # a later field
     wire.Samples(()),
     wire.Samples(
         (
@@ -81,6 +82,10 @@ INVALID_TO_SERVER = [
     {"type": "hello", "protocol": 2, "tracker": "x", "screen": {}},
     {"type": "hello", "protocol": 1, "tracker": 5},
     {"type": "hello", "protocol": 1, "screen": {"screen_width_px": "wide"}},
+    {"type": "hello", "protocol": 1, "screen": {"screen_width_px": 0}},
+    {"type": "hello", "protocol": 1, "screen": {"screen_height_px": -1080}},
+    {"type": "hello", "protocol": 1, "screen": {"screen_diagonal_m": 0.0}},
+    {"type": "hello", "protocol": 1, "screen": {"viewing_distance_m": -0.6}},
     {"type": "samples"},
     {"type": "samples", "samples": {"t": 1}},
     {"type": "samples", "samples": [{"x": 0.5, "y": 0.5}]},
@@ -93,8 +98,12 @@ INVALID_TO_SERVER = [
     {"type": "event", "kind": "saccade_start", "id": 1, "t": 1},
     {"type": "event", "kind": "fixation_start", "id": 1, "t": 1},
     {"type": "event", "kind": "blink_start", "t": 1},
+    {"type": "event", "kind": "blink_start", "id": 1, "t": 1, "x": 9.0},
+    {"type": "event", "kind": "blink_end", "id": 1, "t": 1, "y": -3.5},
+    {"type": "event", "kind": "blink_end", "id": 1, "t": 1, "x": "left"},
     {"type": "echo"},
     {"type": "echo", "t0": "now"},
+    {"type": "echo", "t0": 1, "server_ns": 2},  # a reply, sent the wrong way
     {"type": "gaze", "x": 0.5, "y": 0.5},
     {"samples": []},
 ]
