@@ -3,8 +3,16 @@
 The source runs in a thread (tracker reads and real-time pacing block); everything else runs on
 one asyncio loop:
 
-- every sample goes first to the local session log (`record=`), then through the fixation
-  detector, and samples and events join the send buffer in the order they were emitted;
+- every sample goes first to the local session log (`record=`, or a new timestamped file in
+  `record_dir=`), then through the fixation detector, and samples and events join the send
+  buffer in the order they were emitted;
+- the server follows fixation events, so each one sent carries a position. A replayed
+  recording whose fixation starts carry none (EyeLink `SFIX`, BIDS onsets) says where each
+  fixation is (`fixation_places()`, the places `SessionLog.fixation_track` holds): its events
+  are sent with those positions, and recorded as they were. A source whose events cannot place a
+  single fixation (BIDS physioevents without positions, or only blinks) is run through the
+  detector instead, as `fixation_track` runs I-VT over a log without fixations; its own events
+  are then recorded, not sent;
 - the send buffer is bounded (`buffer` items). While the server is unreachable a live source
   keeps producing: when the buffer is full its oldest never-sent item is dropped, counted,
   logged, and noted in the session log. A source that is not live (a replay) is made to wait
@@ -26,7 +34,8 @@ one asyncio loop:
 
 `run_daemon(source, server_url, token, ...)` runs until the source ends (and the buffer is
 delivered, or `drain_timeout` passes) or `Daemon.stop()` is called. `daemon_main(argv)` is the
-command line. Nothing here imports `server` or pyopencl.
+command line; SIGTERM and Ctrl-C stop it the same way, with its summary. Nothing here imports
+`server` or pyopencl.
 """
 
 from __future__ import annotations
@@ -39,21 +48,30 @@ import math
 import os
 import random
 import re
+import signal
 import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from drivers import wire
 from drivers.fixations import DETECTORS, make_detector
-from drivers.samples import GazeSample
+from drivers.formats import positive_arg, screen_size_arg  # as `gazehdr import` reads them
+from drivers.samples import GazeSample, ScreenGeometry
 from drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
-from drivers.sources import SourceInfo, SourceUnavailableError, open_source, records_of
+from drivers.sources import (
+    SourceInfo,
+    SourceUnavailableError,
+    fixation_places_of,
+    open_source,
+    records_of,
+)
 
 log = logging.getLogger("gazehdr.daemon")
 
@@ -62,6 +80,11 @@ SERVER_RATE_HZ = 2000.0  # the server's sustained limit per connection (server.a
 DEFAULT_RATE_HZ = 1900.0  # what the daemon sends at most: below the limit, with margin
 DEFAULT_BURST = 1000.0  # below the server's burst of 4000
 DEFAULT_BUFFER = 20_000  # items (samples and events): 10 s of a 2000 Hz tracker
+DEFAULT_MAX_INFLIGHT = 2000  # items sent, not yet acknowledged: 1 s at the server's limit
+#: After SIGTERM or Ctrl-C, how long the buffer may still drain: well inside the 10 s that
+#: `docker stop` waits before SIGKILL, so the summary is printed and the log closed.
+SIGNAL_DRAIN_S = 3.0
+RECORD_DIR_ENV = "GAZEHDR_RECORD_DIR"
 _RATE_NOTE = re.compile(r"rate limit: (\d+) samples dropped")
 _WIRE_TIMES = range(2**63)  # what a wire `t` may be (drivers.wire._int); the server refuses others
 
@@ -153,6 +176,7 @@ class DaemonStats:
     clock: ClockEstimate | None = None
     last_error: str | None = None
     source_error: str | None = None
+    record_path: Path | None = None  # the local session log, when one is written
     sent_times: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=4096))
 
     def summary(self) -> str:
@@ -167,7 +191,15 @@ class DaemonStats:
             f"delivered {self.samples_delivered} samples, {self.events_delivered} events; "
             f"dropped {self.samples_dropped} samples, {self.events_dropped} events "
             f"(buffer full){self._undelivered()}{self._unsendable()}; "
-            f"{self.connects} connection(s); {clock}"
+            f"{self.connects} connection(s); {clock}{self._recorded()}"
+        )
+
+    def _recorded(self) -> str:
+        if self.record_path is None:
+            return ""
+        return (
+            f"; recorded {self.samples_recorded} samples, {self.events_recorded} events "
+            f"to {self.record_path}"
         )
 
     def _unsendable(self) -> str:
@@ -211,9 +243,12 @@ def _fraction(value: float, size: int) -> float:
     return min(4.0, max(-3.0, value / size))
 
 
-def _to_wire(item: Any, info: SourceInfo) -> wire.Sample | wire.Event | None:
+def _to_wire(
+    item: Any, info: SourceInfo, places: Mapping[tuple[int, str | None], Any]
+) -> wire.Sample | wire.Event | None:
     """The wire form of a sample or event, or None where the server would refuse it: a message
-    it refuses is still acknowledged by the next echo, so it must never be sent."""
+    it refuses is still acknowledged by the next echo, so it must never be sent. A fixation
+    event without a position takes its fixation's from `places` (see `fixation_places_of`)."""
     w, h = info.geometry.screen_width_px, info.geometry.screen_height_px
     if int(item.t_ns) not in _WIRE_TIMES:
         return None
@@ -222,12 +257,34 @@ def _to_wire(item: Any, info: SourceInfo) -> wire.Sample | wire.Event | None:
             return wire.Sample(int(item.t_ns), _fraction(item.x, w), _fraction(item.y, h), True)
         return wire.Sample(int(item.t_ns), math.nan, math.nan, False)
     if item.kind.startswith("fixation"):
-        if not (math.isfinite(item.x) and math.isfinite(item.y)):
-            return None
-        return wire.Event(
-            item.kind, int(item.id), int(item.t_ns), _fraction(item.x, w), _fraction(item.y, h)
-        )
+        x, y = item.x, item.y
+        if not (math.isfinite(x) and math.isfinite(y)):
+            place = places.get((item.id, getattr(item, "eye", None)))
+            if place is None:
+                return None
+            x, y = place.x, place.y
+        return wire.Event(item.kind, int(item.id), int(item.t_ns), _fraction(x, w), _fraction(y, h))
     return wire.Event(item.kind, int(item.id), int(item.t_ns), math.nan, math.nan)
+
+
+def open_record_dir(
+    directory: str | Path, header: SessionHeader, now: datetime | None = None
+) -> SessionLogWriter:
+    """A new session log in `directory` (made if missing), `gaze-YYYYmmddTHHMMSSZ.jsonl` at
+    `now` (UTC), `-2`, `-3`, ... after the stamp where that exists: a daemon restarted within
+    the same second, or two sharing the directory. Never an existing file (the writer creates
+    exclusively, so even a race cannot overwrite)."""
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    stamp = (now or datetime.now(timezone.utc)).astimezone(timezone.utc)
+    name = f"gaze-{stamp:%Y%m%dT%H%M%SZ}"
+    path, n = folder / f"{name}.jsonl", 1
+    while True:
+        try:
+            return SessionLogWriter(path, header)
+        except FileExistsError:
+            n += 1
+            path = folder / f"{name}-{n}.jsonl"
 
 
 class _ClosedError(Exception):
@@ -251,6 +308,7 @@ class Daemon:
         token: str,
         *,
         record: str | Path | None = None,
+        record_dir: str | Path | None = None,
         overwrite: bool = False,
         detector: str | None = "ivt",
         buffer: int = DEFAULT_BUFFER,
@@ -258,7 +316,7 @@ class Daemon:
         flush_interval: float = 0.02,
         max_rate: float = DEFAULT_RATE_HZ,
         burst: float = DEFAULT_BURST,
-        max_inflight: int = 2000,
+        max_inflight: int = DEFAULT_MAX_INFLIGHT,
         backoff: tuple[float, float] = (0.1, 5.0),
         drain_timeout: float = 10.0,
         welcome_timeout: float = 5.0,
@@ -272,11 +330,16 @@ class Daemon:
             raise ValueError(f"max_rate {max_rate} is over the server's {SERVER_RATE_HZ:g}/s")
         if detector is not None and detector not in DETECTORS:
             raise ValueError(f"unknown detector {detector!r}; known: {', '.join(DETECTORS)}")
+        if record is not None and record_dir is not None:
+            raise ValueError(
+                "record (one file) and record_dir (a new file per run) exclude each other"
+            )
         self.source = source
         self.info: SourceInfo = source.info
         self.url = gaze_url(server_url)
         self.token = token
         self.record_path = Path(record) if record is not None else None
+        self.record_dir = Path(record_dir) if record_dir is not None else None
         self.overwrite = overwrite
         self.buffer, self.batch, self.flush_interval = buffer, batch, flush_interval
         self.max_rate, self.burst, self.max_inflight = max_rate, burst, max_inflight
@@ -285,10 +348,16 @@ class Daemon:
         self.status_interval = status_interval
         self.stats = DaemonStats()
         self.clock = ClockEstimator(clock_window)
-        # The source's own events (a replayed log) pass through; otherwise the detector runs.
+        # The source's own events (a replayed log) pass through when they place its fixations;
+        # otherwise the detector runs (see the module docstring).
+        places = fixation_places_of(source) if self.info.has_events else None
+        self._places = places or {}
+        self._sends_own_events = self.info.has_events and (places is None or bool(places))
+        self._eye: str | None = None  # the eye whose fixations are sent (see _follows)
+        self._eye_chosen = False
         self.detector = (
             make_detector(detector, self.info.geometry)
-            if detector is not None and not self.info.has_events
+            if detector is not None and not self._sends_own_events
             else None
         )
         self._unsent: deque[Any] = deque()
@@ -350,17 +419,35 @@ class Daemon:
             self._write(record)
             self._enqueue(record)
             if self.detector is not None:
-                for event in self.detector.feed(record):
-                    self._event(event)
-        elif _is_event(record):
+                self._detected(self.detector.feed(record))
+        elif _is_event(record) and self._sends_own_events and self._follows(record):
             self._event(record)
-        else:  # scene, params, note, clock records of a replayed log: recorded only
+        else:  # scene, params, note, clock records of a replayed log, unused events: recorded
             self._write(record)
 
-    def _event(self, event: Any) -> None:
+    def _follows(self, event: Any) -> bool:
+        """Whether a recorded event is sent. Of a binocular recording's fixations, one eye's
+        are: the first eye that fixates, as `SessionLog.fixation_track` follows (sending both
+        would move the gaze between the eyes' slightly different places). Blinks all are."""
+        if not event.kind.startswith("fixation"):
+            return True
+        eye = getattr(event, "eye", None)
+        if not self._eye_chosen:
+            self._eye, self._eye_chosen = eye, True
+        return eye == self._eye
+
+    def _event(self, event: Any, *, record: bool = True) -> None:
         self.stats.events_produced += 1
-        self._write(event)
+        if record:
+            self._write(event)
         self._enqueue(event)
+
+    def _detected(self, events: list[Any]) -> None:
+        """The detector's events: sent, and recorded unless the source has events of its own
+        (the log then keeps exactly the source's records; replaying it runs the detector
+        again, to the same events)."""
+        for event in events:
+            self._event(event, record=not self.info.has_events)
 
     def _write(self, record: Any) -> None:
         if self._writer is None:
@@ -394,16 +481,20 @@ class Daemon:
         if self._source_done_at is not None and not self._accepting:
             return
         if self.detector is not None and self._accepting:
-            for event in self.detector.flush():
-                self._event(event)
+            self._detected(self.detector.flush())
         self._accepting = False
         if self._source_done_at is None:
             self._source_done_at = time.monotonic()
         self._wake_sender()
 
-    def stop(self) -> None:
-        """End the run: the source stops, what is buffered is delivered (up to drain_timeout)."""
+    def stop(self, drain_timeout: float | None = None) -> None:
+        """End the run: the source stops, what is buffered is delivered (up to `drain_timeout`
+        from now, when given: less than the configured one, never more)."""
         self._stop_flag.set()
+        if drain_timeout is not None:
+            since = self._source_done_at or time.monotonic()
+            limit = time.monotonic() - since + drain_timeout
+            self.drain_timeout = min(self.drain_timeout, limit)
         if self._loop is not None:
             self._end_of_source()
 
@@ -441,13 +532,18 @@ class Daemon:
     async def run(self) -> DaemonStats:
         self._loop = asyncio.get_running_loop()
         self._wake = asyncio.Event()
+        header = SessionHeader(
+            tracker=self.info.header_tracker(),
+            screen=self.info.geometry,
+            clock=ClockInfo("monotonic_ns" if self.info.live else "replayed"),
+        )
         if self.record_path is not None:
-            header = SessionHeader(
-                tracker=self.info.header_tracker(),
-                screen=self.info.geometry,
-                clock=ClockInfo("monotonic_ns" if self.info.live else "replayed"),
-            )
             self._writer = SessionLogWriter(self.record_path, header, overwrite=self.overwrite)
+        elif self.record_dir is not None:
+            self._writer = open_record_dir(self.record_dir, header)
+        if self._writer is not None:
+            self.stats.record_path = self._writer.path
+            log.info("recording to %s", self._writer.path)
         thread = threading.Thread(target=self._produce, name="gazehdr-source", daemon=True)
         thread.start()
         status = asyncio.create_task(self._status()) if self.status_interval else None
@@ -456,6 +552,9 @@ class Daemon:
         finally:
             self._stop_flag.set()
             self._accepting = False
+            close = getattr(self.source, "close", None)
+            if callable(close):  # a tracker's read loop ends, not left running in its thread
+                close()
             if status is not None:
                 status.cancel()
             self._give_up()
@@ -696,7 +795,7 @@ class Daemon:
                     items.append(queue.popleft())
                 if queue is self._unsent:
                     self._pending_samples -= len(items)
-                wired = [(s, _to_wire(s, self.info)) for s in items]
+                wired = [(s, _to_wire(s, self.info, self._places)) for s in items]
                 sendable = [(s, m) for s, m in wired if m is not None]
                 self._count_unsendable(len(items) - len(sendable), 0)
                 if not sendable:
@@ -708,7 +807,7 @@ class Daemon:
                 self.stats.sent_times.append((time.monotonic(), len(sendable)))
             else:
                 item = queue.popleft()
-                message = _to_wire(item, self.info)
+                message = _to_wire(item, self.info, self._places)
                 if message is None:
                     self._count_unsendable(0, 1)
                     continue
@@ -776,18 +875,20 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gazehdr daemon",
         description="Stream gaze from a tracker (or a recording, or a synthetic scan path) to a "
-        "gazehdr server; sessions with gaze source 'remote' follow its fixations.",
+        "gazehdr server; sessions with gaze source 'remote' follow its fixations. SIGTERM and "
+        f"Ctrl-C stop it after at most {SIGNAL_DRAIN_S:g} s more of delivery, with a summary.",
         epilog="examples:\n"
         "  gazehdr daemon --source synthetic --server ws://127.0.0.1:8000 --token T\n"
         "  gazehdr daemon --source replay:session.jsonl@2 --server ws://HOST:8000\n"
-        "  gazehdr daemon --source hid --record today.jsonl   # token from $GAZEHDR_TOKEN",
+        "  gazehdr daemon --source hid --record today.jsonl   # token from $GAZEHDR_TOKEN\n"
+        "  gazehdr daemon --source hid --screen 2560x1440 --distance 0.65 --record-dir /data",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "--source",
         default="synthetic",
         help="hid[:PATH], replay:FILE[@SPEED] (SPEED a factor or max), or synthetic[:SEED] "
-        "(default: synthetic)",
+        "(default: synthetic). hid waits for a tracker to be plugged in",
     )
     p.add_argument(
         "--server",
@@ -799,31 +900,113 @@ def build_parser() -> argparse.ArgumentParser:
         default=os.environ.get("GAZEHDR_TOKEN"),
         help="bearer token 'gazehdr serve' printed (default: $GAZEHDR_TOKEN)",
     )
-    p.add_argument("--record", metavar="FILE", help="also write every sample and event here")
+    record = p.add_mutually_exclusive_group()
+    record.add_argument(
+        "--record", metavar="FILE", help="also write every sample and event here (a new file)"
+    )
+    record.add_argument(
+        "--record-dir",
+        metavar="DIR",
+        help="also write every sample and event to a new DIR/gaze-YYYYmmddTHHMMSSZ.jsonl (UTC) "
+        f"each run (default: ${RECORD_DIR_ENV}, unless --record is given)",
+    )
     p.add_argument("--detector", choices=sorted(DETECTORS), default="ivt", help="default: ivt")
+    p.add_argument(
+        "--screen",
+        type=screen_size_arg,
+        metavar="WxH",
+        help="the tracked screen's size in pixels (default 1920x1080)",
+    )
+    p.add_argument(
+        "--diagonal",
+        type=positive_arg,
+        metavar="M",
+        help="its diagonal in metres (default: a HID tracker's calibrated size, else 0.6)",
+    )
+    p.add_argument(
+        "--distance",
+        type=positive_arg,
+        metavar="M",
+        help="viewing distance in metres (default 1.0)",
+    )
     p.add_argument(
         "--buffer",
         type=int,
         default=DEFAULT_BUFFER,
         metavar="N",
-        help=f"items kept while the server is away (default: {DEFAULT_BUFFER})",
+        help=f"items (samples and events) kept while the server is away, the oldest dropped "
+        f"first (default: {DEFAULT_BUFFER}); with the up to {DEFAULT_MAX_INFLIGHT} sent but not "
+        f"yet acknowledged, at most N + {DEFAULT_MAX_INFLIGHT} items are held in memory",
     )
     p.add_argument("--rate", type=float, metavar="HZ", help="synthetic source's sampling rate")
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     return p
 
 
+def _screen_flags(args: argparse.Namespace) -> dict[str, float]:
+    """--screen, --diagonal, --distance as `ScreenGeometry` fields (see `open_source`)."""
+    screen: dict[str, float] = {}
+    if args.screen is not None:
+        screen["screen_width_px"], screen["screen_height_px"] = args.screen
+    if args.diagonal is not None:
+        screen["screen_diagonal_m"] = args.diagonal
+    if args.distance is not None:
+        screen["viewing_distance_m"] = args.distance
+    return screen
+
+
+def _warn_unused_screen(info: SourceInfo, screen: Mapping[str, float]) -> None:
+    used = asdict(info.geometry)
+    kept = [f"{name} {used[name]:g}" for name, value in screen.items() if used[name] != value]
+    if kept:
+        log.warning(
+            "the recording's own screen geometry is used (%s): --screen, --diagonal and "
+            "--distance fill in only what a recording does not record",
+            ", ".join(kept),
+        )
+
+
+async def _run_until_signalled(daemon: Daemon) -> tuple[DaemonStats, int | None]:
+    """Run `daemon`; SIGTERM or Ctrl-C stops it as `stop()` does, the buffer draining for at
+    most `SIGNAL_DRAIN_S`; a second one stops it at once. Returns the stats and the signal."""
+    loop = asyncio.get_running_loop()
+    got: list[int] = []
+
+    def on_signal(signum: int) -> None:
+        log.warning("%s: stopping%s", signal.Signals(signum).name, " now" if got else "")
+        daemon.stop(drain_timeout=0.0 if got else SIGNAL_DRAIN_S)
+        got.append(signum)
+
+    installed = []
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(signum, on_signal, signum)
+        except (NotImplementedError, RuntimeError):  # Windows, or not the main thread
+            continue
+        installed.append(signum)
+    try:
+        stats = await daemon.run()
+    finally:
+        for signum in installed:
+            loop.remove_signal_handler(signum)
+    return stats, got[0] if got else None
+
+
 def daemon_main(argv: Sequence[str] | None = None) -> int:
-    """`gazehdr daemon ...`: 0 when the source ended, 1 on a failing source, 2 on bad input or
-    a refused token, 130 on Ctrl-C."""
+    """`gazehdr daemon ...`: 0 when the source ended or SIGTERM stopped it, 1 on a failing
+    source, 2 on bad input or a refused token, 130 on Ctrl-C."""
     parser = build_parser()
     args = parser.parse_args(argv)
     prog = "gazehdr daemon"
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
-    log.addHandler(handler)
-    log.setLevel(logging.WARNING if args.quiet else logging.INFO)
-    log.propagate = False
+    loggers = (log, logging.getLogger("drivers.hid"))  # the tracker's waits and unplugs, too
+    before = [(logger.level, logger.propagate) for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(handler)
+        logger.setLevel(logging.WARNING if args.quiet else logging.INFO)
+        logger.propagate = False
+    signalled: int | None = None
     try:
         if not args.server:
             parser.error("--server (or $GAZEHDR_SERVER) is required")
@@ -831,17 +1014,27 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
             parser.error("--token (or $GAZEHDR_TOKEN) is required")
         if args.buffer < 1:
             parser.error(f"--buffer must be a positive number of items, got {args.buffer}")
-        source = open_source(args.source, rate_hz=args.rate)
+        record_dir = args.record_dir
+        if record_dir is None and args.record is None:
+            record_dir = os.environ.get(RECORD_DIR_ENV) or None
+        screen = _screen_flags(args)
+        try:
+            replace(ScreenGeometry(), **screen)
+        except ValueError as e:  # --screen 0x1080; --diagonal and --distance are checked already
+            parser.error(f"--screen: {e}")
+        source = open_source(args.source, rate_hz=args.rate, screen=screen, wait=True)
+        _warn_unused_screen(source.info, screen)
         daemon = Daemon(
             source,
             args.server,
             args.token,
             record=args.record,
+            record_dir=record_dir,
             detector=args.detector,
             buffer=args.buffer,
             status_interval=10.0,
         )
-        stats = asyncio.run(daemon.run())
+        stats, signalled = asyncio.run(_run_until_signalled(daemon))
     except UnauthorizedError as e:
         sys.stderr.write(f"{prog}: error: {e}\n")
         return 2
@@ -849,14 +1042,16 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
         what = f"{e.filename}: {e.strerror}" if isinstance(e, OSError) and e.strerror else str(e)
         sys.stderr.write(f"{prog}: error: {what}\n")
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # before the daemon ran (waiting for a tracker)
         sys.stderr.write(f"{prog}: interrupted\n")
         return 130
     finally:
-        log.removeHandler(handler)
-    log.info("%s", stats.summary())
+        for logger, (level, propagate) in zip(loggers, before, strict=True):
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+            logger.propagate = propagate
     sys.stderr.write(f"{prog}: {stats.summary()}\n")
     if stats.source_error:
         sys.stderr.write(f"{prog}: error: source failed: {stats.source_error}\n")
         return 1
-    return 0
+    return 130 if signalled == signal.SIGINT else 0

@@ -90,8 +90,8 @@ import os
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from drivers.samples import GazeSample, ScreenGeometry
@@ -101,6 +101,15 @@ log = logging.getLogger(__name__)
 
 #: The Eye and Head Trackers usage page.
 USAGE_PAGE = 0x12
+
+#: How far (log ratio, ≈ 3 %) the calibrated screen's shape may differ from the shape of the
+#: screen in pixels before we warn: beyond rounding of whole mm and pixels, a wrong pixel size.
+_ASPECT_TOLERANCE = 0.03
+
+
+def _shape_differs(size_um: tuple[float, float], size_px: tuple[int, int]) -> bool:
+    """Whether a screen of `size_um` cannot be one of `size_px` square pixels."""
+    return abs(math.log(size_um[0] / size_um[1] * size_px[1] / size_px[0])) > _ASPECT_TOLERANCE
 
 
 def usage(usage_id: int) -> int:
@@ -690,13 +699,20 @@ class HidGazeSource:
     `geometry`); a report whose gaze is out of the logical range (the tracker has no gaze) gives
     an invalid sample.
 
+    `geometry` is the screen's: given, it is used as it is; by default it is the tracker's, its
+    diagonal from the calibrated screen size the tracker reports (the defaults' where it reports
+    none), its size in pixels and viewing distance the defaults (HID reports neither). `screen`
+    (`ScreenGeometry` field names → values: the daemon's `--screen`, `--diagonal`, `--distance`)
+    then overrides single fields.
+
     `path` picks a device (else the first with usage page 0x12), `backend` is the hidapi module
     (`hidraw` on Linux; tests pass a fake with `enumerate()` and `device()`), `mode` the Device
     Mode Request (default: gaze point, plus eye position where the tracker reports it).
     `give_up_after_s` ends the iteration with an OSError when no tracker answered for that long
     (None: retry forever). With `open_now` (the default) the constructor opens the tracker and
     raises OSError when there is none (DescriptorError when it is not usable): only a tracker
-    that was there and went away is waited for. `sleep` and `clock` (s, for the back-off) and
+    that was there and went away is waited for, unless `open_now=False` (then the first read
+    waits, or `wait_for_tracker()` does). `sleep` and `clock` (s, for the back-off) and
     `clock_ns` (the host clock samples are stamped with) are injectable for tests.
     `info` is a `drivers.sources.SourceInfo`; `tracker_info` what the tracker reported.
     """
@@ -705,6 +721,7 @@ class HidGazeSource:
         self,
         geometry: ScreenGeometry | None = None,
         *,
+        screen: Mapping[str, float] | None = None,
         path: bytes | str | None = None,
         backend: Any = None,
         mode: int | None = None,
@@ -718,7 +735,9 @@ class HidGazeSource:
         clock_ns: Callable[[], int] = time.monotonic_ns,
         clock_window_s: float = 2.0,
     ) -> None:
-        self.geometry = geometry or ScreenGeometry()
+        self._given_geometry = geometry
+        self.screen = dict(screen or {})
+        replace(geometry or ScreenGeometry(), **self.screen)  # refuses a bad field or value now
         self.path = path
         self._backend = backend
         self.mode = mode
@@ -744,6 +763,18 @@ class HidGazeSource:
         self._last_t_ns: int | None = None
         if open_now:
             self.connect()
+
+    @property
+    def geometry(self) -> ScreenGeometry:
+        """The screen: as given, or the tracker's (see the class docstring), then `screen`."""
+        base = self._given_geometry
+        if base is None:
+            base = ScreenGeometry()
+            calibrated = self.tracker_info.calibrated_screen_um if self.tracker_info else None
+            if calibrated is not None:
+                diagonal_m = math.hypot(*calibrated) / 1e6
+                base = replace(base, screen_diagonal_m=diagonal_m)
+        return replace(base, **self.screen)
 
     @property
     def info(self) -> SourceInfo:
@@ -786,11 +817,34 @@ class HidGazeSource:
             dev.close()
             raise
         self.tracker, self.tracker_info = tracker, tracker.info
-        if tracker.info.calibrated_screen_um is None:
+        calibrated = tracker.info.calibrated_screen_um
+        g = self.geometry
+        if calibrated is None:
             log.warning(
-                "%s reports no calibrated screen size; using the screen geometry's",
+                "%s reports no calibrated screen size; using the screen geometry's "
+                "(%.3f m diagonal)",
                 tracker.info.path,
+                g.screen_diagonal_m,
             )
+        elif _shape_differs(calibrated, (g.screen_width_px, g.screen_height_px)):
+            log.warning(
+                "%s is calibrated for a %.0f × %.0f mm screen, not the shape of %d × %d pixels: "
+                "pass the screen's size in pixels (gazehdr daemon --screen WxH)",
+                tracker.info.path,
+                calibrated[0] / 1000,
+                calibrated[1] / 1000,
+                g.screen_width_px,
+                g.screen_height_px,
+            )
+        return tracker
+
+    def wait_for_tracker(self) -> HidTracker:
+        """Open the tracker, waiting with back-off until one is plugged in (a one-line message
+        per attempt); OSError after `give_up_after_s`. How `gazehdr daemon --source hid`
+        starts, so that a daemon started before its tracker does not exit."""
+        tracker = self._reconnect()
+        if tracker is None:
+            raise OSError("the HID source was closed while waiting for a tracker")
         return tracker
 
     def _reconnect(self) -> HidTracker | None:

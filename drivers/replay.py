@@ -8,6 +8,11 @@ sleep. A replay is not `live`: a reader that falls behind makes it wait, it lose
 
 Replays are deterministic: the same file gives the same records, in the same order, however
 fast it is read.
+
+A replay also knows what a live stream cannot: where each fixation is before it ends.
+`fixation_places()` gives it (`drivers.sessionlog.fixation_places`, the places
+`SessionLog.fixation_track` holds), so that a consumer can place the fixation starts that
+recorders such as EyeLink (`SFIX`) and BIDS physioevents leave without a position.
 """
 
 from __future__ import annotations
@@ -21,15 +26,19 @@ from typing import Any
 from drivers.samples import GazeSample, ScreenGeometry
 from drivers.sessionlog import (
     FORMAT,
+    FixationPlace,
     GazeEvent,
     Record,
     SessionHeader,
     SessionLog,
     SessionLogReader,
+    decode_record,
+    fixation_places,
 )
 from drivers.sources import Clock, Pacer, Sleep, SourceInfo
 
 _EVENT_MARKERS = (b'"k":"fixation_', b'"k":"blink_')
+_FIXATION_MARKER = b"fixation_"  # on every fixation event's line, on no sample's
 
 
 def is_session_log(path: str | Path) -> bool:
@@ -53,6 +62,22 @@ def _file_has_events(path: Path) -> bool:
                 return True
             tail = block[-32:]
     return False
+
+
+def _fixation_events(path: Path) -> Iterator[GazeEvent]:
+    """A native log's fixation events, parsing only their lines (samples are most of a log).
+    A line that does not parse is left to the replay, which reports it where it stands."""
+    with open(path, "rb") as f:
+        f.readline()  # the header
+        for line, raw in enumerate(f, start=2):
+            if _FIXATION_MARKER not in raw:
+                continue
+            try:
+                record = decode_record(json.loads(raw), path, line)
+            except ValueError:
+                continue
+            if isinstance(record, GazeEvent):
+                yield record
 
 
 def _info(header: SessionHeader, has_events: bool, where: str) -> SourceInfo:
@@ -98,6 +123,7 @@ class ReplaySource:
         self.truncated = False
         self._log: SessionLog | None = None
         self._path: Path | None = None
+        self._places: dict[tuple[int, str | None], FixationPlace] | None = None
         if isinstance(recording, SessionLog):
             self._log = recording
             where = str(recording.path) if recording.path else "a recording"
@@ -126,6 +152,20 @@ class ReplaySource:
         assert self._path is not None
         with SessionLogReader(self._path) as reader:
             return reader.header
+
+    def fixation_places(self) -> dict[tuple[int, str | None], FixationPlace]:
+        """Each recorded fixation's place, keyed by (id, eye) (see
+        `drivers.sessionlog.fixation_places`); empty when no fixation event has a position.
+        Read once: a native log is scanned for its fixation lines on the first call."""
+        if self._places is None:
+            if not self.info.has_events:
+                self._places = {}
+            elif self._log is not None:
+                self._places = fixation_places(self._log.events)
+            else:
+                assert self._path is not None
+                self._places = fixation_places(_fixation_events(self._path))
+        return self._places
 
     def _unpaced(self) -> Iterator[Record]:
         if self._log is not None:

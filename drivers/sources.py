@@ -5,7 +5,8 @@ validity, per-eye fields where the tracker reports them) and describes itself wi
 `SourceInfo` (tracker name, `ScreenGeometry`, nominal rate). A source that also carries
 fixation and blink events (a replayed session log) yields them from `records()`, interleaved
 with its samples in the order they were first emitted; plain sources' `records()` is their
-samples.
+samples. A recording may also say where its fixations are before they end
+(`fixation_places()`, see `fixation_places_of`).
 
 `open_source(spec)` builds one from a command-line spec:
 
@@ -15,6 +16,11 @@ samples.
   recorded speed, `@2` (twice as fast), `@0.5`, or `@max` (as fast as the reader takes it);
 - `hid[:PATH]`: a USB HID eye tracker (`drivers.hid.HidSource`, imported only when asked for).
 
+`screen` (`ScreenGeometry` field names → values, e.g. from `gazehdr daemon --screen
+--diagonal --distance`) says what the user knows about the screen: it sets the synthetic
+source's geometry, fills in what an imported recording does not record (as `gazehdr import`'s
+flags do; a native log's header is kept), and overrides what a HID tracker reports.
+
 Pacing goes through an injectable clock and sleep, so tests run without waiting. Nothing here
 imports `server` or pyopencl.
 """
@@ -23,8 +29,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -81,6 +87,15 @@ def records_of(source: Any) -> Iterator[Any]:
     """A source's records: samples and, where it has them, its own events, in emitted order."""
     records = getattr(source, "records", None)
     return records() if callable(records) else iter(source)
+
+
+def fixation_places_of(source: Any) -> Mapping[tuple[int, str | None], Any] | None:
+    """Where a source's fixations are, keyed by (event id, eye), each with `x` and `y` in
+    pixels: what a recording (`drivers.replay.ReplaySource`) knows of a fixation before it ends.
+    None for a source that does not say, whose events carry their own positions (a live
+    detector's do)."""
+    places = getattr(source, "fixation_places", None)
+    return places() if callable(places) else None
 
 
 class Pacer:
@@ -261,6 +276,8 @@ def open_source(
     rate_hz: float | None = None,
     realtime: bool = True,
     geometry: ScreenGeometry | None = None,
+    screen: Mapping[str, float] | None = None,
+    wait: bool = False,
     clock: Clock | None = None,
     sleep: Sleep | None = None,
     **options: Any,
@@ -268,11 +285,16 @@ def open_source(
     """A source from its spec: `synthetic[:SEED]`, `replay:FILE[@SPEED]`, or `hid[:PATH]`.
 
     `rate_hz`, `realtime` and `geometry` apply to the synthetic source; `geometry` also to
-    imported recordings that do not record their screen. Other `options` go to the source.
-    Raises `ValueError` for a spec it does not know and `SourceUnavailableError` for a source that
-    cannot run here.
+    imported recordings that do not record their screen, and replaces what a HID tracker
+    reports. `screen` overrides single `ScreenGeometry` fields (see the module docstring).
+    `wait` (hid): when no tracker is plugged in, wait for one with back-off, a message per
+    attempt, instead of failing. Other `options` go to the source. Raises `ValueError` for a spec
+    it does not know or a geometry that is not one, and `SourceUnavailableError` for a source
+    that cannot run here.
     """
     kind, _, rest = spec.partition(":")
+    if screen and kind != "hid":
+        geometry = replace(geometry or ScreenGeometry(), **screen)
     if kind == "synthetic":
         try:
             seed = int(rest) if rest else 0
@@ -305,8 +327,14 @@ def open_source(
             options.setdefault("path", rest)
         if geometry is not None:
             options.setdefault("geometry", geometry)
+        if screen:
+            options.setdefault("screen", screen)
         try:
-            return HidSource(**options)
+            options.setdefault("open_now", not wait)
+            source = HidSource(**options)
+            if wait:
+                source.wait_for_tracker()
+            return source
         except (OSError, ImportError, LookupError, ValueError) as e:  # no tracker, no hidapi
             raise SourceUnavailableError(f"HID source unavailable: {e}") from None
     raise ValueError(

@@ -1,11 +1,19 @@
-"""The gaze daemon against a real server on loopback (uvicorn in a thread, see conftest.py)."""
+"""The gaze daemon against a real server on loopback (uvicorn in a thread, see conftest.py;
+or in a subprocess where the test kills it)."""
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
+import re
+import signal
+import socket
+import subprocess
+import sys
 import threading
 import time
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
@@ -18,11 +26,22 @@ from drivers.daemon import (
     UnauthorizedError,
     daemon_main,
     gaze_url,
+    open_record_dir,
     run_daemon,
 )
+from drivers.fixations import detect
+from drivers.formats import import_recording
+from drivers.formats.bids import write_bids
 from drivers.replay import ReplaySource
 from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sessionlog import SessionHeader, SessionLogWriter, read_session_log
+from drivers.sessionlog import (
+    GazeEvent,
+    SessionHeader,
+    SessionLog,
+    SessionLogWriter,
+    read_session_log,
+    write_session_log,
+)
 from drivers.sources import IterableSource, SourceInfo, SyntheticSource
 from server import app as app_module
 from server.app import ServerConfig, create_app
@@ -32,6 +51,11 @@ from server.session import SessionSettings
 
 TIMEOUT = 30.0
 GEOMETRY = ScreenGeometry()
+FORMATS = Path(__file__).parent / "data" / "formats"
+REPO = Path(__file__).resolve().parent.parent
+#: Positions the server holds are the daemon's pixels over the screen's: exact but for float
+#: rounding, so a hundred-millionth of the screen (far below a pixel) is the tolerance.
+SCREEN_TOLERANCE = 1e-8
 
 
 def run(coro):
@@ -48,6 +72,21 @@ def received(monkeypatch) -> list[tuple[int, list[int]]]:
         if isinstance(msg, wire.Samples):
             log.append((id(self.hub), [s.t_ns for s in msg.samples]))
         return original(self, msg, now)
+
+    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    return log
+
+
+@pytest.fixture
+def followed(monkeypatch) -> list[tuple[wire.Message, float, float]]:
+    """Every message any server handles, with where its remote gaze is once it has."""
+    log: list[tuple[wire.Message, float, float]] = []
+    original = app_module._GazeLink.handle
+
+    def handle(self, msg, now):
+        reply = original(self, msg, now)
+        log.append((msg, self.hub.remote.x, self.hub.remote.y))
+        return reply
 
     monkeypatch.setattr(app_module._GazeLink, "handle", handle)
     return log
@@ -228,30 +267,43 @@ def test_restarted_server_gets_everything_the_buffer_kept(live_server, received,
         for s in second:
             s.stop()
     (restarted,) = second
-    recorded = read_session_log(record)
+    hubs = {id(first.hub): [], id(restarted.hub): []}
+    for hub, batch in received:
+        hubs[hub].extend(batch)
+    _nothing_lost_but_counted(
+        read_session_log(record), stats, hubs[id(first.hub)], hubs[id(restarted.hub)]
+    )
+    assert restarted.hub.remote.samples > 0
+    assert first.metrics.gaze_rate_limited.value == restarted.metrics.gaze_rate_limited.value == 0
+
+
+def _nothing_lost_but_counted(
+    recorded: SessionLog, stats, first: list[int], second: list[int]
+) -> None:
+    """What a server restart must leave: the sample times each server handled, in order,
+    together hold every sample the source gave except the ones counted dropped."""
     produced = [s.t_ns for s in recorded.samples]
     # the local recording has everything the source gave
     assert len(produced) == stats.samples_produced == stats.samples_recorded
     assert len(recorded.events) == stats.events_produced == stats.events_recorded
     # each server saw its samples in order
-    hubs = {id(first.hub): [], id(restarted.hub): []}
-    for hub, batch in received:
-        hubs[hub].extend(batch)
-    for times in hubs.values():
+    for times in (first, second):
         assert times == sorted(times) and len(set(times)) == len(times)
     # nothing lost but what the bound dropped, and that exactly as counted
-    arrived = set(hubs[id(first.hub)]) | set(hubs[id(restarted.hub)])
+    arrived = set(first) | set(second)
     missing = [t for t in produced if t not in arrived]
     assert len(missing) == stats.samples_dropped > 0
     assert stats.samples_undelivered == 0
     assert stats.samples_delivered + stats.samples_dropped == stats.samples_produced
-    # the oldest were dropped: the gap lies between the two servers' streams
-    assert max(hubs[id(first.hub)]) < min(missing) <= max(missing) < max(produced)
-    resent = set(hubs[id(first.hub)]) & set(hubs[id(restarted.hub)])
+    # the oldest were dropped, in one run: the gap lies between the two servers' streams, and
+    # everything after it (what the buffer kept, and what came later) reached the second
+    gap = produced.index(missing[0])
+    assert produced[gap : gap + len(missing)] == missing
+    assert max(first) < min(missing) and set(produced[gap + len(missing) :]) <= set(second)
+    resent = set(first) & set(second)
     assert len(resent) <= stats.resent  # at least once: only unacknowledged ones twice
-    assert restarted.hub.remote.samples > 0 and stats.connects == 2
+    assert stats.connects == 2 and stats.server_rate_limited == 0
     assert any("dropped" in n.text for n in recorded.notes)
-    assert first.metrics.gaze_rate_limited.value == restarted.metrics.gaze_rate_limited.value == 0
 
 
 def test_a_wrong_token_is_fatal_and_clear(live_server, capsys, monkeypatch) -> None:
@@ -392,3 +444,376 @@ def test_a_reconnect_forgets_the_old_servers_clock(live_server, monkeypatch, tmp
     assert abs(after.offset_ns - shift) <= after.uncertainty_ns + 1_000
     clocks = read_session_log(record).clocks
     assert abs(clocks[0].offset_ns) < shift / 2 and abs(clocks[-1].offset_ns - shift) < shift / 2
+
+
+# --- a server killed outright ------------------------------------------------------------------
+
+#: A gazehdr server (the project's app factory under uvicorn) on a given port that writes down
+#: the sample times of every batch it handles, flushed before the batch is acknowledged: a
+#: SIGKILL loses none of what it handled.
+KILLABLE_SERVER = """
+import sys
+from pathlib import Path
+
+from drivers import wire
+from server import app as app_module
+from server.app import ServerConfig, create_app
+from server.serve import uvicorn_server
+from server.session import SessionSettings
+
+port, seen, data = int(sys.argv[1]), open(sys.argv[2], "a"), Path(sys.argv[3])
+handle = app_module._GazeLink.handle
+
+
+def writing(self, msg, now):
+    reply = handle(self, msg, now)
+    if isinstance(msg, wire.Samples):
+        seen.write(" ".join(str(s.t_ns) for s in msg.samples) + "\\n")
+        seen.flush()
+    return reply
+
+
+app_module._GazeLink.handle = writing
+settings = SessionSettings(width=160, height=96, fps=20.0)
+config = ServerConfig(token="t", session=settings, data_dir=data, session_grace_s=0.0)
+uvicorn_server(create_app(config), "127.0.0.1", port, log_level="warning").run()
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class KillableServer:
+    """`KILLABLE_SERVER` in a subprocess, up once its port accepts connections."""
+
+    def __init__(self, script: Path, port: int, name: str) -> None:
+        self.seen = script.parent / f"{name}.txt"
+        self.proc = subprocess.Popen(
+            [sys.executable, str(script), str(port), str(self.seen), str(script.parent / name)],
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        deadline = time.monotonic() + 20
+        while True:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    return
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.proc.kill()
+                raise AssertionError(f"server did not start: {self.proc.stderr.read()!r}")
+            time.sleep(0.02)
+
+    def hang(self) -> None:
+        self.proc.send_signal(signal.SIGSTOP)  # reads nothing, answers nothing, closes nothing
+
+    def kill(self) -> None:
+        self.proc.kill()  # SIGKILL: no close frame, no shutdown; the kernel drops the socket
+        self.proc.wait(timeout=10)
+
+    def times(self) -> list[int]:
+        return [int(t) for line in self.seen.read_text().splitlines() for t in line.split()]
+
+
+def test_a_server_killed_outright_loses_nothing_the_buffer_kept(tmp_path) -> None:
+    """A server that hangs (SIGSTOP: what the daemon sends meanwhile is never acknowledged)
+    and is then SIGKILLed mid-stream, then a new server on the same port: what was sent but
+    not acknowledged is sent again, what the bound kept arrives, and exactly what it dropped is
+    missing and counted."""
+    script = tmp_path / "killable_server.py"  # not server.py: that would hide the package
+    script.write_text(KILLABLE_SERVER)
+    port = _free_port()
+    servers = [KillableServer(script, port, "first")]
+    record = tmp_path / "rec.jsonl"
+    bound = 300
+    daemon = Daemon(
+        SyntheticSource(4, 1000.0),  # live, endless, real time
+        f"ws://127.0.0.1:{port}",
+        "t",
+        record=record,
+        buffer=bound,
+        backoff=(0.05, 0.2),
+        drain_timeout=5.0,
+    )
+
+    async def scenario():
+        task = asyncio.create_task(daemon.run())
+        await until(lambda: daemon.stats.samples_delivered >= 300, what="first deliveries")
+        servers[0].hang()
+        await asyncio.sleep(0.2)  # ~200 samples sent to it, none acknowledged
+        await asyncio.to_thread(servers[0].kill)
+        await until(lambda: not daemon.connected, what="the daemon to notice")
+        await asyncio.sleep(0.8)  # ~800 samples at 1000 Hz: more than the bound keeps
+        assert daemon.stats.samples_dropped > 0 and daemon.stats.resent >= 100
+        assert daemon.backlog <= bound + daemon.max_inflight
+        servers.append(await asyncio.to_thread(KillableServer, script, port, "second"))
+        await until(lambda: daemon.stats.connects == 2, what="the reconnect")
+        await asyncio.sleep(0.3)
+        daemon.stop()
+        return await task
+
+    try:
+        stats = run(scenario())
+    finally:
+        for server in servers:
+            if server.proc.poll() is None:
+                server.kill()
+    first, second = (server.times() for server in servers)
+    assert stats.disconnects == 2
+    _nothing_lost_but_counted(read_session_log(record), stats, first, second)
+
+
+# --- recordings whose fixation starts have no position ----------------------------------------
+
+
+def _bids_export(tmp_path: Path) -> Path:
+    """The EyeLink fixture as BIDS physio: fixation positions on the physioevents rows, which
+    import as a fixation end with the mean and a start without one."""
+    log = import_recording(FORMATS / "eyelink_mono.asc")
+    written = write_bids(log, tmp_path / "bids")
+    return next(p for p in written if p.name.endswith("_physio.tsv.gz"))
+
+
+@pytest.mark.parametrize("recording", ["eyelink", "bids", "imported log"])
+def test_a_replayed_recording_is_followed_fixation_by_fixation(
+    live_server, followed, tmp_path, recording
+) -> None:
+    """EyeLink's SFIX and a BIDS fixation onset carry no position, the fixation's end has its
+    mean; so does the log `gazehdr import` writes of them. From each fixation's start until the
+    next one's, the server must hold that mean, whatever the samples in between do (a saccade,
+    a blink, another recording block)."""
+    path = {
+        "eyelink": lambda: FORMATS / "eyelink_mono.asc",
+        "bids": lambda: _bids_export(tmp_path),
+        "imported log": lambda: write_session_log(
+            tmp_path / "s01.jsonl", import_recording(FORMATS / "eyelink_mono.asc")
+        ),
+    }[recording]()
+    log = read_session_log(path) if path.suffix == ".jsonl" else import_recording(path)
+    w, h = log.header.screen.screen_width_px, log.header.screen.screen_height_px
+    means = {e.id: (e.x / w, e.y / h) for e in log.events if e.kind == "fixation_end"}
+    starts = [e for e in log.events if e.kind == "fixation_start"]
+    assert len(means) == len(starts) == 3 and not any(math.isfinite(e.x) for e in starts)
+    server = live_server(token="t")
+
+    stats = run(run_daemon(ReplaySource(path, speed=math.inf), server.ws_url, "t"))
+    assert stats.events_unsendable == stats.samples_unsendable == 0
+    assert stats.events_delivered == stats.events_produced == len(log.events)
+    assert stats.samples_delivered == len(log.samples)
+    handled = [
+        m.id for m, *_ in followed if isinstance(m, wire.Event) and m.kind == "fixation_start"
+    ]
+    assert handled == sorted(means)  # each fixation once, in order
+    held = None
+    for msg, x, y in followed:
+        if isinstance(msg, wire.Event) and msg.kind == "fixation_start":
+            held = means[msg.id]
+        if held is not None:  # from the first fixation on, only fixations move the gaze
+            assert math.dist((x, y), held) < SCREEN_TOLERANCE, (msg, (x, y), held)
+    assert math.dist((server.hub.remote.x, server.hub.remote.y), means[3]) < SCREEN_TOLERANCE
+
+
+def test_a_binocular_recording_is_followed_by_one_eye(live_server, followed) -> None:
+    """Both eyes fixate at slightly different places; the server follows the first eye that
+    fixates, as a render of the recording does (`fixation_track`); the other eye's fixations
+    are recorded, not sent."""
+    path = FORMATS / "eyelink_bino.asc"
+    log = import_recording(path)
+    starts = [e for e in log.events if e.kind == "fixation_start"]
+    assert {e.eye for e in starts} == {"left", "right"}
+    first = starts[0].eye
+    server = live_server(token="t")
+    stats = run(run_daemon(ReplaySource(path, speed=math.inf), server.ws_url, "t"))
+    sent = [m for m, *_ in followed if isinstance(m, wire.Event)]
+    own = [e for e in log.events if e.eye == first]
+    assert [(m.kind, m.id) for m in sent] == [(e.kind, e.id) for e in own]
+    assert stats.events_delivered == len(own) and stats.events_unsendable == 0
+    w, h = log.header.screen.screen_width_px, log.header.screen.screen_height_px
+    end = next(e for e in own if e.kind == "fixation_end")
+    assert math.dist((server.hub.remote.x, server.hub.remote.y), (end.x / w, end.y / h)) < (
+        SCREEN_TOLERANCE
+    )
+    assert log.fixation_track().at(0.002)[:2] == pytest.approx((end.x / w, end.y / h))
+
+
+@pytest.mark.parametrize("own", ["fixations without positions", "only blinks"])
+def test_a_recording_whose_events_place_no_fixation_is_run_through_the_detector(
+    live_server, followed, tmp_path, own
+) -> None:
+    """BIDS physioevents without coordinates, or a recording with blinks only: the server could
+    follow none of its events (a blink would even stop it following samples), so the daemon's
+    detector finds the fixations; the recording's own events are recorded as they were, and
+    not sent."""
+    ms = 1_000_000
+    samples = _scripted()  # A for 400 ms, a saccade, B for 500 ms
+    events = (
+        [
+            GazeEvent("fixation_start", 1, 0, eye="left"),
+            GazeEvent("fixation_end", 1, 398 * ms, duration_ns=398 * ms, eye="left"),
+            GazeEvent("fixation_start", 2, 440 * ms, eye="left"),
+            GazeEvent("fixation_end", 2, 938 * ms, duration_ns=498 * ms, eye="left"),
+        ]
+        if own == "fixations without positions"
+        else [GazeEvent("blink_start", 1, 100 * ms), GazeEvent("blink_end", 1, 180 * ms)]
+    )
+    path = tmp_path / "rec.jsonl"
+    write_session_log(path, SessionLog(SessionHeader({"name": "rig"}, GEOMETRY), samples, events))
+    out = tmp_path / "out.jsonl"
+    server = live_server(token="t")
+
+    stats = run(run_daemon(ReplaySource(path, speed=math.inf), server.ws_url, "t", record=out))
+    detected = detect(samples, "ivt", GEOMETRY)
+    assert [e.kind for e in detected if e.kind != "fixation_update"] == [
+        "fixation_start",
+        "fixation_end",
+    ] * 2  # A, then B
+    sent = [m for m, *_ in followed if isinstance(m, wire.Event)]
+    assert [(m.kind, m.id, m.t_ns) for m in sent] == [(e.kind, e.id, e.t_ns) for e in detected]
+    assert stats.events_unsendable == 0 and stats.events_delivered == len(detected)
+    b = next(e for e in detected if e.kind == "fixation_end" and e.id == 2)
+    final = (server.hub.remote.x, server.hub.remote.y)
+    assert math.dist(final, (b.x / GEOMETRY.screen_width_px, b.y / GEOMETRY.screen_height_px)) < (
+        SCREEN_TOLERANCE
+    )
+    recorded = read_session_log(out)
+    assert recorded.samples == samples and recorded.events == events  # the source's, exactly
+    assert stats.events_recorded == len(events)
+
+
+# --- recording for long-running daemons --------------------------------------------------------
+
+
+def test_record_dir_writes_a_new_file_each_run_and_never_overwrites(
+    live_server, tmp_path, monkeypatch, capsys
+) -> None:
+    at = datetime(2024, 5, 1, 14, 30, 5, tzinfo=timezone.utc)
+    folder = tmp_path / "made" / "here"
+    names = []
+    for _ in range(3):
+        with open_record_dir(folder, SessionHeader(), at) as writer:
+            writer.note(1, f"run {len(names)}")
+            names.append(writer.path.name)
+    assert names == [
+        "gaze-20240501T143005Z.jsonl",
+        "gaze-20240501T143005Z-2.jsonl",
+        "gaze-20240501T143005Z-3.jsonl",
+    ]
+    assert [read_session_log(folder / n).notes[0].text for n in names] == [
+        "run 0",
+        "run 1",
+        "run 2",
+    ]
+    paris = timezone(timedelta(hours=2))
+    with open_record_dir(folder, SessionHeader(), at.astimezone(paris)) as writer:
+        assert writer.path.name == "gaze-20240501T143005Z-4.jsonl"  # stamped in UTC
+
+    server = live_server(token="t")
+    samples = list(SyntheticSource(9, 250.0, duration=1.0, realtime=False, start_ns=0))
+    log = _write_log(tmp_path / "in.jsonl", samples)
+    argv = ["--source", f"replay:{log}@max", "--server", server.ws_url, "--token", "t", "-q"]
+    env_dir = tmp_path / "env"
+    monkeypatch.setenv("GAZEHDR_RECORD_DIR", str(env_dir))
+    assert daemon_main(argv) == 0  # a container's first run ...
+    assert daemon_main(argv) == 0  # ... and its restart
+    files = sorted(env_dir.iterdir())
+    assert len(files) == 2
+    assert all(re.fullmatch(r"gaze-\d{8}T\d{6}Z(-2)?\.jsonl", f.name) for f in files)
+    assert all(read_session_log(f).samples == samples for f in files)
+    err = capsys.readouterr().err
+    assert all(
+        re.search(rf"recorded 251 samples, \d+ events to {re.escape(str(f))}", err) for f in files
+    )
+    # --record names the one file: the environment's directory is not used
+    assert daemon_main([*argv, "--record", str(tmp_path / "one.jsonl")]) == 0
+    assert len(list(env_dir.iterdir())) == 2 and (tmp_path / "one.jsonl").is_file()
+    with pytest.raises(SystemExit) as stopped:
+        daemon_main([*argv, "--record", "a.jsonl", "--record-dir", str(tmp_path / "d")])
+    assert stopped.value.code == 2
+    assert "argument --record-dir: not allowed with argument --record" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
+# --- stopping on SIGTERM, and the screen flags ---------------------------------------------------
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 0), (signal.SIGINT, 130)])
+def test_a_signal_stops_the_daemon_cleanly_and_the_screen_flags_reach_hello_and_detector(
+    live_server, followed, tmp_path, signum, code
+) -> None:
+    """`docker stop` sends SIGTERM, a terminal Ctrl-C: the daemon delivers what it holds,
+    closes its log, prints its summary, and exits 0 (stopped on request) or 130 (interrupted).
+    --screen, --diagonal and --distance set the screen of the hello, of the log header, and of
+    the detector's degrees."""
+    server = live_server(token="t")
+    geometry = ScreenGeometry(0.43, 1280, 1024, 0.55)
+    flags = ["--screen", "1280x1024", "--diagonal", "0.43", "--distance", "0.55"]
+    gazehdr = Path(sys.executable).with_name("gazehdr")
+    command = [str(gazehdr), "daemon", "--source", "synthetic:3", "--rate", "500"]
+    command += ["--server", server.ws_url, "--token", "t", "--record-dir", str(tmp_path / "rec")]
+    proc = subprocess.Popen([*command, *flags], stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 20
+        while server.hub.remote.samples < 500:  # a second of gaze
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.02)
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, err
+    assert f"gazehdr daemon: {signal.Signals(signum).name}: stopping" in err
+    (record,) = (tmp_path / "rec").iterdir()
+    log = read_session_log(record)
+    assert not log.truncated and log.header.screen == geometry
+    n, k = len(log.samples), len(log.events)
+    assert n >= 500 and server.hub.remote.samples == n
+    assert (
+        f"{n} samples, {k} events from the source; delivered {n} samples, {k} events; "
+        f"dropped 0 samples, 0 events (buffer full)"
+    ) in err
+    assert f"recorded {n} samples, {k} events to {record}" in err
+    hellos = [m for m, *_ in followed if isinstance(m, wire.Hello)]
+    assert [h.screen for h in hellos] == [
+        {name: float(v) for name, v in dataclasses.asdict(geometry).items()}
+    ]
+
+    def fields(events) -> list[tuple]:
+        return [(e.kind, e.id, e.t_ns, e.x, e.y, e.duration_ns, e.dispersion_deg) for e in events]
+
+    # the daemon's I-VT measured degrees on the flags' screen: offline I-VT on that screen
+    # gives its very events; on the default screen's size and distance, other ones
+    assert fields(log.events) == fields(detect(log.samples, "ivt", geometry)) != []
+    default = ScreenGeometry(screen_width_px=1280, screen_height_px=1024)
+    assert fields(log.events) != fields(detect(log.samples, "ivt", default))
+
+
+def test_screen_flags_fill_in_only_what_a_recording_does_not_record(
+    live_server, tmp_path, capsys
+) -> None:
+    server = live_server(token="t")
+    base = ["--server", server.ws_url, "--token", "t", "--screen", "1280x1024"]
+    pupil = FORMATS / "gaze_positions.csv"  # normalised positions, no screen of its own
+    out = tmp_path / "pupil.jsonl"
+    assert daemon_main([*base, "--source", f"replay:{pupil}@max", "--record", str(out)]) == 0
+    header = read_session_log(out).header
+    assert header.screen == ScreenGeometry(screen_width_px=1280, screen_height_px=1024)
+    assert "own screen geometry" not in capsys.readouterr().err
+
+    native = _write_log(tmp_path / "native.jsonl", _scripted())  # its header: 1920 × 1080
+    out = tmp_path / "native-out.jsonl"
+    assert daemon_main([*base, "--source", f"replay:{native}@max", "--record", str(out)]) == 0
+    assert read_session_log(out).header.screen == GEOMETRY
+    assert (
+        "gazehdr daemon: the recording's own screen geometry is used (screen_width_px 1920, "
+        "screen_height_px 1080)"
+    ) in capsys.readouterr().err
+
+    with pytest.raises(SystemExit) as stopped:
+        daemon_main([*base[:-1], "0x1080"])
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert "--screen: geometry screen_width_px must be a finite positive number, got 0" in err

@@ -8,19 +8,27 @@ fake with the hidapi device interface (`open_path`, `get_report_descriptor`,
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import logging
 import math
 import random
+import signal
 import struct
+import subprocess
+import sys
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import pytest
 
-from drivers import hid
+from drivers import hid, wire
+from drivers.daemon import Daemon
 from drivers.samples import ScreenGeometry
+from drivers.sessionlog import read_session_log
 from drivers.sources import Source, open_source
 
 # --- HID 1.11 short items ---------------------------------------------------------------------
@@ -461,6 +469,7 @@ class FakeTracker:
         self.plugged = True
         self.unplug_after: int | None = None  # unplug after this many more reads
         self.reads = 0
+        self.idle_read_s = 0.0  # an empty read waits this long, as a real one times out
 
 
 class FakeBus:
@@ -538,6 +547,7 @@ class FakeDevice:
             t.unplug_after -= 1
         t.reads += 1
         if not t.queue:
+            time.sleep(t.idle_read_s)
             return []
         if t.read_at_ns:
             t.now_ns = t.read_at_ns.pop(0)
@@ -859,6 +869,170 @@ def test_give_up_when_no_tracker() -> None:
     )
     with pytest.raises(OSError, match=r"no HID eye tracker for 3\.8 s"):
         next(iter(src))
+
+
+def test_geometry_follows_the_calibrated_screen_and_flags_override(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The Configuration report says 527.04 × 296.46 mm: that is the screen's diagonal. HID says
+    nothing of pixels or viewing distance (defaults), and flags override any field."""
+    calibrated_diagonal_m = math.hypot(0.527_040, 0.296_460)
+    t = make_tracker()
+    timed_stream(2).queue(t)
+    src = timed_source(t)
+    assert src.info.geometry == ScreenGeometry(calibrated_diagonal_m, 1920, 1080, 1.0)
+    src.close()
+
+    t = make_tracker()
+    timed_stream(1).queue(t)
+    flags = {"screen_width_px": 2560, "screen_height_px": 1440, "viewing_distance_m": 0.65}
+    src = open_source("hid", screen=flags, backend=FakeBus(t), clock_ns=lambda: t.now_ns)
+    assert src.info.geometry == ScreenGeometry(calibrated_diagonal_m, 2560, 1440, 0.65)
+    (s,) = itertools.islice(src, 1)
+    assert s.x == pytest.approx(10_000 / 527_040 * 2560)  # µm → the flags' pixels
+    src.close()
+
+    t = make_tracker()
+    flags = {"screen_diagonal_m": 0.5, "screen_width_px": 1280, "screen_height_px": 1024}
+    with caplog.at_level(logging.WARNING, logger="drivers.hid"):
+        src = timed_source(t, screen=flags)
+    assert src.info.geometry == ScreenGeometry(0.5, 1280, 1024, 1.0)  # the flag wins
+    assert "calibrated for a 527 × 296 mm screen, not the shape of 1280 × 1024 pixels" in (
+        caplog.text
+    )
+    src.close()
+
+    no_screen = FakeTracker(PATH, tracker_descriptor(), {**FEATURES, 0x12: bytes([0x12, 0])})
+    src = timed_source(no_screen)
+    assert src.tracker_info is not None and src.tracker_info.calibrated_screen_um is None
+    assert src.info.geometry == ScreenGeometry()  # nothing reported: the defaults
+    src.close()
+    with pytest.raises(ValueError, match="screen_width_px must be a finite positive"):
+        timed_source(make_tracker(), screen={"screen_width_px": 0})
+
+
+def test_daemon_records_every_sample_across_an_unplug(live_server, tmp_path, monkeypatch) -> None:
+    """The daemon over the HID source with --record: unplugged after five reports, back during
+    the second wait; the log holds every sample the source yielded, in order, and the server got
+    them too. Its hello carries the tracker's calibrated screen."""
+    from server import app as app_module  # the server is only the other end here
+
+    hellos: list[wire.Hello] = []
+    original = app_module._GazeLink.handle
+
+    def handle(self, msg, now):
+        if isinstance(msg, wire.Hello):
+            hellos.append(msg)
+        return original(self, msg, now)
+
+    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    t = make_tracker()
+    before = timed_stream(5)
+    after = timed_stream(4, t0_us=1_533_000, host0_ns=before.taken_ns[-1] + 1_500_000_000)
+    before.queue(t)
+    t.unplug_after = 5
+    t.idle_read_s = 0.002
+    waits: list[float] = []
+
+    def sleep(s: float) -> None:
+        waits.append(s)
+        if len(waits) == 2:
+            t.plugged = True
+            after.queue(t)
+        time.sleep(s)
+
+    src = timed_source(t, sleep=sleep, backoff_initial_s=0.01)
+    server = live_server(token="t")
+    record = tmp_path / "rec.jsonl"
+    daemon = Daemon(src, server.ws_url, "t", record=record)
+
+    async def scenario():
+        task = asyncio.create_task(daemon.run())
+        deadline = time.monotonic() + 20
+        while daemon.stats.samples_produced < 9:
+            assert time.monotonic() < deadline, "the samples after the re-plug never came"
+            await asyncio.sleep(0.01)
+        daemon.stop()
+        return await task
+
+    stats = asyncio.run(asyncio.wait_for(scenario(), 30))
+    recorded = read_session_log(record)
+    assert [s.t_ns for s in recorded.samples] == before.read_ns + after.read_ns
+    assert [s.x for s in recorded.samples] == pytest.approx(
+        [10_000 * (i + 1) / 527_040 * 1920 for i in [*range(5), *range(4)]]
+    )
+    assert src.reconnects == 1 and src.samples_yielded == 9 == stats.samples_recorded
+    assert stats.samples_delivered == server.hub.remote.samples == 9
+    assert waits == [0.01, 0.02]
+    diagonal_m = math.hypot(0.527_040, 0.296_460)
+    assert recorded.header.screen.screen_diagonal_m == pytest.approx(diagonal_m)
+    assert [h.screen["screen_diagonal_m"] for h in hellos] == [pytest.approx(diagonal_m)]
+
+
+#: `gazehdr daemon --source hid` in a process of its own, hidapi replaced by the fake bus with a
+#: tracker that is plugged in at the third look and then sends `timed_stream(N)`.
+LATE_TRACKER_DAEMON = """
+import sys
+
+sys.path.insert(0, sys.argv[1])
+import test_hid
+from drivers import hid
+from drivers.daemon import daemon_main
+
+tracker = test_hid.make_tracker()
+tracker.plugged = False
+tracker.idle_read_s = 0.01
+
+
+class LateBus(test_hid.FakeBus):
+    looks = 0
+
+    def enumerate(self):
+        self.looks += 1
+        if self.looks == 3:
+            tracker.plugged = True
+            test_hid.timed_stream(int(sys.argv[2])).queue(tracker)
+        return super().enumerate()
+
+
+bus = LateBus(tracker)
+hid._default_backend = lambda: bus
+raise SystemExit(daemon_main(sys.argv[3:]))
+"""
+
+
+def test_daemon_waits_for_a_tracker_plugged_in_after_it_started(live_server, tmp_path) -> None:
+    """No tracker at start-up: `gazehdr daemon --source hid` says so once per attempt and waits
+    with back-off (rather than exiting 2), then streams the tracker that turns up; SIGTERM ends
+    it with its summary."""
+    server = live_server(token="t")
+    script = tmp_path / "late_tracker_daemon.py"
+    script.write_text(LATE_TRACKER_DAEMON)
+    tests = str(Path(__file__).parent)
+    argv = ["--source", "hid", "--server", server.ws_url, "--token", "t"]
+    proc = subprocess.Popen(
+        [sys.executable, str(script), tests, "6", *argv], stderr=subprocess.PIPE, text=True
+    )
+    try:
+        deadline = time.monotonic() + 20
+        while server.hub.remote.samples < 6:
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    waits = [line for line in err.splitlines() if "HID tracker not available" in line]
+    assert waits == [
+        "gazehdr daemon: HID tracker not available (no HID eye tracker found (usage page "
+        f"0x12); see 'gazehdr devices'); retrying in {delay} s"
+        for delay in ("0.25", "0.50")
+    ]
+    assert "delivered 6 samples" in err and server.hub.remote.tracker == (
+        "hid Test Trackers Gaze 120"
+    )
 
 
 # --- gazehdr devices --------------------------------------------------------------------------

@@ -197,6 +197,34 @@ def test_open_source_specs(tmp_path: Path) -> None:
         open_source("replay:")
 
 
+def test_a_replay_knows_where_each_fixation_is(tmp_path: Path) -> None:
+    """EyeLink's SFIX has no position: the replay places each fixation where its EFIX says it
+    was, from its start, as `SessionLog.fixation_track` does; the same for the log `gazehdr
+    import` writes, read from its fixation lines alone, and up to where a cut log ends."""
+    from drivers.sessionlog import FixationPlace, write_session_log
+
+    fixture = DATA / "eyelink_mono.asc"
+    ms = 1_000_000
+    expected = {
+        (1, "left"): FixationPlace(2_154_556 * ms, 640.6, 512.1),
+        (2, "left"): FixationPlace(2_154_566 * ms, 830.5, 395.8),
+        (3, "left"): FixationPlace(2_154_576 * ms, 831.4, 396.4),
+    }
+    assert ReplaySource(fixture).fixation_places() == expected
+    native = write_session_log(tmp_path / "s01.jsonl", import_recording(fixture))
+    assert ReplaySource(native).fixation_places() == expected
+    lines = native.read_bytes().splitlines(keepends=True)
+    last_end = max(i for i, line in enumerate(lines) if b'"fixation_end"' in line)
+    cut = tmp_path / "cut.jsonl"
+    cut.write_bytes(b"".join(lines[:last_end]) + lines[last_end][:20])  # the last EFIX cut
+    assert ReplaySource(cut).fixation_places() == {
+        k: v for k, v in expected.items() if k != (3, "left")
+    }
+    no_events = _record(tmp_path / "plain.jsonl", SyntheticSource(1, 50.0, duration=1.0), [])
+    assert ReplaySource(no_events).fixation_places() == {}
+    assert sources.fixation_places_of(SyntheticSource(1)) is None  # a live source: it cannot
+
+
 def test_hid_source_without_a_tracker_is_a_clear_error() -> None:
     class NoDevices:  # the hidapi module interface, with nothing plugged in
         def enumerate(self, *args):

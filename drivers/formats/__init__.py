@@ -135,7 +135,8 @@ def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> Ses
 # --- command lines ----------------------------------------------------------------------------
 
 
-def _screen(text: str) -> tuple[int, int]:
+def screen_size_arg(text: str) -> tuple[int, int]:
+    """argparse type of a screen size `WxH` in pixels (`gazehdr import`, `gazehdr daemon`)."""
     parts = text.lower().replace("×", "x").split("x")
     try:
         width, height = (int(v) for v in parts)
@@ -146,7 +147,8 @@ def _screen(text: str) -> tuple[int, int]:
     return width, height
 
 
-def _positive(text: str) -> float:
+def positive_arg(text: str) -> float:
+    """argparse type of a positive number, such as a length in metres."""
     try:
         value = float(text)
     except ValueError:
@@ -185,10 +187,10 @@ def import_main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--format", default="auto", choices=["auto", *IMPORTERS])
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     p.add_argument(
-        "--screen", type=_screen, help="screen size WxH in pixels, where the file has none"
+        "--screen", type=screen_size_arg, help="screen size WxH in pixels, where the file has none"
     )
-    p.add_argument("--diagonal", type=_positive, help="screen diagonal in metres (default 0.6)")
-    p.add_argument("--distance", type=_positive, help="viewing distance in metres (default 1.0)")
+    p.add_argument("--diagonal", type=positive_arg, help="screen diagonal in metres (default 0.6)")
+    p.add_argument("--distance", type=positive_arg, help="viewing distance in metres (default 1.0)")
     p.add_argument(
         "--units",
         choices=["pix", "norm", "height"],
