@@ -25,8 +25,10 @@ from drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from drivers.sessionlog import (
     ClockInfo,
     ClockUpdate,
+    EyeReset,
     FormatError,
     GazeEvent,
+    ModelChange,
     Note,
     ParamsChange,
     SceneChange,
@@ -621,6 +623,9 @@ def native_log() -> SessionLog:
         log.add(e)
     log.add(SceneChange(t0 - 1_000, "checker-night"))
     log.add(ParamsChange(t0 - 1_000, {"a1": 0.25, "preset": "paper"}))
+    log.add(ModelChange(t0 - 1_000, "jacobs+stochastic"))
+    log.add(ModelChange(t0 + 3, "ritschel+none", split="mikamo+stochastic"))
+    log.add(EyeReset(t0 + 3))
     log.add(Note(t0 + 1, 'said "now"\tand\nwaited'))
     log.add(ClockUpdate(t0 + 2, -12_300, 600))
     return log
@@ -637,6 +642,8 @@ def comparable(log: SessionLog) -> dict:
         ],
         "scenes": log.scenes,
         "params": log.params,
+        "models": log.models,
+        "resets": log.resets,
         "notes": log.notes,
         "clocks": log.clocks,
     }

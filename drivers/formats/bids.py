@@ -46,8 +46,9 @@ Import, and what it assumes:
 - Events: a `fixation` row gives `fixation_start` at `onset` and `fixation_end` at
   `onset + duration`; a `blink` row, or any row with `blink` = 1 (eye2bids marks the saccade
   around an EyeLink blink so), a blink over the row's interval; other trial types (saccades)
-  are skipped; a `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}` and
-  `gazehdr clock {json}` messages become scene, parameter and clock records). Event ids are
+  are skipped; a `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}`,
+  `gazehdr model {json}`, `gazehdr reset` and `gazehdr clock {json}` messages become scene,
+  parameter, model, reset and clock records). Event ids are
   numbered 1, 2, ... per kind in onset order. `duration` is in its sidecar `Units`, else in
   the onset's units when `ForeignIndexColumn` is used (eye2bids), else seconds.
 - Event times: the ForeignIndexColumn's column names a sample, so it is exact only to a sample
@@ -59,18 +60,18 @@ Import, and what it assumes:
 Export (`write_bids`): `recording-eye1` holds the gaze (`RecordedEye` cyclopean) when the log
 has no per-eye data; otherwise `eye1` left, `eye2` right, `eye3` cyclopean. Timestamps are the
 log's integer ns (`Units` "ns"), positions pixels top-left, pupil mm; each recording's
-physioevents hold its eye's fixations and blinks (one row each: onset, timestamp, duration,
-mean position, dispersion), and the cyclopean one also the events of no particular eye and
-the notes, scenes, parameters and clock updates as messages. The physioevents use explicit
-indexing (`"ForeignIndexColumn": "timestamp"`): `timestamp` is the physio timestamp of the
-sample at or before the event (the first sample's for an earlier event), so every value is in
-the physio file as the specification requires; `onset` (ns) is the exact event time on the
+physioevents hold its eye's fixations and blinks (one row each: onset, timestamp, duration, mean
+position, dispersion), and the cyclopean one also the events of no particular eye and the notes,
+scenes, parameter and model changes, resets and clock updates as messages. The physioevents use
+explicit indexing (`"ForeignIndexColumn": "timestamp"`): `timestamp` is the physio timestamp of
+the sample at or before the event (the first sample's for an earlier event), so every value is
+in the physio file as the specification requires; `onset` (ns) is the exact event time on the
 same clock, an extra column. A log without samples is refused (ValueError): there would be no
 timestamp to index by, nor a row for implicit indexing. The native header rides along in the
 sidecars as `GazehdrHeader`, so native → BIDS → native gives back the same samples, fixations
 (start and end times, mean position, dispersion; not the start position nor `fixation_update`,
-which BIDS rows do not hold), blinks, notes, scenes, parameters and header. gzip output is
-reproducible (no name or time in the gzip header).
+which BIDS rows do not hold), blinks, notes, scenes, parameters, models, resets and header. gzip
+output is reproducible (no name or time in the gzip header).
 """
 
 from __future__ import annotations
@@ -94,8 +95,10 @@ from drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from drivers.sessionlog import (
     ClockInfo,
     ClockUpdate,
+    EyeReset,
     FormatError,
     GazeEvent,
+    ModelChange,
     Note,
     ParamsChange,
     SceneChange,
@@ -648,7 +651,10 @@ def _message(log: SessionLog, t: int, text: str, path: Path, line: int) -> None:
     if text.startswith("gazehdr scene "):
         log.scenes.append(SceneChange(t, text[len("gazehdr scene ") :]))
         return
-    for prefix in ("gazehdr params ", "gazehdr clock "):
+    if text == "gazehdr reset":
+        log.resets.append(EyeReset(t))
+        return
+    for prefix in ("gazehdr params ", "gazehdr model ", "gazehdr clock "):
         if text.startswith(prefix):
             try:
                 value = json.loads(text[len(prefix) :])
@@ -658,6 +664,11 @@ def _message(log: SessionLog, t: int, text: str, path: Path, line: int) -> None:
                 raise FormatError(path, line, "message", f"{prefix.strip()}: not an object")
             if prefix == "gazehdr params ":
                 log.params.append(ParamsChange(t, value))
+            elif prefix == "gazehdr model ":
+                model, split = value.get("model"), value.get("split")
+                if not isinstance(model, str) or not isinstance(split, (str, type(None))):
+                    raise FormatError(path, line, "message", "gazehdr model: model, split names")
+                log.models.append(ModelChange(t, model, split))
             else:
                 log.clocks.append(
                     ClockUpdate(t, value.get("offset_ns"), value.get("offset_uncertainty_ns"))
@@ -723,6 +734,11 @@ def _event_rows(
             )
             for p in log.params
         ]
+        messages += [
+            (m.t_ns, "gazehdr model " + json.dumps({"model": m.model, "split": m.split}))
+            for m in log.models
+        ]
+        messages += [(r.t_ns, "gazehdr reset") for r in log.resets]
         messages += [
             (
                 c.t_ns,
