@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
+import math
 import os
 import secrets
 import time
@@ -21,13 +22,13 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from fastapi import Body, FastAPI, HTTPException, Request, WebSocket
+from fastapi import Body, FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
 from drivers import wire
 from server.live import LiveSession, SessionHub, TooManySessionsError, Viewer
-from server.metrics import Metrics
+from server.metrics import Counter, Metrics
 from server.protocol import Ack, Gaze, ProtocolError, parse_control
 from server.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from server.recordings import RecordingLibrary
@@ -40,8 +41,6 @@ from server.sim.params import OURS, SECTIONS, check_remote_change
 
 WEB_DIR = Path(os.environ.get("GAZEHDR_WEB_DIR", Path(__file__).resolve().parent.parent / "web"))
 MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
-GAZE_RATE_HZ = 2000.0  # samples per second per daemon connection, sustained
-GAZE_BURST = 4000.0
 CLOSE_POLICY = 1008
 CLOSE_UNAUTHORIZED = 4401
 CLOSE_ORIGIN = 4403
@@ -89,6 +88,34 @@ class TokenBucket:
         allowed = min(n, int(self.level))
         self.level -= allowed
         return allowed
+
+
+@dataclass(frozen=True)
+class GazeLimit:
+    """A per-connection rate limit on one kind of `/ws/gaze` message."""
+
+    unit: str  # what it counts, as the note to the daemon names it
+    rate: float
+    burst: float
+
+
+# Per-connection limits on /ws/gaze, per kind of message. What passes a limit is dropped, counted
+# in /metrics and noted to the daemon (at most every NOTE_INTERVAL_S), and the connection is not
+# read until the limit has taken the excess back (_GazeLink.run). Each sits well above what a
+# real daemon sends, measured against this server with a 1200 Hz live synthetic source and with
+# 30 and 60 Hz recordings replayed at full speed.
+GAZE_RATE_HZ = 2000.0  # samples per second per daemon connection, sustained
+GAZE_BURST = 4000.0
+SAMPLE_LIMIT = GazeLimit("samples", GAZE_RATE_HZ, GAZE_BURST)
+# Events: live, about 20/s (I-VT: a fixation_update per 50 ms of sample time, a start and an end
+# per fixation, blinks). Only a recording replayed at full speed makes them follow the sample
+# rate, which the daemon keeps below GAZE_RATE_HZ: a 30 Hz one measured 800 events/s (2400/s over
+# a quarter second). The sample limit covers that with room to spare.
+EVENT_LIMIT = GazeLimit("events", 2000.0, 4000.0)
+# Echoes: the daemon echoes after each sending round (every 20 ms at most, plus a round per event)
+# to acknowledge delivery and follow the clock: measured at most 64/s. 500/s is eight times that.
+ECHO_LIMIT = GazeLimit("echoes", 500.0, 1000.0)
+NOTE_INTERVAL_S = 1.0  # one rate-limit note a second per kind and connection tells enough
 
 
 def create_app(config: ServerConfig) -> FastAPI:
@@ -317,14 +344,47 @@ def _tracker_note(hub: SessionHub) -> dict[str, Any]:
     }
 
 
+class _Limiter:
+    """One `GazeLimit` on one connection: what it drops is counted at once and reported to the
+    daemon at most every `NOTE_INTERVAL_S`, as the number dropped since the previous note (the
+    daemon adds them up)."""
+
+    def __init__(self, limit: GazeLimit, dropped: Counter) -> None:
+        self.limit, self.dropped = limit, dropped
+        self.bucket = TokenBucket(limit.rate, limit.burst)
+        self.unreported = 0
+        self.noted_at = -math.inf
+
+    def admit(self, n: int, now: float) -> tuple[int, wire.Notice | None]:
+        """How many of `n` items pass, and the note to send, if one is due."""
+        allowed = self.bucket.take(n)
+        if allowed == n:
+            return allowed, None
+        self.dropped.inc(n - allowed)
+        self.unreported += n - allowed
+        if now - self.noted_at < NOTE_INTERVAL_S:
+            return allowed, None
+        unit, rate = self.limit.unit, self.limit.rate
+        note = wire.Notice(
+            f"rate limit: {self.unreported} {unit} dropped; at most {rate:g} {unit}/s are accepted"
+        )
+        self.noted_at, self.unreported = now, 0
+        return allowed, note
+
+
 class _GazeLink:
     """One daemon connection: follows its fixations (or raw samples if it sends no events)."""
 
     def __init__(self, ws: WebSocket, hub: SessionHub, metrics: Metrics) -> None:
         self.ws, self.hub, self.metrics = ws, hub, metrics
-        self.bucket = TokenBucket(GAZE_RATE_HZ, GAZE_BURST)
+        self.limits = {
+            wire.Samples: _Limiter(SAMPLE_LIMIT, metrics.gaze_rate_limited),
+            wire.Event: _Limiter(EVENT_LIMIT, metrics.gaze_events_rate_limited),
+            wire.Echo: _Limiter(ECHO_LIMIT, metrics.gaze_echoes_rate_limited),
+        }
         self.uses_events = False
-        self.warned_at = 0.0
+        self.said_hello = False
+        self.hold_s = 0.0  # how long to stop reading, after a message that went over a limit
 
     async def run(self) -> None:
         while True:
@@ -340,38 +400,54 @@ class _GazeLink:
                 self.metrics.protocol_errors.inc()
                 reply = wire.Notice(str(e))
             if reply:
-                await self.ws.send_text(wire.dumps(reply))
+                try:
+                    await self.ws.send_text(wire.dumps(reply))
+                except WebSocketDisconnect:  # gone while we answered: nothing left to do
+                    return
+            if self.hold_s:
+                # Dropping is not enough: receiving and parsing cost more than the limit saves,
+                # so a daemon flooding small messages would take this server's event loop from
+                # every session. Reading nothing for as long as the bucket needs to take back
+                # what went over lets the socket's flow control hold the daemon back instead.
+                await asyncio.sleep(self.hold_s)
+                self.hold_s = 0.0
 
     def handle(self, msg: wire.Message, now: float) -> wire.Reply | None:
-        remote = self.hub.remote
-        if isinstance(msg, wire.Echo):
-            return wire.EchoReply(msg.t0_ns, time.monotonic_ns())
         if isinstance(msg, wire.Hello):
-            remote.tracker = msg.tracker or "unnamed tracker"
-            self.hub.broadcast(_tracker_note(self.hub))
-            return wire.Welcome(wire.PROTOCOL)
-        if isinstance(msg, wire.Event):
-            self.uses_events = True
-            if msg.kind in ("fixation_start", "fixation_update"):
-                remote.update(msg.x, msg.y, True, now)
-            elif msg.kind in ("blink_start", "blink_end"):
-                remote.update(None, None, msg.kind == "blink_end", now)
-            return None
-        assert isinstance(msg, wire.Samples)
-        allowed = self.bucket.take(len(msg.samples))
-        self.metrics.gaze_samples.inc(allowed)
-        remote.samples += allowed
-        dropped = len(msg.samples) - allowed
+            return self._hello(msg)
+        count = len(msg.samples) if isinstance(msg, wire.Samples) else 1
+        limiter = self.limits[type(msg)]
+        allowed, note = limiter.admit(count, now)
+        self.hold_s = (count - allowed) / limiter.limit.rate
+        if isinstance(msg, wire.Samples):
+            self._samples(msg.samples[:allowed], now)
+        elif allowed and isinstance(msg, wire.Echo):
+            return wire.EchoReply(msg.t0_ns, time.monotonic_ns())
+        elif allowed:
+            self._event(msg, now)
+        return note
+
+    def _hello(self, msg: wire.Hello) -> wire.Welcome:
+        # Every hello is broadcast to every viewer of every session: a second one on the same
+        # connection is refused, so that a flood of them cannot reach the other sessions.
+        if self.said_hello:
+            raise wire.WireError("hello: this connection has said hello already")
+        self.said_hello = True
+        self.hub.remote.tracker = msg.tracker or "unnamed tracker"
+        self.hub.broadcast(_tracker_note(self.hub))
+        return wire.Welcome(wire.PROTOCOL)
+
+    def _event(self, msg: wire.Event, now: float) -> None:
+        self.uses_events = True
+        if msg.kind in ("fixation_start", "fixation_update"):
+            self.hub.remote.update(msg.x, msg.y, True, now)
+        elif msg.kind in ("blink_start", "blink_end"):
+            self.hub.remote.update(None, None, msg.kind == "blink_end", now)
+
+    def _samples(self, samples: tuple[wire.Sample, ...], now: float) -> None:
+        self.metrics.gaze_samples.inc(len(samples))
+        self.hub.remote.samples += len(samples)
         if not self.uses_events:
-            valid = [s for s in msg.samples[:allowed] if s.valid]
+            valid = [s for s in samples if s.valid]
             if valid:
-                remote.update(valid[-1].x, valid[-1].y, True, now)
-        if dropped:
-            self.metrics.gaze_rate_limited.inc(dropped)
-            if now - self.warned_at > 1.0:
-                self.warned_at = now
-                return wire.Notice(
-                    f"rate limit: {dropped} samples dropped; at most "
-                    f"{GAZE_RATE_HZ:g} samples/s are accepted"
-                )
-        return None
+                self.hub.remote.update(valid[-1].x, valid[-1].y, True, now)

@@ -89,6 +89,13 @@ class Metrics:
         self.gaze_rate_limited = Counter(
             "gazehdr_gaze_samples_rate_limited_total", "Gaze samples dropped by the rate limit."
         )
+        self.gaze_events_rate_limited = Counter(
+            "gazehdr_gaze_events_rate_limited_total", "Gaze events dropped by the rate limit."
+        )
+        self.gaze_echoes_rate_limited = Counter(
+            "gazehdr_gaze_echoes_rate_limited_total",
+            "Clock echoes left unanswered by the rate limit.",
+        )
         self.protocol_errors = Counter(
             "gazehdr_protocol_errors_total", "Messages refused as malformed or invalid."
         )
