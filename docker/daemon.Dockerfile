@@ -4,13 +4,18 @@
 #
 #   docker build -f docker/daemon.Dockerfile -t gazehdr-daemon .          (from the repo root)
 #   docker run --rm --device /dev/hidraw0 --group-add "$(getent group plugdev | cut -d: -f3)" \
-#     -e GAZEHDR_TOKEN -v gazehdr-daemon-data:/data gazehdr-daemon ARGS...
+#     -e GAZEHDR_TOKEN -v gazehdr-daemon-data:/data gazehdr-daemon \
+#     --source hid --server ws://SERVER:8000
+#
+# Arguments are `gazehdr daemon`'s (`--help` lists them); without any it runs `--source hid`,
+# which waits for a tracker, and takes the server from GAZEHDR_SERVER. The token comes from
+# GAZEHDR_TOKEN, never from the image. Each run records to a new gaze-YYYYmmddTHHMMSSZ.jsonl in
+# GAZEHDR_RECORD_DIR (/data/recordings), whether or not the server can be reached.
 #
 # Map the hidraw node under its own name (--device /dev/hidraw3, not /dev/hidraw3:/dev/hidraw0):
 # hidapi finds devices through sysfs, which names the host's node. The host's udev rule
 # (docker/udev/) gives usage-page-0x12 trackers to group plugdev; --group-add passes the host's
-# plugdev gid in case it differs from the image's (46 on Debian and Ubuntu). The `daemon`
-# subcommand and its options come with the daemon issue; see docker/README.md.
+# plugdev gid in case it differs from the image's (46 on Debian and Ubuntu). See docker/README.md.
 
 # --- builder: a virtual environment with gazehdr[daemon] -----------------------------------------
 FROM python:3.11-slim-bookworm AS builder
@@ -48,7 +53,7 @@ COPY --from=builder /opt/venv /opt/venv
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
-    GAZEHDR_DATA_DIR=/data
+    GAZEHDR_RECORD_DIR=/data/recordings
 
 WORKDIR /home/gazehdr
 USER gazehdr
@@ -56,4 +61,4 @@ USER gazehdr
 VOLUME ["/data"]
 
 ENTRYPOINT ["gazehdr", "daemon"]
-CMD []
+CMD ["--source", "hid"]

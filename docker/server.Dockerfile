@@ -58,11 +58,12 @@ RUN apt-get update \
     && apt-get install -y --no-install-recommends binutils \
     && rm -rf /var/lib/apt/lists/*
 
+# /var/cache/pocl exists and is gazehdr's, so that a volume mounted there starts out writable.
 RUN groupadd --system --gid 10001 gazehdr \
     && useradd --system --uid 10001 --gid gazehdr --create-home --home-dir /home/gazehdr \
        --shell /usr/sbin/nologin gazehdr \
-    && mkdir -p /data \
-    && chown gazehdr:gazehdr /data
+    && mkdir -p /data /var/cache/pocl \
+    && chown gazehdr:gazehdr /data /var/cache/pocl
 
 COPY --from=builder /opt/venv /opt/venv
 # The browser viewer: static files, served from GAZEHDR_WEB_DIR.
@@ -70,15 +71,19 @@ COPY web /app/web
 
 # GAZEHDR_TOKEN is read from the environment at run time when set (never baked into the image);
 # otherwise the server generates one and prints it at start (`docker logs`).
+# POCL_CACHE_DIR: PoCL's kernel cache (pyopencl leaves caching to PoCL). Built kernels make the
+# first frame take a fraction of a second instead of seconds; compose keeps them on a volume.
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
     GAZEHDR_WEB_DIR=/app/web \
-    GAZEHDR_DATA_DIR=/data
+    GAZEHDR_DATA_DIR=/data \
+    POCL_CACHE_DIR=/var/cache/pocl
 
 WORKDIR /app
 USER gazehdr
-# Session logs and uploaded scenes. PoCL's and pyopencl's kernel caches live in ~/.cache.
+# Session logs and uploaded scenes. (No VOLUME for the kernel cache: `docker run --rm` would
+# throw an anonymous one away each time; name one, see docker/README.md.)
 VOLUME ["/data"]
 EXPOSE 8000
 

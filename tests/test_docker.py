@@ -8,8 +8,10 @@ the container answers its health check) is left to a machine with Docker.
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
+import shlex
 import shutil
 import subprocess
 from pathlib import Path
@@ -19,6 +21,8 @@ import dockerfile
 import pytest
 import yaml
 
+from drivers.daemon import RECORD_DIR_ENV, gaze_url
+from drivers.daemon import build_parser as daemon_parser
 from server.cli import build_parser
 
 tomllib = pytest.importorskip("tomllib", reason="reads pyproject.toml with Python 3.11's tomllib")
@@ -145,6 +149,28 @@ def expose_port(path: Path) -> int:
     return int(only(final_stage(path), "EXPOSE").value[0].split("/")[0])
 
 
+def mounted_volume(data: dict, service: dict, path: str) -> str | None:
+    """The named volume of `data` that `service` mounts at `path` or a folder above it."""
+    for volume in service.get("volumes", []):
+        source, target = volume.split(":")[:2]
+        if source in (data.get("volumes") or {}) and Path(path).is_relative_to(target):
+            return source
+    return None
+
+
+def parse_daemon_args(command: list[str] | str, what: str) -> argparse.Namespace:
+    """`command` through `gazehdr daemon`'s own parser (an option it lacks fails here), with
+    none of gazehdr's variables set here, so the values are the command's or the defaults."""
+    argv = shlex.split(command) if isinstance(command, str) else list(command)
+    with pytest.MonkeyPatch.context() as mp:
+        for name in [n for n in os.environ if n.startswith("GAZEHDR_")]:
+            mp.delenv(name)
+        try:
+            return daemon_parser().parse_args(argv)
+        except SystemExit as e:
+            pytest.fail(f"gazehdr daemon rejects the {what} {argv} (exit {e.code})")
+
+
 # --- Dockerfiles ----------------------------------------------------------------------------------
 
 
@@ -257,6 +283,20 @@ def test_daemon_entrypoint_is_gazehdr_daemon() -> None:
     assert entrypoint.json and list(entrypoint.value) == ["gazehdr", "daemon"], entrypoint.value
 
 
+def test_daemon_cmd_reads_the_tracker_and_records_into_the_volume() -> None:
+    """Without arguments the image runs the tracker (not the synthetic default) and, as no
+    `--record` overrides it, records into GAZEHDR_RECORD_DIR, which lies in the volume."""
+    commands = final_stage(DAEMON)
+    cmd = only(commands, "CMD")
+    assert cmd.json, "CMD must be exec form: a shell form reaches the ENTRYPOINT as sh -c ..."
+    args = parse_daemon_args(cmd.value, "daemon image's CMD")
+    assert args.source.partition(":")[0] == "hid"
+    assert args.record is None and args.record_dir is None
+    record_dir = env(commands).get(RECORD_DIR_ENV)
+    volumes = [v for c in commands if c.cmd == "VOLUME" for v in c.value]
+    assert record_dir and any(Path(record_dir).is_relative_to(v) for v in volumes), record_dir
+
+
 def test_server_healthcheck_gets_api_health_with_the_stdlib() -> None:
     check = only(final_stage(SERVER), "HEALTHCHECK")
     assert check.json and check.value[0] == "CMD", "exec form: no shell needed"
@@ -280,9 +320,6 @@ def test_server_environment_matches_the_layout() -> None:
     assert web and values.get("GAZEHDR_WEB_DIR") == web[-1].rstrip("/")
     volumes = [v for c in commands if c.cmd == "VOLUME" for v in c.value]
     assert values.get("GAZEHDR_DATA_DIR") in volumes
-    assert env(final_stage(DAEMON)).get("GAZEHDR_DATA_DIR") in [
-        v for c in final_stage(DAEMON) if c.cmd == "VOLUME" for v in c.value
-    ]
 
 
 @pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
@@ -335,13 +372,53 @@ def test_compose_passes_the_token_through_without_a_value() -> None:
         assert "GAZEHDR_TOKEN" in variables and variables["GAZEHDR_TOKEN"] is None, name
 
 
+def test_compose_daemon_streams_the_tracker_to_the_server_and_records_it() -> None:
+    data = compose()
+    daemon = data["services"]["daemon"]
+    args = parse_daemon_args(daemon.get("command", []), "compose daemon command")
+    assert args.source.partition(":")[0] == "hid"
+    server = args.server or environment(daemon).get("GAZEHDR_SERVER")
+    assert server, "the daemon is told no server"
+    url = urlsplit(gaze_url(server))
+    build = data["services"].get(url.hostname, {}).get("build")
+    assert build, f"{server}: {url.hostname} is no service this file builds"
+    assert (COMPOSE.parent / build["context"] / build["dockerfile"]).resolve() == SERVER, server
+    assert url.port == expose_port(SERVER), server
+    assert daemon["depends_on"][url.hostname]["condition"] == "service_healthy"
+    # The token only from the environment (see the pass-through test), never in the command.
+    assert args.token is None
+    # What records: no --record/--record-dir, so GAZEHDR_RECORD_DIR (the image's unless compose
+    # sets its own), on a named volume, so recordings outlive the container.
+    assert args.record is None and args.record_dir is None
+    record_dir = {**env(final_stage(DAEMON)), **environment(daemon)}.get(RECORD_DIR_ENV)
+    assert record_dir and mounted_volume(data, daemon, record_dir), record_dir
+
+
 def test_compose_daemon_gets_the_tracker_under_its_own_path() -> None:
     daemon = compose()["services"]["daemon"]
-    assert environment(daemon)["GAZEHDR_SERVER"].endswith(":8000/ws/gaze")
     for device in daemon["devices"]:
         outside, inside = interpolate(device).split(":")[:2]
         assert outside == inside, f"{device}: hidapi looks the node up by its host name"
     assert daemon["group_add"], "the node belongs to the host's plugdev"
+
+
+def test_pocl_kernel_cache_is_kept_on_a_volume_the_server_can_write() -> None:
+    """Built kernels cut start-up from seconds to a fraction of one; a re-created container
+    keeps them only on a volume, and a fresh named volume takes the ownership of the image's
+    folder, which must be the user's the server runs as."""
+    commands = final_stage(SERVER)
+    cache = env(commands).get("POCL_CACHE_DIR")
+    assert cache, "PoCL would cache in ~/.cache, lost with the container"
+    user = [c.value[0] for c in commands if c.cmd == "USER"][-1].split(":")[0]
+    setup = " ".join(c.value[0] for c in commands if c.cmd == "RUN")
+    assert re.search(rf"mkdir -p [^&;]*{re.escape(cache)}(\s|$)", setup), setup
+    assert re.search(rf"chown {user}(:\w+)? [^&;]*{re.escape(cache)}(\s|$)", setup), setup
+    data = compose()
+    server = data["services"]["server"]
+    volume = mounted_volume(data, server, cache)
+    data_volume = mounted_volume(data, server, env(commands)["GAZEHDR_DATA_DIR"])
+    assert volume and volume != data_volume, "a volume of its own, not the user's data"
+    assert environment(server)["GAZEHDR_POCL_CPU"] is None  # passed through when set
 
 
 def test_compose_gpu_override_only_touches_the_server() -> None:
