@@ -85,7 +85,7 @@ DEFAULT_MAX_INFLIGHT = 2000  # items sent, not yet acknowledged: 1 s at the serv
 #: `docker stop` waits before SIGKILL, so the summary is printed and the log closed.
 SIGNAL_DRAIN_S = 3.0
 RECORD_DIR_ENV = "GAZEHDR_RECORD_DIR"
-_RATE_NOTE = re.compile(r"rate limit: (\d+) samples dropped")
+_RATE_NOTE = re.compile(r"rate limit: (\d+) (samples|events|echoes) dropped")
 _WIRE_TIMES = range(2**63)  # what a wire `t` may be (drivers.wire._int); the server refuses others
 
 
@@ -170,7 +170,9 @@ class DaemonStats:
     resent: int = 0  # items sent again after a connection died unacknowledged
     samples_unsendable: int = 0  # times the wire cannot carry (negative: some imports)
     events_unsendable: int = 0  # the same, or fixation events without a position
-    server_rate_limited: int = 0  # samples the server said it dropped (should stay 0)
+    #: what the server said its rate limits dropped, by kind (samples, events, echoes): the
+    #: daemon paces itself below them, so this should stay empty
+    server_rate_limited: dict[str, int] = field(default_factory=dict)
     connects: int = 0
     disconnects: int = 0
     clock: ClockEstimate | None = None
@@ -191,8 +193,14 @@ class DaemonStats:
             f"delivered {self.samples_delivered} samples, {self.events_delivered} events; "
             f"dropped {self.samples_dropped} samples, {self.events_dropped} events "
             f"(buffer full){self._undelivered()}{self._unsendable()}; "
-            f"{self.connects} connection(s); {clock}{self._recorded()}"
+            f"{self.connects} connection(s); {clock}{self._limited()}{self._recorded()}"
         )
+
+    def _limited(self) -> str:
+        if not self.server_rate_limited:
+            return ""
+        dropped = ", ".join(f"{n} {kind}" for kind, n in sorted(self.server_rate_limited.items()))
+        return f"; the server's rate limits dropped {dropped}"
 
     def _recorded(self) -> str:
         if self.record_path is None:
@@ -735,7 +743,8 @@ class Daemon:
                 elif isinstance(reply, wire.Notice):
                     m = _RATE_NOTE.search(reply.message)
                     if m:
-                        self.stats.server_rate_limited += int(m.group(1))
+                        limited = self.stats.server_rate_limited
+                        limited[m.group(2)] = limited.get(m.group(2), 0) + int(m.group(1))
                     log.warning("server: %s", reply.message)
         except ConnectionClosed as e:
             raise self._closed(e) from None

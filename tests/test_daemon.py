@@ -302,7 +302,7 @@ def _nothing_lost_but_counted(
     assert max(first) < min(missing) and set(produced[gap + len(missing) :]) <= set(second)
     resent = set(first) & set(second)
     assert len(resent) <= stats.resent  # at least once: only unacknowledged ones twice
-    assert stats.connects == 2 and stats.server_rate_limited == 0
+    assert stats.connects == 2 and stats.server_rate_limited == {}
     assert any("dropped" in n.text for n in recorded.notes)
 
 
@@ -339,6 +339,23 @@ def test_cli_replays_a_log_to_the_server(live_server, tmp_path, capsys) -> None:
     assert "delivered 501 samples" in capsys.readouterr().err
 
 
+def test_what_the_servers_limits_drop_is_counted(live_server, tmp_path, monkeypatch) -> None:
+    """A server whose sample limit is below the daemon's pace drops samples and says so; the
+    daemon adds up what its notes report (the drops since the last note, at most one a second),
+    so it never counts more than the server dropped, and names it in its summary."""
+    monkeypatch.setattr(app_module, "SAMPLE_LIMIT", app_module.GazeLimit("samples", 200.0, 200.0))
+    server = live_server(token="t")
+    samples = list(SyntheticSource(3, 1000.0, duration=2.5, realtime=False, start_ns=0))
+    source = ReplaySource(_write_log(tmp_path / "fast.jsonl", samples), speed=math.inf)
+    stats = run(run_daemon(source, server.ws_url, "t"))
+    dropped = server.metrics.gaze_rate_limited.value
+    assert dropped > 0 and 0 < stats.server_rate_limited["samples"] <= dropped
+    assert set(stats.server_rate_limited) == {"samples"}
+    assert f"the server's rate limits dropped {stats.server_rate_limited['samples']} samples" in (
+        stats.summary()
+    )
+
+
 def test_a_flood_is_paced_below_the_limit_without_harming_a_viewer(live_server, tmp_path):
     server = live_server(token="t", gaze_source="remote")
     samples = list(SyntheticSource(3, 1000.0, duration=4.0, realtime=False, start_ns=0))
@@ -366,7 +383,7 @@ def test_a_flood_is_paced_below_the_limit_without_harming_a_viewer(live_server, 
     quiet, flooded, stats, elapsed = run(check())
     n = len(samples)
     assert server.hub.remote.samples == stats.samples_delivered == n  # a replay waits, no loss
-    assert server.metrics.gaze_rate_limited.value == 0 and stats.server_rate_limited == 0
+    assert server.metrics.gaze_rate_limited.value == 0 and stats.server_rate_limited == {}
     assert elapsed >= (n - 1000) / 2000  # paced: never faster than the server's limit
     sent = list(stats.sent_times)
     for i, (t, _) in enumerate(sent):  # within any second: at most burst + rate
