@@ -737,7 +737,8 @@ class HidGazeSource:
     ) -> None:
         self._given_geometry = geometry
         self.screen = dict(screen or {})
-        replace(geometry or ScreenGeometry(), **self.screen)  # refuses a bad field or value now
+        self.tracker_info: TrackerInfo | None = None
+        self._geometry = self._screen_geometry()  # refuses a bad field or value now
         self.path = path
         self._backend = backend
         self.mode = mode
@@ -752,7 +753,6 @@ class HidGazeSource:
             raise ValueError(f"clock_window_s must be a positive number, got {clock_window_s}")
         self._tracker_clock = TrackerClock(round(clock_window_s * 1e9))
         self.tracker: HidTracker | None = None
-        self.tracker_info: TrackerInfo | None = None
         self.samples_yielded = 0
         self.reconnects = 0
         self._closed = False
@@ -767,6 +767,10 @@ class HidGazeSource:
     @property
     def geometry(self) -> ScreenGeometry:
         """The screen: as given, or the tracker's (see the class docstring), then `screen`."""
+        return self._geometry
+
+    def _screen_geometry(self) -> ScreenGeometry:
+        """`geometry` for the tracker now connected (made once per connection, not per sample)."""
         base = self._given_geometry
         if base is None:
             base = ScreenGeometry()
@@ -817,6 +821,7 @@ class HidGazeSource:
             dev.close()
             raise
         self.tracker, self.tracker_info = tracker, tracker.info
+        self._geometry = self._screen_geometry()
         calibrated = tracker.info.calibrated_screen_um
         g = self.geometry
         if calibrated is None:
