@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import re
 import sys
@@ -170,7 +171,8 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
         recorded = log.header.tracker.get("seed") if log else None
         seed = recorded if isinstance(recorded, int) and recorded >= 0 else 0
     seconds = args.seconds
-    if seconds is None and log is not None:  # to its last record, whatever its kind
+    fps_ok = math.isfinite(args.fps) and args.fps > 0  # else render says what is wrong with it
+    if seconds is None and log is not None and fps_ok:  # to its last record, of any kind
         seconds = (max(r.t_ns for r in log.records()) - track.t0_ns) / 1e9 + 1 / args.fps
     seconds = 6.0 if seconds is None else seconds
     if log is None:

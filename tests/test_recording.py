@@ -215,6 +215,8 @@ def test_cli_render_of_a_log_that_names_no_scene_or_a_missing_one(tmp_path: Path
     assert main(["render", "--gaze", str(missing), "--data-dir", str(tmp_path), *out]) == 2
     assert "no scene named 'my-upload'" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()  # refused before anything was written
+    assert main(["render", "--gaze", str(log_path), "--fps", "0", *out]) == 2
+    assert "fps must be a finite positive number, got 0.0" in capsys.readouterr().err
     no_scene = tmp_path / "daemon.jsonl"
     no_scene.write_text("\n".join(s for s in lines if '"k":"scene"' not in s) + "\n")
     assert main(["render", "--gaze", str(no_scene), *out]) == 2
