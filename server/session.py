@@ -382,6 +382,8 @@ class Session:
 
     def _log_params(self, before: Params) -> None:
         """The parameters that differ from `before` (at the start: from the defaults)."""
+        if self._journal is None:
+            return
         old, new = before.to_dict(), self.params.to_dict()
         changed = {name: value for name, value in new.items() if old[name] != value}
         if changed:
@@ -390,6 +392,8 @@ class Session:
     def _log_gaze(self) -> None:
         """The gaze and eyes this step follows, when they changed: the gaze in the scene's
         terms (a pane's, in split view), as a sample in `log_screen` pixels and one fixation."""
+        if self._journal is None:  # every step: nothing to work out unless it is kept
+            return
         panes = len(self.sims)
         (gx, gy), (w, h) = self._pane_gaze(panes), self._pane_size(panes)
         point = (

@@ -155,7 +155,8 @@ def hue_name(rgb: np.ndarray, min_saturation: float = 0.15) -> str:
     rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
     if rgb.max() <= 1e-6:
         return "black"
-    if saturation(rgb) < min_saturation or saturation(rgb) == 0:
+    s = saturation(rgb)
+    if s < min_saturation or s == 0:  # no hue at all, even where any saturation is asked for
         return "grey"
     return next(name for limit, name in _HUES if hue_angle(rgb) < limit)
 
