@@ -32,9 +32,10 @@ RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['p
     && pip install -r /tmp/requirements.txt
 
 # The whole package is pure Python; the command line imports what each subcommand needs.
-COPY README.md ./
+COPY README.md LICENSE ./
 COPY server ./server
 COPY drivers ./drivers
+COPY web ./web
 RUN pip install '.[daemon]'
 
 # --- runtime -------------------------------------------------------------------------------------

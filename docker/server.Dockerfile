@@ -45,10 +45,11 @@ COPY pyproject.toml ./
 RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; print('\n'.join(p['dependencies'] + p['optional-dependencies']['server']))" > /tmp/requirements.txt \
     && pip install -r /tmp/requirements.txt
 
-# Then the project itself, non-editable (kernels/*.cl travel as package data).
-COPY README.md ./
+# Then the project itself, non-editable (kernels/*.cl and the viewer travel as package data).
+COPY README.md LICENSE ./
 COPY server ./server
 COPY drivers ./drivers
+COPY web ./web
 RUN pip install '.[server]'
 
 # --- runtime -------------------------------------------------------------------------------------
@@ -66,8 +67,6 @@ RUN groupadd --system --gid 10001 gazehdr \
     && chown gazehdr:gazehdr /data /var/cache/pocl
 
 COPY --from=builder /opt/venv /opt/venv
-# The browser viewer: static files, served from GAZEHDR_WEB_DIR.
-COPY web /app/web
 
 # GAZEHDR_TOKEN is read from the environment at run time when set (never baked into the image);
 # otherwise the server generates one and prints it at start (`docker logs`).
@@ -76,7 +75,6 @@ COPY web /app/web
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \
-    GAZEHDR_WEB_DIR=/app/web \
     GAZEHDR_DATA_DIR=/data \
     POCL_CACHE_DIR=/var/cache/pocl
 

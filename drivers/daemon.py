@@ -60,12 +60,12 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from drivers import wire
-from drivers.fixations import DETECTORS, make_detector
-from drivers.formats import positive_arg, screen_size_arg  # as `gazehdr import` reads them
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
-from drivers.sources import (
+from gazehdr.drivers import wire
+from gazehdr.drivers.fixations import DETECTORS, make_detector
+from gazehdr.drivers.formats import positive_arg, screen_size_arg  # as `gazehdr import` reads them
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
+from gazehdr.drivers.sources import (
     SourceInfo,
     SourceUnavailableError,
     fixation_places_of,
@@ -76,7 +76,7 @@ from drivers.sources import (
 log = logging.getLogger("gazehdr.daemon")
 
 CLOSE_UNAUTHORIZED = 4401
-SERVER_RATE_HZ = 2000.0  # the server's sustained limit per connection (server.app.GAZE_RATE_HZ)
+SERVER_RATE_HZ = 2000.0  # the server's sustained limit per connection (gazehdr.app.GAZE_RATE_HZ)
 DEFAULT_RATE_HZ = 1900.0  # what the daemon sends at most: below the limit, with margin
 DEFAULT_BURST = 1000.0  # below the server's burst of 4000
 DEFAULT_BUFFER = 20_000  # items (samples and events): 10 s of a 2000 Hz tracker
@@ -86,7 +86,9 @@ DEFAULT_MAX_INFLIGHT = 2000  # items sent, not yet acknowledged: 1 s at the serv
 SIGNAL_DRAIN_S = 3.0
 RECORD_DIR_ENV = "GAZEHDR_RECORD_DIR"
 _RATE_NOTE = re.compile(r"rate limit: (\d+) (samples|events|echoes) dropped")
-_WIRE_TIMES = range(2**63)  # what a wire `t` may be (drivers.wire._int); the server refuses others
+_WIRE_TIMES = range(
+    2**63
+)  # what a wire `t` may be (gazehdr.drivers.wire._int); the server refuses others
 
 
 class DaemonError(RuntimeError):
@@ -1009,7 +1011,10 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
     prog = "gazehdr daemon"
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
-    loggers = (log, logging.getLogger("drivers.hid"))  # the tracker's waits and unplugs, too
+    loggers = (
+        log,
+        logging.getLogger("gazehdr.drivers.hid"),
+    )  # the tracker's waits and unplugs, too
     before = [(logger.level, logger.propagate) for logger in loggers]
     for logger in loggers:
         logger.addHandler(handler)

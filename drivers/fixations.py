@@ -54,7 +54,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, fields
 from typing import Any, Literal, Protocol, runtime_checkable
 
-from drivers.samples import Fixation, GazeSample, ScreenGeometry
+from gazehdr.drivers.samples import Fixation, GazeSample, ScreenGeometry
 
 EventKind = Literal["fixation_start", "fixation_update", "fixation_end", "blink_start", "blink_end"]
 EVENT_KINDS: tuple[str, ...] = (
@@ -790,7 +790,7 @@ def detect(
 
 
 def fixations_from_events(events: Iterable[Event]) -> list[Fixation]:
-    """The finished fixations among `events`, in order, as `drivers.samples.Fixation`."""
+    """The finished fixations among `events`, in order, as `gazehdr.drivers.samples.Fixation`."""
     starts: dict[int, int] = {}
     out: list[Fixation] = []
     for e in events:

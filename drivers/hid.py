@@ -94,8 +94,8 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sources import SourceInfo
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.sources import SourceInfo
 
 log = logging.getLogger(__name__)
 
@@ -714,7 +714,7 @@ class HidGazeSource:
     that was there and went away is waited for, unless `open_now=False` (then the first read
     waits, or `wait_for_tracker()` does). `sleep` and `clock` (s, for the back-off) and
     `clock_ns` (the host clock samples are stamped with) are injectable for tests.
-    `info` is a `drivers.sources.SourceInfo`; `tracker_info` what the tracker reported.
+    `info` is a `gazehdr.drivers.sources.SourceInfo`; `tracker_info` what the tracker reported.
     """
 
     def __init__(
@@ -998,7 +998,7 @@ class HidGazeSource:
         return self.samples()
 
 
-#: The name `drivers.sources.open_source` imports.
+#: The name `gazehdr.drivers.sources.open_source` imports.
 HidSource = HidGazeSource
 
 

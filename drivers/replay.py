@@ -1,4 +1,4 @@
-"""Replay a recording as a gaze source: a native session log, or anything `drivers.formats` reads.
+"""Replay a recording as a gaze source: a native session log, or anything `formats` reads.
 
 A native log replays in file order, which is the order the live source emitted its samples and
 its detector emitted its events; an imported recording replays its samples and events merged in
@@ -10,7 +10,7 @@ Replays are deterministic: the same file gives the same records, in the same ord
 fast it is read.
 
 A replay also knows what a live stream cannot: where each fixation is before it ends.
-`fixation_places()` gives it (`drivers.sessionlog.fixation_places`, the places
+`fixation_places()` gives it (`gazehdr.drivers.sessionlog.fixation_places`, the places
 `SessionLog.fixation_track` holds), so that a consumer can place the fixation starts that
 recorders such as EyeLink (`SFIX`) and BIDS physioevents leave without a position.
 """
@@ -23,8 +23,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     FORMAT,
     FixationPlace,
     GazeEvent,
@@ -35,7 +35,7 @@ from drivers.sessionlog import (
     decode_record,
     fixation_places,
 )
-from drivers.sources import Clock, Pacer, Sleep, SourceInfo
+from gazehdr.drivers.sources import Clock, Pacer, Sleep, SourceInfo
 
 _EVENT_MARKERS = (b'"k":"fixation_', b'"k":"blink_')
 _FIXATION_MARKER = b"fixation_"  # on every fixation event's line, on no sample's
@@ -98,7 +98,7 @@ def _info(header: SessionHeader, has_events: bool, where: str) -> SourceInfo:
 class ReplaySource:
     """A recording as a source: `records()` gives samples and events, iteration the samples.
 
-    `recording` is a path (a native log, or any format `drivers.formats.import_recording`
+    `recording` is a path (a native log, or any format `gazehdr.drivers.formats.import_recording`
     reads: `fmt` and `import_options` go to it) or a `SessionLog` already in memory.
     `include_all=True` also yields the log's scene, parameter, note and clock records.
     After a run, `truncated` says whether the log ended in a line cut short by a crash.
@@ -138,7 +138,7 @@ class ReplaySource:
                 header = reader.header
             self.info = _info(header, _file_has_events(path), path.name)
             return
-        from drivers.formats import import_recording
+        from gazehdr.drivers.formats import import_recording
 
         if geometry is not None:
             import_options.setdefault("geometry", geometry)
@@ -155,7 +155,7 @@ class ReplaySource:
 
     def fixation_places(self) -> dict[tuple[int, str | None], FixationPlace]:
         """Each recorded fixation's place, keyed by (id, eye) (see
-        `drivers.sessionlog.fixation_places`); empty when no fixation event has a position.
+        `gazehdr.drivers.sessionlog.fixation_places`); empty when no fixation event has a position.
         Read once: a native log is scanned for its fixation lines on the first call."""
         if self._places is None:
             if not self.info.has_events:

@@ -28,9 +28,9 @@ Then records, each with its kind `k` and its time `t` (integer nanoseconds on th
   `blink_end`: `{"k":"fixation_end","id":7,"t":T,"x":X,"y":Y,"duration":NS,"dispersion":DEG}`;
   `x`, `y` (pixels), `duration` (ns), `dispersion` (degrees, Salvucci and Goldberg's
   (max x − min x) + (max y − min y)) and `eye` (`"left"`/`"right"`) are optional. The events of
-  one fixation or blink share their `id` (the fields of `drivers.fixations.Event`).
+  one fixation or blink share their `id` (the fields of `gazehdr.drivers.fixations.Event`).
 - `{"k":"scene","t":T,"name":"lamp"}`, `{"k":"params","t":T,"values":{...}}` (the parameters
-  that changed, by their `server.sim.Params` names), `{"k":"model","t":T,"model":"jacobs+
+  that changed, by their `gazehdr.sim.Params` names), `{"k":"model","t":T,"model":"jacobs+
   stochastic","split":null}` (the simulation's models, `AFTERIMAGE+ACUITY`, and the right
   pane's in split view or null), `{"k":"reset","t":T}` (the eye put back to equilibrium),
   `{"k":"note","t":T,"text":"..."}` and `{"k":"clock","t":T,"offset_ns":N,
@@ -63,7 +63,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, BinaryIO, NamedTuple
 
-from drivers.samples import EyeSample, GazePoint, GazeSample, ScreenGeometry
+from gazehdr.drivers.samples import EyeSample, GazePoint, GazeSample, ScreenGeometry
 
 FORMAT = "gazehdr-session"
 VERSION = 2
@@ -131,7 +131,7 @@ class SessionHeader:
 
 @dataclass(frozen=True)
 class GazeEvent:
-    """A fixation or blink event, as `drivers.fixations.Event` plus the eye it came from.
+    """A fixation or blink event, as `gazehdr.drivers.fixations.Event` plus the eye it came from.
 
     Unknown positions are NaN (blinks have none; an EyeLink fixation start has none either).
     """
@@ -166,7 +166,7 @@ class ParamsChange:
 
 @dataclass(frozen=True)
 class ModelChange:
-    """The models from `t` on, as `AFTERIMAGE+ACUITY` names (`server.sim.models` checks them)."""
+    """The models from `t` on, as `AFTERIMAGE+ACUITY` names (`gazehdr.sim.models` checks them)."""
 
     t_ns: int
     model: str
@@ -688,7 +688,7 @@ class SessionLog:
         events = self.events
         points = _fixation_points(events)
         if not points:
-            from drivers.fixations import detect  # only logs that place no fixation need it
+            from gazehdr.drivers.fixations import detect  # only logs that place no fixation need it
 
             found = detect(self.samples, "ivt", self.header.screen)
             events = [
@@ -727,7 +727,7 @@ def fixation_places(events: Iterable[GazeEvent]) -> dict[tuple[int, str | None],
     events know more: the end's mean wins). Recorders such as EyeLink (`SFIX`) and BIDS
     physioevents (an onset) give a fixation's start no position; this is where it was. A
     fixation none of whose events has a position is left out. `fixation_track` holds these
-    places; a daemon replaying a recording sends them (`drivers.replay`)."""
+    places; a daemon replaying a recording sends them (`gazehdr.drivers.replay`)."""
     found: dict[tuple[int, str | None], dict[str, Any]] = {}
     for e in sorted(events, key=lambda e: e.t_ns):
         if not e.kind.startswith("fixation"):

@@ -10,11 +10,11 @@ samples. A recording may also say where its fixations are before they end
 
 `open_source(spec)` builds one from a command-line spec:
 
-- `synthetic[:SEED]`: a seeded scan path (`drivers.synthetic.SyntheticScanPath`) sampled at
+- `synthetic[:SEED]`: a seeded scan path (`gazehdr.drivers.synthetic.SyntheticScanPath`) sampled at
   `rate_hz`, paced in real time by default (or as fast as possible with `realtime=False`);
-- `replay:FILE[@SPEED]`: a native session log or any recording `drivers.formats` imports, at
+- `replay:FILE[@SPEED]`: a native session log or any recording `gazehdr.drivers.formats` imports, at
   recorded speed, `@2` (twice as fast), `@0.5`, or `@max` (as fast as the reader takes it);
-- `hid[:PATH]`: a USB HID eye tracker (`drivers.hid.HidSource`, imported only when asked for).
+- `hid[:PATH]`: a USB HID eye tracker (`hid.HidSource`, imported only when asked for).
 
 `screen` (`ScreenGeometry` field names → values, e.g. from `gazehdr daemon --screen
 --diagonal --distance`) says what the user knows about the screen: it sets the synthetic
@@ -34,8 +34,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.synthetic import SyntheticScanPath
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.synthetic import SyntheticScanPath
 
 Clock = Callable[[], int]  # monotonic nanoseconds
 Sleep = Callable[[float], None]  # seconds
@@ -91,7 +91,7 @@ def records_of(source: Any) -> Iterator[Any]:
 
 def fixation_places_of(source: Any) -> Mapping[tuple[int, str | None], Any] | None:
     """Where a source's fixations are, keyed by (event id, eye), each with `x` and `y` in
-    pixels: what a recording (`drivers.replay.ReplaySource`) knows of a fixation before it ends.
+    pixels: what a recording (`replay.ReplaySource`) knows of a fixation before it ends.
     None for a source that does not say, whose events carry their own positions (a live
     detector's do)."""
     places = getattr(source, "fixation_places", None)
@@ -312,7 +312,7 @@ def open_source(
     if kind == "replay":
         if not rest:
             raise ValueError("replay needs a file: replay:FILE[@SPEED]")
-        from drivers.replay import ReplaySource
+        from gazehdr.drivers.replay import ReplaySource
 
         path, speed = split_replay_spec(rest)
         if geometry is not None:
@@ -320,7 +320,7 @@ def open_source(
         return ReplaySource(path, speed=speed, clock=clock, sleep=sleep, **options)
     if kind == "hid":
         try:
-            from drivers.hid import HidSource  # another module; optional dependencies
+            from gazehdr.drivers.hid import HidSource  # another module; optional dependencies
         except ImportError as e:
             raise SourceUnavailableError(f"HID source unavailable: {e}") from None
         if rest:

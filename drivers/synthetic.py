@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.samples import GazePoint, GazeSample, ScreenGeometry
+from gazehdr.drivers.samples import GazePoint, GazeSample, ScreenGeometry
 
 #: Peak over mean velocity of a minimum-jerk movement, the saccade profile used here.
 _MIN_JERK_PEAK_OVER_MEAN = 1.875

@@ -24,9 +24,9 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.samples import GazePoint, GazeTrack
-from drivers.sessionlog import read_session_track
-from drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath
+from gazehdr.drivers.samples import GazePoint, GazeTrack
+from gazehdr.drivers.sessionlog import read_session_track
+from gazehdr.drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath
 
 _TRUE = {"1", "true", "yes"}
 _FALSE = {"0", "false", "no"}

@@ -1,6 +1,6 @@
 """The FastAPI application: REST, the two WebSocket endpoints, and the viewer's static files.
 
-Endpoints only translate between the network and the pure parts: `protocol` / `drivers.wire`
+Endpoints only translate between the network and the pure parts: `protocol` / `gazehdr.drivers.wire`
 parse messages, `live.SessionHub` runs the sessions, `scenes.library` holds the scenes.
 `create_app(config)` builds everything from one `ServerConfig`, so tests start a real server
 with exactly the settings they need.
@@ -13,7 +13,6 @@ import contextlib
 import dataclasses
 import logging
 import math
-import os
 import secrets
 import time
 from collections.abc import AsyncIterator
@@ -26,20 +25,20 @@ from fastapi import Body, FastAPI, HTTPException, Request, WebSocket, WebSocketD
 from fastapi.responses import PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
-from drivers import wire
-from server.live import LiveSession, SessionHub, TooManySessionsError, Viewer
-from server.metrics import Counter, Metrics
-from server.protocol import Ack, Gaze, ProtocolError, parse_control
-from server.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
-from server.recordings import RecordingLibrary
-from server.scenes import Scene
-from server.scenes.exr import SceneError
-from server.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
-from server.session import SessionSettings
-from server.sim import Params
-from server.sim.params import OURS, SECTIONS, check_remote_change
+from gazehdr.drivers import wire
+from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
+from gazehdr.metrics import Counter, Metrics
+from gazehdr.protocol import Ack, Gaze, ProtocolError, parse_control
+from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
+from gazehdr.recordings import RecordingLibrary
+from gazehdr.scenes import Scene
+from gazehdr.scenes.exr import SceneError
+from gazehdr.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
+from gazehdr.session import SessionSettings
+from gazehdr.sim import Params
+from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
+from gazehdr.viewer import default_web_dir, viewer_files
 
-WEB_DIR = Path(os.environ.get("GAZEHDR_WEB_DIR", Path(__file__).resolve().parent.parent / "web"))
 MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
 CLOSE_POLICY = 1008
 CLOSE_UNAUTHORIZED = 4401
@@ -63,7 +62,8 @@ class ServerConfig:
     session_grace_s: float = 10.0
     max_sessions: int = 8
     max_upload_bytes: int = MAX_UPLOAD_BYTES
-    web_dir: Path = WEB_DIR
+    #: The viewer's files (`gazehdr.viewer`); None: the installed package's.
+    web_dir: Path | None = None
 
 
 def origin_allowed(origin: str | None, host: str | None, allowed: tuple[str, ...]) -> bool:
@@ -119,6 +119,9 @@ NOTE_INTERVAL_S = 1.0  # one rate-limit note a second per kind and connection te
 
 
 def create_app(config: ServerConfig) -> FastAPI:
+    """The app for `config`; ViewerMissingError (a ValueError) when the viewer is incomplete."""
+    web_dir = config.web_dir or default_web_dir()
+    viewer_files(web_dir)  # a server whose viewer would answer 404 does not start
     metrics = Metrics()
     scenes = SceneLibrary(config.data_dir, config.scenes)
     recordings = RecordingLibrary(config.data_dir)
@@ -311,8 +314,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             metrics.trackers.set(remote.connections)
             hub.broadcast(_tracker_note(hub))
 
-    if config.web_dir.is_dir():
-        app.mount("/", StaticFiles(directory=config.web_dir, html=True), name="web")
+    app.mount("/", StaticFiles(directory=web_dir, html=True), name="web")
     return app
 
 

@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from server.sim import Params, Simulator
-from server.sim.layout import (
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.layout import (
     LMS_TO_RGB,
     RGB_TO_LMS,
     Layout,
@@ -25,8 +25,8 @@ from server.sim.layout import (
     acuity_increments,
     gaussian_taps,
 )
-from server.sim.models import Models, each_beside_default
-from server.sim.reference import adaptation_window
+from gazehdr.sim.models import Models, each_beside_default
+from gazehdr.sim.reference import adaptation_window
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
@@ -165,7 +165,7 @@ def _bench_size(
     opencv: bool = True,
     half: bool = False,
 ) -> dict:
-    from server.scenes import open_scene
+    from gazehdr.scenes import open_scene
 
     sim = Simulator(width, height, backend="opencl", seed=0)
     scene = open_scene(scene_name).render(0.0, width, height)
@@ -232,7 +232,7 @@ def _bench_models(
 ) -> dict[str, float]:
     """Live-step ms per model: one simulator each, stepped in turn on the same scene and gaze
     path, so that a shared machine's drift hits every model alike."""
-    from server.scenes import open_scene
+    from gazehdr.scenes import open_scene
 
     scene = open_scene(scene_name).render(0.0, width, height)
     sims = {}

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from server.protocol import Encoding, decode_frame
+from gazehdr.protocol import Encoding, decode_frame
 
 CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -167,9 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=float, default=3.0)
     args = parser.parse_args(argv)
 
-    from server.app import ServerConfig
-    from server.serve import BackgroundServer
-    from server.session import SessionSettings
+    from gazehdr.app import ServerConfig
+    from gazehdr.serve import BackgroundServer
+    from gazehdr.session import SessionSettings
 
     print(
         f"{'size':>10} {'encoding':>8} {'client':>7} {'fps':>6} {'KiB/frame':>10} "

@@ -133,13 +133,13 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
 
 
 def _render(args: argparse.Namespace, extra: list[str]) -> int:
-    from drivers.sessionlog import read_session_log
-    from drivers.tracks import open_track
-    from server.render import recorded_changes, render
-    from server.scenes import open_scene
-    from server.scenes.library import SceneLibrary
-    from server.sim import Params
-    from server.sim.models import Models
+    from gazehdr.drivers.sessionlog import read_session_log
+    from gazehdr.drivers.tracks import open_track
+    from gazehdr.render import recorded_changes, render
+    from gazehdr.scenes import open_scene
+    from gazehdr.scenes.library import SceneLibrary
+    from gazehdr.sim import Params
+    from gazehdr.sim.models import Models
 
     given_models = args.afterimage is not None or args.acuity is not None
     # a wrong name: exit 2 listing the choices
@@ -274,7 +274,7 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
 
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
-    from server.serve import serve
+    from gazehdr.serve import serve
 
     token = args.token or os.environ.get("GAZEHDR_TOKEN") or None
     return serve(
@@ -305,16 +305,16 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _bench(args: argparse.Namespace, extra: list[str]) -> int:
     try:
-        bench = importlib.import_module("server.bench")
+        bench = importlib.import_module("gazehdr.bench")
     except ModuleNotFoundError as e:
-        if e.name == "server.bench":
+        if e.name == "gazehdr.bench":
             raise UsageError("the bench command is not part of this installation") from None
         raise UsageError(f"bench needs the module {e.name!r}: install gazehdr[bench]") from None
     return int(bench.main(extra) or 0)
 
 
 def _bench_live(args: argparse.Namespace, extra: list[str]) -> int:
-    from server.bench_live import main as bench_live
+    from gazehdr.bench_live import main as bench_live
 
     return bench_live(extra)
 
@@ -323,25 +323,25 @@ def _bench_live(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _import(args: argparse.Namespace, extra: list[str]) -> int:
-    from drivers.formats import import_main
+    from gazehdr.drivers.formats import import_main
 
     return import_main(extra)
 
 
 def _export(args: argparse.Namespace, extra: list[str]) -> int:
-    from drivers.formats import export_main
+    from gazehdr.drivers.formats import export_main
 
     return export_main(extra)
 
 
 def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
-    from drivers.daemon import daemon_main
+    from gazehdr.drivers.daemon import daemon_main
 
     return daemon_main(extra)
 
 
 def _devices(args: argparse.Namespace, extra: list[str]) -> int:
-    from drivers.hid import devices_main
+    from gazehdr.drivers.hid import devices_main
 
     return devices_main(extra)
 
@@ -376,8 +376,8 @@ def _figures(args: argparse.Namespace, extra: list[str]) -> int:
 
     if importlib.util.find_spec("matplotlib") is None:
         raise UsageError("figures needs matplotlib: pip install 'gazehdr[figures]'")
-    from server.figures import Context, make_figures, select
-    from server.sim.layout import check_frame_size
+    from gazehdr.figures import Context, make_figures, select
+    from gazehdr.sim.layout import check_frame_size
 
     if args.seed < 0:
         raise UsageError(f"seed must be a non-negative integer, got {args.seed}")
@@ -398,7 +398,7 @@ def _figures(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
-    from server.scenes import builtin_names
+    from gazehdr.scenes import builtin_names
 
     print("\n".join(builtin_names()))
     return 0

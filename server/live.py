@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
-from drivers.sessionlog import SessionLogWriter
-from server.metrics import Metrics
-from server.protocol import Control
-from server.recordings import RecordingLibrary
-from server.scenes.library import SceneLibrary
-from server.session import Frame, RemoteGaze, Session, SessionSettings
+from gazehdr.drivers.sessionlog import SessionLogWriter
+from gazehdr.metrics import Metrics
+from gazehdr.protocol import Control
+from gazehdr.recordings import RecordingLibrary
+from gazehdr.scenes.library import SceneLibrary
+from gazehdr.session import Frame, RemoteGaze, Session, SessionSettings
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go

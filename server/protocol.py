@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from drivers.wire import load_typed_json
-from server.sim.layout import encode_output
+from gazehdr.drivers.wire import load_typed_json
+from gazehdr.sim.layout import encode_output
 
 MAGIC = b"GZHF"
 VERSION = 1

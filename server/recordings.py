@@ -13,8 +13,13 @@ import os
 import uuid
 from pathlib import Path
 
-from drivers.sessionlog import SessionHeader, SessionLogWriter, SessionTrack, read_session_log
-from server.scenes.library import check_name
+from gazehdr.drivers.sessionlog import (
+    SessionHeader,
+    SessionLogWriter,
+    SessionTrack,
+    read_session_log,
+)
+from gazehdr.scenes.library import check_name
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
 

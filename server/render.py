@@ -24,16 +24,16 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
-from drivers.samples import GazeTrack
-from drivers.sessionlog import SessionLog
-from server.apng import ApngWriter
-from server.dither import dither8
-from server.scenes import Scene
-from server.scenes.exr import write_exr
-from server.scenes.library import SceneLibrary
-from server.sim import Params, Simulator
-from server.sim.layout import check_frame_size
-from server.sim.models import Models
+from gazehdr.apng import ApngWriter
+from gazehdr.dither import dither8
+from gazehdr.drivers.samples import GazeTrack
+from gazehdr.drivers.sessionlog import SessionLog
+from gazehdr.scenes import Scene
+from gazehdr.scenes.exr import write_exr
+from gazehdr.scenes.library import SceneLibrary
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.layout import check_frame_size
+from gazehdr.sim.models import Models
 
 #: The animation `video` writes beside the frames.
 VIDEO_NAME = "render.apng"
@@ -149,12 +149,12 @@ def render(
 
     With `exr`, also `frame_NNNNN.exr`: the undithered display values as float32, for analysis
     and figures. With `video`, also `render.apng`: the PNG frames as one lossless animation at
-    `fps` that browsers play (server.apng). Frame i shows the eye at t = i/fps: frame 0 is the
+    `fps` that browsers play (gazehdr.apng). Frame i shows the eye at t = i/fps: frame 0 is the
     equilibrium for the scene and the first gaze, each later frame steps 1/fps towards the gaze
     and scene at its own t.
     With `overwrite`, frames left in `out_dir` by an earlier render are removed first, so the
     directory holds one clean sequence. `afterimage` and `acuity` name the models
-    (`server.sim.models`). `changes` are a recorded session's (`recorded_changes`), each made
+    (`gazehdr.sim.models`). `changes` are a recorded session's (`recorded_changes`), each made
     before the first step that ends at or after its time; those at or before 0 set the start.
     """
     started = time.perf_counter()

@@ -4,20 +4,21 @@ from __future__ import annotations
 
 import math
 import secrets
+import socket
 import threading
 import time
 from pathlib import Path
 
 import uvicorn
 
-from server.app import ServerConfig, create_app
-from server.protocol import Encoding
-from server.scenes import builtin_names
-from server.scenes.exr import ExrScene
-from server.session import SessionSettings
-from server.sim import Params
-from server.sim.layout import check_frame_size
-from server.sim.models import Models
+from gazehdr.app import ServerConfig, create_app
+from gazehdr.protocol import Encoding
+from gazehdr.scenes import builtin_names
+from gazehdr.scenes.exr import ExrScene
+from gazehdr.session import SessionSettings
+from gazehdr.sim import Params
+from gazehdr.sim.layout import check_frame_size
+from gazehdr.sim.models import Models
 
 #: Largest WebSocket message a client may send (uvicorn closes with 1009 beyond it).
 WS_MAX_MESSAGE = 1024 * 1024
@@ -134,14 +135,33 @@ class BackgroundServer:
         self.thread.join(timeout=15)
 
 
+def bind(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on `host`:`port` (0: a free port the system picks), IPv4 or IPv6
+    as `host` says. Binding before anything is printed means a busy port is an error up front,
+    and the URL printed is the real one."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(2048)
+    except OSError as e:
+        sock.close()
+        raise ValueError(f"cannot listen on {host} port {port}: {e.strerror or e}") from None
+    sock.set_inheritable(True)
+    return sock
+
+
 def serve(**options) -> int:
     config = build_config(**options)
     server = uvicorn_server(create_app(config), config.host, config.port)
+    sock = bind(config.host, config.port)
+    port = sock.getsockname()[1]
     shown = f"[{config.host}]" if ":" in config.host else config.host
     s = config.session
-    print(f"gazehdr: open http://{shown}:{config.port}/ (scene {s.scene}, gaze {s.gaze_source})")
-    print(f"gazehdr: gaze daemon token: {config.token}")
+    print(f"gazehdr: open http://{shown}:{port}/ (scene {s.scene}, gaze {s.gaze_source})")
+    print(f"gazehdr: gaze daemon token: {config.token}", flush=True)
     if s.record:
-        print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}")
-    server.run()
+        print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}", flush=True)
+    server.run(sockets=[sock])
     return 0

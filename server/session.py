@@ -5,7 +5,7 @@ gaze and steps and a model each, so two models can be compared side by side.
 
 `Session` is synchronous and knows no sockets and no clock: the caller passes the elapsed
 time and the control messages that arrived, and gets back an encoded frame plus the JSON
-messages to tell the viewers. `server.live` runs it on a thread at real time.
+messages to tell the viewers. `gazehdr.live` runs it on a thread at real time.
 
 A session that records keeps a journal of session-log records (drivers/sessionlog.py) for its
 caller to write: the scene, parameters and models it ran with and every change to them, resets,
@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from drivers import sessionlog
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.tracks import open_track
-from server.protocol import (
+from gazehdr.drivers import sessionlog
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.tracks import open_track
+from gazehdr.protocol import (
     SIM_OUTPUT,
     Choose,
     Control,
@@ -44,13 +44,13 @@ from server.protocol import (
     Viewport,
     payload,
 )
-from server.recordings import RecordingLibrary
-from server.scenes import Scene
-from server.scenes.library import SceneLibrary
-from server.sim import Geometry, Params, Simulator
-from server.sim.layout import MAX_SIZE, MIN_SIZE
-from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
-from server.sim.params import OURS, SECTIONS, check_remote_change
+from gazehdr.recordings import RecordingLibrary
+from gazehdr.scenes import Scene
+from gazehdr.scenes.library import SceneLibrary
+from gazehdr.sim import Geometry, Params, Simulator
+from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
+from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
+from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 
 GAZE_SOURCES = ("mouse", "synthetic", "remote")
 #: A stalled server steps the eye by at most this much at once (s), so it never leaps.

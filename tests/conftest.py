@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from server.app import ServerConfig
-from server.serve import BackgroundServer
-from server.session import SessionSettings
+from gazehdr.app import ServerConfig
+from gazehdr.serve import BackgroundServer
+from gazehdr.session import SessionSettings
 
 SESSION_FIELDS = {f.name for f in dataclasses.fields(SessionSettings)}
 

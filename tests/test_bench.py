@@ -6,8 +6,8 @@ import re
 
 import pytest
 
-from server.bench import main
-from server.sim.models import each_beside_default
+from gazehdr.bench import main
+from gazehdr.sim.models import each_beside_default
 
 
 def test_bench_prints_stages_ratios_and_agrees(capsys) -> None:

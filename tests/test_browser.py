@@ -356,7 +356,7 @@ def test_split_view_from_the_panel(live_server, open_viewer) -> None:
 def test_panel_chooses_afterimage_and_acuity_models(live_server, open_viewer) -> None:
     """The panel's choosers switch the session's models on the server, OpenCL backend: the
     state the page gets, the HUD and /api/sessions name them, and frames keep coming."""
-    from server.sim.reference import ReferenceBackend
+    from gazehdr.sim.reference import ReferenceBackend
 
     srv = live_server(scene="lamp", size=(160, 96))
     viewer = open_viewer(srv.url, 800, 600)

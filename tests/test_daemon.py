@@ -19,8 +19,10 @@ from pathlib import Path
 import pytest
 import websockets
 
-from drivers import wire
-from drivers.daemon import (
+from gazehdr import app as app_module
+from gazehdr.app import ServerConfig, create_app
+from gazehdr.drivers import wire
+from gazehdr.drivers.daemon import (
     ClockEstimator,
     Daemon,
     DaemonStats,
@@ -30,12 +32,12 @@ from drivers.daemon import (
     open_record_dir,
     run_daemon,
 )
-from drivers.fixations import detect
-from drivers.formats import import_recording
-from drivers.formats.bids import write_bids
-from drivers.replay import ReplaySource
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers.fixations import detect
+from gazehdr.drivers.formats import import_recording
+from gazehdr.drivers.formats.bids import write_bids
+from gazehdr.drivers.replay import ReplaySource
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     GazeEvent,
     SessionHeader,
     SessionLog,
@@ -43,12 +45,10 @@ from drivers.sessionlog import (
     read_session_log,
     write_session_log,
 )
-from drivers.sources import IterableSource, SourceInfo, SyntheticSource
-from server import app as app_module
-from server.app import ServerConfig, create_app
-from server.protocol import decode_frame
-from server.serve import uvicorn_server
-from server.session import SessionSettings
+from gazehdr.drivers.sources import IterableSource, SourceInfo, SyntheticSource
+from gazehdr.protocol import decode_frame
+from gazehdr.serve import uvicorn_server
+from gazehdr.session import SessionSettings
 
 TIMEOUT = 30.0
 GEOMETRY = ScreenGeometry()
@@ -484,11 +484,11 @@ KILLABLE_SERVER = """
 import sys
 from pathlib import Path
 
-from drivers import wire
-from server import app as app_module
-from server.app import ServerConfig, create_app
-from server.serve import uvicorn_server
-from server.session import SessionSettings
+from gazehdr.drivers import wire
+from gazehdr import app as app_module
+from gazehdr.app import ServerConfig, create_app
+from gazehdr.serve import uvicorn_server
+from gazehdr.session import SessionSettings
 
 port, seen, data = int(sys.argv[1]), open(sys.argv[2], "a"), Path(sys.argv[3])
 handle = app_module._GazeLink.handle

@@ -14,6 +14,7 @@ import re
 import shlex
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -21,11 +22,15 @@ import dockerfile
 import pytest
 import yaml
 
-from drivers.daemon import RECORD_DIR_ENV, gaze_url
-from drivers.daemon import build_parser as daemon_parser
-from server.cli import build_parser
+from gazehdr.cli import build_parser
+from gazehdr.drivers.daemon import RECORD_DIR_ENV, gaze_url
+from gazehdr.drivers.daemon import build_parser as daemon_parser
 
-tomllib = pytest.importorskip("tomllib", reason="reads pyproject.toml with Python 3.11's tomllib")
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # the test extra installs tomli on Python 3.10
+    import tomli as tomllib
+
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKER = ROOT / "docker"
@@ -220,13 +225,13 @@ def test_copy_sources_exist_and_reach_the_build_context(path: Path) -> None:
 
 @pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
 def test_builder_copies_what_pip_install_needs(path: Path) -> None:
-    """pyproject.toml, its readme and every top-level package `packages.find` includes."""
+    """pyproject.toml, its readme, its licence files and every folder `package-dir` maps."""
     copied = {
         Path(s).as_posix().strip("/") for _, sources, _ in local_copies(path) for s in sources
     }
-    needed = {"pyproject.toml", PYPROJECT["project"]["readme"]}
-    for pattern in PYPROJECT["tool"]["setuptools"]["packages"]["find"]["include"]:
-        needed.add(pattern.split(".")[0].rstrip("*"))
+    project, setuptools = PYPROJECT["project"], PYPROJECT["tool"]["setuptools"]
+    needed = {"pyproject.toml", project["readme"], *project["license-files"]}
+    needed |= set(setuptools["package-dir"].values())
     assert needed <= copied, f"{path.name}: not copied: {sorted(needed - copied)}"
 
 
@@ -316,8 +321,8 @@ def test_server_healthcheck_gets_api_health_with_the_stdlib() -> None:
 def test_server_environment_matches_the_layout() -> None:
     commands = final_stage(SERVER)
     values = env(commands)
-    web = [dest for _, sources, dest in local_copies(SERVER) if sources == ["web"]]
-    assert web and values.get("GAZEHDR_WEB_DIR") == web[-1].rstrip("/")
+    # The viewer travels inside the installed package; a web dir set here would override it.
+    assert "GAZEHDR_WEB_DIR" not in values
     volumes = [v for c in commands if c.cmd == "VOLUME" for v in c.value]
     assert values.get("GAZEHDR_DATA_DIR") in volumes
 

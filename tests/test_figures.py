@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from server.cli import main
-from server.figures import FIGURES
-from server.sim import Params
+from gazehdr.cli import main
+from gazehdr.figures import FIGURES
+from gazehdr.sim import Params
 
 SMALL = ["--size", "128x72", "--quiet", "--seed", "3"]
 
@@ -160,7 +160,7 @@ def test_only_selects_and_bad_options_exit_2(tmp_path: Path, capsys) -> None:
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     """`gazehdr ARGS` in a child process: the real entry point with real stdout and stderr."""
-    entry = "import sys; from server.cli import main; sys.exit(main())"
+    entry = "import sys; from gazehdr.cli import main; sys.exit(main())"
     return subprocess.run(
         [sys.executable, "-c", entry, *args],
         capture_output=True, text=True, timeout=300, cwd=Path(__file__).resolve().parent.parent,
@@ -187,9 +187,9 @@ def test_missing_matplotlib_names_the_extra(tmp_path: Path, monkeypatch, capsys)
 
 
 def test_a_model_that_does_not_import_fails_loudly(tmp_path: Path, monkeypatch, capsys) -> None:
-    from server.sim import models
+    from gazehdr.sim import models
 
-    missing = "server.sim.baselines.not_there:Stage"
+    missing = "gazehdr.sim.baselines.not_there:Stage"
     monkeypatch.setitem(
         models.AFTERIMAGE_MODELS, "ritschel", dict.fromkeys(("opencl", "reference"), missing)
     )

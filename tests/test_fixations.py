@@ -33,7 +33,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pytest
 
-from drivers.fixations import (
+from gazehdr.drivers.fixations import (
     Event,
     IDTDetector,
     IDTParams,
@@ -43,8 +43,8 @@ from drivers.fixations import (
     fixations_from_events,
     make_detector,
 )
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.synthetic import SyntheticScanPath
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.synthetic import SyntheticScanPath
 
 GEOMETRY = ScreenGeometry()
 PPD = GEOMETRY.pixels_per_degree

@@ -16,13 +16,13 @@ from pathlib import Path
 
 import pytest
 
-from drivers.formats import detect_format, export_main, import_main, import_recording
-from drivers.formats.bids import read_bids, write_bids
-from drivers.formats.eyelink import read_eyelink_asc
-from drivers.formats.pupil import read_pupil_gaze_csv
-from drivers.formats.tobii import read_tobii_tsv
-from drivers.samples import EyeSample, GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers.formats import detect_format, export_main, import_main, import_recording
+from gazehdr.drivers.formats.bids import read_bids, write_bids
+from gazehdr.drivers.formats.eyelink import read_eyelink_asc
+from gazehdr.drivers.formats.pupil import read_pupil_gaze_csv
+from gazehdr.drivers.formats.tobii import read_tobii_tsv
+from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     ClockInfo,
     ClockUpdate,
     EyeReset,

@@ -25,11 +25,11 @@ from typing import Any
 
 import pytest
 
-from drivers import hid, wire
-from drivers.daemon import Daemon
-from drivers.samples import ScreenGeometry
-from drivers.sessionlog import read_session_log
-from drivers.sources import Source, open_source
+from gazehdr.drivers import hid, wire
+from gazehdr.drivers.daemon import Daemon
+from gazehdr.drivers.samples import ScreenGeometry
+from gazehdr.drivers.sessionlog import read_session_log
+from gazehdr.drivers.sources import Source, open_source
 
 # --- HID 1.11 short items ---------------------------------------------------------------------
 
@@ -698,7 +698,7 @@ def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
         backoff_initial_s=0.25,
         backoff_max_s=0.75,
     )
-    with caplog.at_level(logging.INFO, logger="drivers.hid"):
+    with caplog.at_level(logging.INFO, logger="gazehdr.drivers.hid"):
         got = list(itertools.islice(src, 9))
     assert [s.t_ns for s in got] == before.read_ns + after.read_ns  # once each, in order
     assert [s.x for s in got[:5]] == pytest.approx(
@@ -736,7 +736,7 @@ def test_clock_going_back_without_replug_reanchors(caplog: pytest.LogCaptureFixt
     rebooted = timed_stream(3, t0_us=100, host0_ns=first.taken_ns[-1] + 8_333_000)
     t.queue, t.read_at_ns = first.reports + rebooted.reports, first.read_ns + rebooted.read_ns
     src = timed_source(t)
-    with caplog.at_level(logging.WARNING, logger="drivers.hid"):
+    with caplog.at_level(logging.WARNING, logger="gazehdr.drivers.hid"):
         ts = [s.t_ns for s in itertools.islice(src, 6)]
     assert ts == first.read_ns + rebooted.read_ns
     assert "tracker clock went back by 5016566000 ns" in caplog.text
@@ -894,7 +894,7 @@ def test_geometry_follows_the_calibrated_screen_and_flags_override(
 
     t = make_tracker()
     flags = {"screen_diagonal_m": 0.5, "screen_width_px": 1280, "screen_height_px": 1024}
-    with caplog.at_level(logging.WARNING, logger="drivers.hid"):
+    with caplog.at_level(logging.WARNING, logger="gazehdr.drivers.hid"):
         src = timed_source(t, screen=flags)
     assert src.info.geometry == ScreenGeometry(0.5, 1280, 1024, 1.0)  # the flag wins
     assert "calibrated for a 527 × 296 mm screen, not the shape of 1280 × 1024 pixels" in (
@@ -915,7 +915,7 @@ def test_daemon_records_every_sample_across_an_unplug(live_server, tmp_path, mon
     """The daemon over the HID source with --record: unplugged after five reports, back during
     the second wait; the log holds every sample the source yielded, in order, and the server got
     them too. Its hello carries the tracker's calibrated screen."""
-    from server import app as app_module  # the server is only the other end here
+    from gazehdr import app as app_module  # the server is only the other end here
 
     hellos: list[wire.Hello] = []
     original = app_module._GazeLink.handle
@@ -976,8 +976,8 @@ import sys
 
 sys.path.insert(0, sys.argv[1])
 import test_hid
-from drivers import hid
-from drivers.daemon import daemon_main
+from gazehdr.drivers import hid
+from gazehdr.drivers.daemon import daemon_main
 
 tracker = test_hid.make_tracker()
 tracker.plugged = False
@@ -1088,8 +1088,9 @@ def test_drivers_hid_imports_neither_server_nor_pyopencl() -> None:
     import sys
 
     code = (
-        "import sys, drivers.hid; "
-        "bad = [m for m in sys.modules if m.split('.')[0] in ('server', 'pyopencl')]; "
+        "import sys, gazehdr.drivers.hid; "
+        "bad = [m for m in sys.modules if m.split('.')[0] == 'pyopencl' "
+        "or m.startswith('gazehdr.') and not m.startswith('gazehdr.drivers')]; "
         "sys.exit(1 if bad else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

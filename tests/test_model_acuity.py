@@ -16,15 +16,15 @@ import math
 import numpy as np
 import pytest
 
-from server.sim import Params, Simulator
-from server.sim.baselines.acuity import (
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.baselines.acuity import (
     ThompsonAcuityReference,
     acuity_limit_cpd,
     sigma_constants,
 )
-from server.sim.layout import Layout, NoiseField
-from server.sim.params import Geometry
-from server.sim.reference import ReferenceBackend
+from gazehdr.sim.layout import Layout, NoiseField
+from gazehdr.sim.params import Geometry
+from gazehdr.sim.reference import ReferenceBackend
 
 W, H = 64, 48
 MODELS = ("none", "gaussian", "bilateral", "thompson")

@@ -15,16 +15,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from server.figures.common import native_geometry
-from server.sim import Params, Simulator
-from server.sim.baselines.mikamo import (
+from gazehdr.figures.common import native_geometry
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.baselines.mikamo import (
     XYZ_TO_RGB,
     SequenceError,
     load_sequence,
     xy_of_rgb,
     xyY_to_XYZ,
 )
-from server.sim.layout import RGB_TO_XYZ
+from gazehdr.sim.layout import RGB_TO_XYZ
 from tests.measures import spread
 
 W, H = 64, 48

@@ -13,16 +13,16 @@ import math
 import numpy as np
 import pytest
 
-from server.figures.common import native_geometry
-from server.sim import Params, Simulator
-from server.sim.baselines.ritschel import (
+from gazehdr.figures.common import native_geometry
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.baselines.ritschel import (
     hue_forward,
     hue_inverse,
     opponent,
     orgb_to_rgb,
     rgb_to_orgb,
 )
-from server.sim.layout import LMS_TO_RGB, RGB_TO_LMS
+from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_LMS
 from tests.measures import spread
 
 BACKENDS = ["reference", "opencl"]

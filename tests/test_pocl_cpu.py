@@ -9,7 +9,7 @@ import textwrap
 
 import pytest
 
-from server.sim.pocl_cpu import cpu_flags, level_for_flags
+from gazehdr.sim.pocl_cpu import cpu_flags, level_for_flags
 
 V2 = {"cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}
 V3 = V2 | {"avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave"}
@@ -41,7 +41,7 @@ def test_cpu_flags_reads_the_first_flags_line() -> None:
 PROBE = textwrap.dedent(
     """
     import numpy as np, pyopencl as cl
-    from server.sim.pocl_cpu import name_cpu_for_pocl
+    from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
     given = name_cpu_for_pocl()
     pocl = [p for p in cl.get_platforms() if "Portable Computing Language" in p.name][0]
     dev = pocl.get_devices()[0]

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from drivers import wire
-from server.metrics import Histogram
-from server.protocol import (
+from gazehdr.drivers import wire
+from gazehdr.metrics import Histogram
+from gazehdr.protocol import (
     HEADER_BYTES,
     MAX_CONTROL_BYTES,
     Choose,
@@ -28,7 +28,7 @@ from server.protocol import (
     encode_pixels,
     parse_control,
 )
-from server.session import fit_size
+from gazehdr.session import fit_size
 
 
 def _header(w: int, h: int, encoding: Encoding) -> FrameHeader:

@@ -16,7 +16,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from drivers.sessionlog import (
+from gazehdr.cli import main
+from gazehdr.drivers.sessionlog import (
     EyeReset,
     GazeEvent,
     ModelChange,
@@ -26,8 +27,7 @@ from drivers.sessionlog import (
     SessionLogWriter,
     read_session_log,
 )
-from server.cli import main
-from server.protocol import (
+from gazehdr.protocol import (
     Choose,
     Encoding,
     Eyes,
@@ -37,10 +37,10 @@ from server.protocol import (
     Reset,
     decode_frame,
 )
-from server.protocol import ModelChange as ModelControl
-from server.render import recorded_changes, render
-from server.scenes.library import SceneLibrary
-from server.session import RemoteGaze, Session, SessionSettings
+from gazehdr.protocol import ModelChange as ModelControl
+from gazehdr.render import recorded_changes, render
+from gazehdr.scenes.library import SceneLibrary
+from gazehdr.session import RemoteGaze, Session, SessionSettings
 from tests.test_server import TIMEOUT, Client, http, run
 
 W, H, FPS = 64, 36, 30
@@ -266,7 +266,7 @@ def test_serve_records_each_session_where_viewers_can_replay_it(live_server) -> 
 
 
 def test_serve_refuses_to_record_without_a_data_directory() -> None:
-    from server.app import ServerConfig, create_app
+    from gazehdr.app import ServerConfig, create_app
 
     config = ServerConfig(session=SessionSettings(record=True), data_dir=None)
     with pytest.raises(ValueError, match="recording sessions needs a data directory"):
@@ -276,8 +276,8 @@ def test_serve_refuses_to_record_without_a_data_directory() -> None:
 def test_a_log_that_cannot_be_written_stops_recording_not_the_session(
     tmp_path: Path, monkeypatch
 ) -> None:
-    from server.live import LiveSession
-    from server.metrics import Metrics
+    from gazehdr.live import LiveSession
+    from gazehdr.metrics import Metrics
 
     session = Session("rec", SETTINGS, SceneLibrary(), RemoteGaze())
     writer = SessionLogWriter(tmp_path / "s.jsonl", session.log_header())

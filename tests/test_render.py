@@ -12,11 +12,11 @@ import OpenEXR
 import pytest
 from PIL import Image
 
-from drivers.synthetic import FixedGaze
-from server.cli import main
-from server.dither import dither8
-from server.render import render
-from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS
+from gazehdr.cli import main
+from gazehdr.dither import dither8
+from gazehdr.drivers.synthetic import FixedGaze
+from gazehdr.render import render
+from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS
 
 TINY = ["--size", "64x36", "--seconds", "0.1", "--fps", "30", "--backend", "reference", "--quiet"]
 
@@ -193,7 +193,7 @@ def test_cli_video_is_the_frames_as_one_lossless_animation(tmp_path: Path) -> No
 
 
 def test_apng_writer_refuses_a_short_or_ragged_animation(tmp_path: Path) -> None:
-    from server.apng import ApngWriter
+    from gazehdr.apng import ApngWriter
 
     frame = np.zeros((4, 6, 3), np.uint8)
     writer = ApngWriter(tmp_path / "short.apng", frames=2, fps=30)
@@ -320,8 +320,8 @@ def test_cli_lists_scenes(capsys: pytest.CaptureFixture) -> None:
 
 def test_cli_passes_bench_arguments_through(monkeypatch: pytest.MonkeyPatch) -> None:
     seen: list[list[str]] = []
-    fake = types.ModuleType("server.bench")
+    fake = types.ModuleType("gazehdr.bench")
     fake.main = lambda argv: seen.append(argv) or 3  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "server.bench", fake)
+    monkeypatch.setitem(sys.modules, "gazehdr.bench", fake)
     assert main(["bench", "--frames", "5", "--help"]) == 3
     assert seen == [["--frames", "5", "--help"]]

@@ -8,19 +8,19 @@ from pathlib import Path
 
 import pytest
 
-from drivers import sources
-from drivers.fixations import make_detector
-from drivers.formats import import_recording
-from drivers.replay import ReplaySource, is_session_log, replay
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers import sources
+from gazehdr.drivers.fixations import make_detector
+from gazehdr.drivers.formats import import_recording
+from gazehdr.drivers.replay import ReplaySource, is_session_log, replay
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     GazeEvent,
     SessionHeader,
     SessionLogWriter,
     encode_record,
     read_session_log,
 )
-from drivers.sources import (
+from gazehdr.drivers.sources import (
     Pacer,
     Source,
     SourceUnavailableError,
@@ -168,7 +168,7 @@ def test_replay_of_an_imported_recording_equals_its_import(tmp_path: Path) -> No
     assert _keys(out) == _keys(expected)
     assert _keys(list(rep.records())) == _keys(out)
     # and replaying the imported log written natively gives the same stream
-    from drivers.sessionlog import write_session_log
+    from gazehdr.drivers.sessionlog import write_session_log
 
     native = write_session_log(tmp_path / "imported.jsonl", imported)
     assert _keys(replay(native)) == _keys(out)
@@ -201,7 +201,7 @@ def test_a_replay_knows_where_each_fixation_is(tmp_path: Path) -> None:
     """EyeLink's SFIX has no position: the replay places each fixation where its EFIX says it
     was, from its start, as `SessionLog.fixation_track` does; the same for the log `gazehdr
     import` writes, read from its fixation lines alone, and up to where a cut log ends."""
-    from drivers.sessionlog import FixationPlace, write_session_log
+    from gazehdr.drivers.sessionlog import FixationPlace, write_session_log
 
     fixture = DATA / "eyelink_mono.asc"
     ms = 1_000_000
@@ -240,8 +240,8 @@ def test_hid_source_is_opened_lazily_with_a_clear_error(monkeypatch) -> None:
     real_import = builtins.__import__
 
     def no_hid(name, *args, **kwargs):
-        if name == "drivers.hid":
-            raise ModuleNotFoundError("No module named 'drivers.hid'")
+        if name == "gazehdr.drivers.hid":
+            raise ModuleNotFoundError("No module named 'gazehdr.drivers.hid'")
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_hid)

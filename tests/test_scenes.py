@@ -12,9 +12,9 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from server.scenes import open_scene
-from server.scenes.exr import DEFAULT_SCALE, MAX_PIXELS, ExrScene, SceneError, write_exr
-from server.scenes.procedural import (
+from gazehdr.scenes import open_scene
+from gazehdr.scenes.exr import DEFAULT_SCALE, MAX_PIXELS, ExrScene, SceneError, write_exr
+from gazehdr.scenes.procedural import (
     BUILTIN,
     COLORCHECKER_SRGB8,
     LUMA,

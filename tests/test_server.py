@@ -18,9 +18,9 @@ import pytest
 import websockets
 from websockets.exceptions import ConnectionClosed
 
-from server import app
-from server.protocol import FrameHeader, decode_frame
-from server.scenes.exr import write_exr
+from gazehdr import app
+from gazehdr.protocol import FrameHeader, decode_frame
+from gazehdr.scenes.exr import write_exr
 
 TIMEOUT = 30.0
 
@@ -522,8 +522,8 @@ def test_a_gaze_flood_is_rate_limited_without_harming_viewers(live_server, kind:
 
 
 def test_a_recorded_session_replays_as_gaze(live_server, tmp_path) -> None:
-    from drivers.samples import GazeSample
-    from drivers.sessionlog import SessionHeader, SessionLogWriter
+    from gazehdr.drivers.samples import GazeSample
+    from gazehdr.drivers.sessionlog import SessionHeader, SessionLogWriter
 
     server = live_server()
     log = tmp_path / "rec.jsonl"
@@ -584,8 +584,8 @@ def test_a_viewer_that_acks_gets_at_most_two_frames_in_flight(live_server) -> No
 
 def test_serve_can_start_sessions_in_split_view(live_server, tmp_path) -> None:
     """`gazehdr serve --split MODEL`: new sessions open with MODEL in the right pane."""
-    from server.serve import build_config
-    from server.sim.models import Models
+    from gazehdr.serve import build_config
+    from gazehdr.sim.models import Models
 
     options = dict(
         host="127.0.0.1", port=0, scene="flash", scale=None, gaze="mouse", fps=30.0,

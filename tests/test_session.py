@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from server.protocol import (
+from gazehdr.protocol import (
     Choose,
     Eyes,
     Gaze,
@@ -16,11 +16,11 @@ from server.protocol import (
     Viewport,
     decode_frame,
 )
-from server.scenes.library import SceneLibrary
-from server.session import MAX_FRAME_DT, RemoteGaze, Session, SessionSettings, pane_params
-from server.sim import Params, Simulator
-from server.sim.layout import Layout
-from server.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
+from gazehdr.scenes.library import SceneLibrary
+from gazehdr.session import MAX_FRAME_DT, RemoteGaze, Session, SessionSettings, pane_params
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.layout import Layout
+from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 
 SETTINGS = SessionSettings(width=96, height=54, fps=30.0, scene="flash", seed=3)
 

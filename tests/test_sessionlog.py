@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from drivers.fixations import make_detector
-from drivers.samples import EyeSample, GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers.fixations import make_detector
+from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     ClockInfo,
     ClockUpdate,
     EyeReset,
@@ -28,8 +28,8 @@ from drivers.sessionlog import (
     read_session_track,
     write_session_log,
 )
-from drivers.synthetic import SyntheticScanPath
-from drivers.tracks import open_track
+from gazehdr.drivers.synthetic import SyntheticScanPath
+from gazehdr.drivers.tracks import open_track
 
 SCREEN = ScreenGeometry(0.6, 1000, 500, 0.8)
 
@@ -198,7 +198,7 @@ def test_file_layout_is_the_documented_one(tmp_path: Path) -> None:
 
 
 def test_writer_accepts_the_detectors_events(tmp_path: Path) -> None:
-    from drivers import fixations
+    from gazehdr.drivers import fixations
 
     event = fixations.Event("fixation_end", 4, 2_000, 10.0, 20.0, 1_500, 0.3)
     blink = fixations.Event("blink_start", 5, 3_000, math.nan, math.nan, 100)
@@ -227,7 +227,7 @@ def test_each_record_is_flushed_before_close(tmp_path: Path) -> None:
 
 def test_fsync_every_n_records_and_on_close(tmp_path: Path, monkeypatch) -> None:
     calls = []
-    monkeypatch.setattr("drivers.sessionlog.os.fsync", lambda fd: calls.append(fd))
+    monkeypatch.setattr("gazehdr.drivers.sessionlog.os.fsync", lambda fd: calls.append(fd))
     with SessionLogWriter(tmp_path / "s.jsonl", header(), fsync_every=2) as w:
         assert len(calls) == 1  # the header
         for s in SAMPLES:
@@ -489,7 +489,7 @@ def test_render_follows_the_fixations_of_a_log(tmp_path: Path, with_events: bool
 @pytest.mark.parametrize("with_events", [True, False])
 def test_render_and_live_replay_of_a_log_agree(tmp_path: Path, with_events: bool) -> None:
     """The offline track (`FILE_TRACKS`) and a live session's `replay:NAME` track are one."""
-    from server.recordings import RecordingLibrary
+    from gazehdr.recordings import RecordingLibrary
 
     _, file = _recorded_scan(tmp_path, with_events=with_events)
     rendered, live = open_track(str(file)), RecordingLibrary(tmp_path).track("scan")

@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from server.sim import Params, Simulator
-from server.sim.layout import Layout, NoiseField
-from server.sim.opencl import OpenCLBackend
-from server.sim.reference import ReferenceBackend
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.layout import Layout, NoiseField
+from gazehdr.sim.opencl import OpenCLBackend
+from gazehdr.sim.reference import ReferenceBackend
 
 W, H = 120, 68
 TOL = {"down": 1e-4, "rho": 1e-4, "A": 1e-4, "state": 1e-4, "maps": 5e-4, "G": 1e-4}
@@ -78,7 +78,7 @@ def test_pipeline_matches_reference(seed: int) -> None:
 
 @pytest.mark.parametrize("name", ["flash", "lamp", "checker-night", "adaptation-cross"])
 def test_builtin_scenes_match_reference(name: str) -> None:
-    from server.scenes import open_scene
+    from gazehdr.scenes import open_scene
 
     scene = open_scene(name)
     sims = [Simulator(W, H, backend=b, seed=3) for b in ("reference", "opencl")]
@@ -182,7 +182,7 @@ def test_each_stage_alone(seed: int) -> None:
 def test_device_encoding_equals_host_encoding(output: str) -> None:
     """The kernels that write f16 / RGB10_A2 for the wire give exactly what encoding the float32
     frame on the host gives (round to nearest even; round(1023 v))."""
-    from server.sim.layout import encode_output
+    from gazehdr.sim.layout import encode_output
 
     sims = [Simulator(136, 77, backend="opencl", seed=1) for _ in range(2)]
     scene = np.resize(mixed_scene(2), (77, 136, 3))
@@ -202,7 +202,7 @@ def test_device_encoding_equals_host_encoding(output: str) -> None:
 
 def test_blur_taps_cache_stays_bounded_when_dt_varies() -> None:
     """A live session steps by a different dt every frame; each gives a new map-blur sigma."""
-    from server.sim.opencl import TAPS_CACHE
+    from gazehdr.sim.opencl import TAPS_CACHE
 
     sim = Simulator(64, 48, backend="opencl")
     sim.load_scene(mixed_scene(3)[:48, :64])

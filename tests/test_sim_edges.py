@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from server.sim import Params, Simulator
-from server.sim.models import Models, each_beside_default
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.models import Models, each_beside_default
 
 W, H = 96, 54
 BACKENDS = ["reference", "opencl"]

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from server.sim import Params, Simulator
+from gazehdr.sim import Params, Simulator
 
 W, H = 128, 72
 CENTRE = (64.0, 36.0)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.samples import GazePoint, GazeSample, GazeTrack, ScreenGeometry
-from drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath, peak_velocity
-from drivers.tracks import CsvGazeTrack, open_track
+from gazehdr.drivers.samples import GazePoint, GazeSample, GazeTrack, ScreenGeometry
+from gazehdr.drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath, peak_velocity
+from gazehdr.drivers.tracks import CsvGazeTrack, open_track
 
 RATE_HZ = 2000.0  # dense enough that finite differences resolve a 25 ms saccade's peak
 
@@ -25,7 +25,7 @@ def _positions_deg(path: SyntheticScanPath, rate_hz: float) -> tuple[np.ndarray,
 
 
 def test_geometry_defaults_match_the_server_geometry() -> None:
-    from server.sim import Geometry
+    from gazehdr.sim import Geometry
 
     assert ScreenGeometry().pixels_per_degree == pytest.approx(Geometry().pixels_per_degree())
     assert ScreenGeometry().pixels_per_degree == pytest.approx(64.08, abs=0.01)

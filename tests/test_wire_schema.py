@@ -9,7 +9,7 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from drivers import wire
+from gazehdr.drivers import wire
 
 SCHEMA = json.loads((Path(wire.__file__).parent / "wire.schema.json").read_text())
 
@@ -69,7 +69,7 @@ def test_server_replies_follow_the_schema_and_parse_back(message):
 
 def test_the_servers_own_replies_follow_the_schema():
     """What server/app.py's _GazeLink writes, literally."""
-    from server.app import GAZE_RATE_HZ
+    from gazehdr.app import GAZE_RATE_HZ
 
     v = _validator("to_daemon")
     v.validate({"type": "welcome", "protocol": wire.PROTOCOL})

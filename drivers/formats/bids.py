@@ -90,9 +90,9 @@ from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any
 
-from drivers.formats import decimal_ns, geometry_with, mean_of_eyes
-from drivers.samples import EyeSample, GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers.formats.common import decimal_ns, geometry_with, mean_of_eyes
+from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     ClockInfo,
     ClockUpdate,
     EyeReset,

@@ -48,9 +48,9 @@ import math
 import re
 from pathlib import Path
 
-from drivers.formats import decimal_ns, finite_float, geometry_with, mean_of_eyes
-from drivers.samples import EyeSample, GazeSample, ScreenGeometry
-from drivers.sessionlog import (
+from gazehdr.drivers.formats.common import decimal_ns, finite_float, geometry_with, mean_of_eyes
+from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import (
     ClockInfo,
     FormatError,
     GazeEvent,

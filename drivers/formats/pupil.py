@@ -26,9 +26,9 @@ import csv
 import math
 from pathlib import Path
 
-from drivers.formats import decimal_ns, finite_float
-from drivers.samples import GazeSample, ScreenGeometry
-from drivers.sessionlog import ClockInfo, FormatError, SessionHeader, SessionLog
+from gazehdr.drivers.formats.common import decimal_ns, finite_float
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import ClockInfo, FormatError, SessionHeader, SessionLog
 
 MIN_CONFIDENCE = 0.6
 _REQUIRED = ("confidence", "norm_pos_x", "norm_pos_y")

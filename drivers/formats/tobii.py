@@ -43,9 +43,9 @@ import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.formats import decimal_ns, geometry_with, mean_of_eyes
-from drivers.samples import EyeSample, GazeSample, ScreenGeometry
-from drivers.sessionlog import ClockInfo, FormatError, Note, SessionHeader, SessionLog
+from gazehdr.drivers.formats.common import decimal_ns, geometry_with, mean_of_eyes
+from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
+from gazehdr.drivers.sessionlog import ClockInfo, FormatError, Note, SessionHeader, SessionLog
 
 _MS = 1_000_000
 PYGAZE_COLUMNS = (

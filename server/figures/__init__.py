@@ -15,8 +15,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from server.figures import afterimage, mesopic
-from server.figures.common import Context, ModelUnavailableError, Result
+from gazehdr.figures import afterimage, mesopic
+from gazehdr.figures.common import Context, ModelUnavailableError, Result
 
 __all__ = ["FIGURES", "Context", "Figure", "Summary", "make_figures", "select"]
 
@@ -305,7 +305,7 @@ def page(ctx: Context, figures: list[Figure], results: dict[str, Result | str]) 
         f"<style>{_STYLE}</style></head><body>",
         "<h1>Figures 4–12 of Jacobs et al. 2015, made with gazehdr</h1>",
         f"<p>Frame size {ctx.width}×{ctx.height}, backend {e(ctx.backend)}, seed {ctx.seed}. "
-        "Every image comes from <code>server.sim.Simulator</code> with the default "
+        "Every image comes from <code>gazehdr.sim.Simulator</code> with the default "
         "parameters unless a figure says otherwise. PNGs are the display values rounded to "
         "8 bits (no dither: these are stills). The numbers under each figure are in "
         "<code>figures.json</code>.</p>",

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from server.figures.common import (
+from gazehdr.figures.common import (
     LUMA,
     Context,
     Result,
@@ -29,9 +29,9 @@ from server.figures.common import (
     simulator,
     zoom,
 )
-from server.scenes.procedural import Flash, Lamp
-from server.sim import Params, Simulator
-from server.sim.reference import afterimage_maps, compose
+from gazehdr.scenes.procedural import Flash, Lamp
+from gazehdr.sim import Params, Simulator
+from gazehdr.sim.reference import afterimage_maps, compose
 
 _PARAMS = Params()
 

@@ -1,7 +1,7 @@
 """What every figure needs: simulators built from the run's options, stepping, images, PNGs.
 
 Images are display values `v` in [0, 1] (H×W×3, what the simulator returns). A figure is a still,
-so PNGs use plain rounding, `round(255·v)`, not the temporal dither of `server.dither`: dithering
+so PNGs use plain rounding, `round(255·v)`, not the temporal dither of `gazehdr.dither`: dithering
 helps only when frames average over time, and on a still it only adds noise.
 """
 
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from server.sim import Geometry, Params, Simulator
+from gazehdr.sim import Geometry, Params, Simulator
 
 #: Linear RGB -> photopic luminance (Rec.709), for measuring what the figures show.
 LUMA = np.array(Params().w_P)

@@ -13,7 +13,7 @@ import itertools
 
 import numpy as np
 
-from server.figures.common import (
+from gazehdr.figures.common import (
     LUMA,
     Context,
     Result,
@@ -27,8 +27,8 @@ from server.figures.common import (
     save,
     simulator,
 )
-from server.scenes.procedural import CheckerNight
-from server.sim import Params
+from gazehdr.scenes.procedural import CheckerNight
+from gazehdr.sim import Params
 
 #: Luminance of the white patch (cd/m^2), the columns of Fig. 11; Fig. 10 uses the last four.
 LEVELS = (10.0, 1.0, 0.3, 0.1, 0.01)

@@ -8,45 +8,30 @@ a file scene returns its pixels and lets the simulator fit them.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol
 
-import numpy as np
-
-
-class Scene(Protocol):
-    name: str
-    #: True when `render` depends on `t` (the caller must re-render every frame).
-    animated: bool
-
-    def render(self, t: float, width: int, height: int) -> np.ndarray: ...
-
-    def state_at(self, t: float) -> object:
-        """A hashable that changes exactly when `render`'s output does (None: never)."""
-        ...
-
-    def next_change(self, t: float) -> float | None:
-        """The first time after `t` at which `state_at` changes (None: never), so that a caller
-        stepping in long frames can split a step there and miss no brief flash."""
-        ...
+from gazehdr.scenes.scene import Scene
 
 
 def builtin_names() -> list[str]:
-    from server.scenes.procedural import BUILTIN
+    from gazehdr.scenes.procedural import BUILTIN
 
     return sorted(BUILTIN)
 
 
 def open_scene(spec: str, scale: float | None = None) -> Scene:
     """A built-in scene by name, or an EXR file by path (`scale` overrides whiteLuminance)."""
-    from server.scenes.procedural import BUILTIN
+    from gazehdr.scenes.procedural import BUILTIN
 
     if spec in BUILTIN:
         return BUILTIN[spec]()
     path = Path(spec)
     if path.suffix.lower() == ".exr" or path.exists():
-        from server.scenes.exr import ExrScene
+        from gazehdr.scenes.exr import ExrScene
 
         return ExrScene.open(path, scale=scale)
     raise ValueError(
         f"unknown scene {spec!r}: not a built-in ({', '.join(builtin_names())}) nor an EXR file"
     )
+
+
+__all__ = ["Scene", "builtin_names", "open_scene"]

@@ -12,8 +12,8 @@ import re
 import uuid
 from pathlib import Path
 
-from server.scenes import Scene, builtin_names, open_scene
-from server.scenes.exr import ExrScene, SceneError
+from gazehdr.scenes import Scene, builtin_names, open_scene
+from gazehdr.scenes.exr import ExrScene, SceneError
 
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 MAX_UPLOAD_BYTES = 256 * 1024 * 1024  # an upload is held in memory until validated

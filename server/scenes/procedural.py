@@ -24,8 +24,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from server.scenes import Scene
-from server.scenes.exr import MAX_PIXELS
+from gazehdr.scenes.exr import MAX_PIXELS
+from gazehdr.scenes.scene import Scene
 
 #: Rec.709 photopic luminance weights.
 LUMA = np.array([0.2126, 0.7152, 0.0722])

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from server.sim.params import Params
+from gazehdr.sim.params import Params
 
 MIN_SIZE = 16
 MAX_SIZE = (7680, 4320)

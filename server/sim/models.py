@@ -26,7 +26,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from server.sim.layout import NoiseFrame
+from gazehdr.sim.layout import NoiseFrame
 
 
 class AfterimageStage(Protocol):
@@ -66,25 +66,25 @@ class StochasticAcuity:
         self.backend.acuity(noise)
 
 
-_HERE = "server.sim.models"
+_HERE = "gazehdr.sim.models"
 #: name -> {backend name -> "module:Class"}
 AFTERIMAGE_MODELS: dict[str, dict[str, str]] = {
     "jacobs": {"reference": f"{_HERE}:JacobsAfterimage", "opencl": f"{_HERE}:JacobsAfterimage"},
     "ritschel": {
-        "reference": "server.sim.baselines.ritschel:RitschelReference",
-        "opencl": "server.sim.baselines.ritschel_cl:RitschelOpenCL",
+        "reference": "gazehdr.sim.baselines.ritschel:RitschelReference",
+        "opencl": "gazehdr.sim.baselines.ritschel_cl:RitschelOpenCL",
     },
     "mikamo": {
-        "reference": "server.sim.baselines.mikamo:MikamoReference",
-        "opencl": "server.sim.baselines.mikamo_cl:MikamoOpenCL",
+        "reference": "gazehdr.sim.baselines.mikamo:MikamoReference",
+        "opencl": "gazehdr.sim.baselines.mikamo_cl:MikamoOpenCL",
     },
 }
 ACUITY_MODELS: dict[str, dict[str, str]] = {
     "stochastic": {"reference": f"{_HERE}:StochasticAcuity", "opencl": f"{_HERE}:StochasticAcuity"},
     **{
         name: {
-            "reference": f"server.sim.baselines.acuity:{cls}Reference",
-            "opencl": f"server.sim.baselines.acuity_cl:{cls}OpenCL",
+            "reference": f"gazehdr.sim.baselines.acuity:{cls}Reference",
+            "opencl": f"gazehdr.sim.baselines.acuity_cl:{cls}OpenCL",
         }
         for name, cls in (
             ("none", "NoAcuity"),

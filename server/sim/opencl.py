@@ -20,7 +20,7 @@ from importlib import resources
 import numpy as np
 import pyopencl as cl
 
-from server.sim.layout import (
+from gazehdr.sim.layout import (
     LMS_TO_RGB,
     RGB_TO_LMS,
     Layout,
@@ -28,9 +28,9 @@ from server.sim.layout import (
     acuity_increments,
     gaussian_taps,
 )
-from server.sim.params import Params
-from server.sim.pocl_cpu import name_cpu_for_pocl
-from server.sim.reference import adaptation_window
+from gazehdr.sim.params import Params
+from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
+from gazehdr.sim.reference import adaptation_window
 
 KERNEL_FILES = (
     "common.cl",
@@ -116,7 +116,7 @@ def build_program(files: tuple[str, ...]) -> cl.Program:
     PoCL. A baseline model builds common.cl plus its own file, so the default pipeline does
     not pay for models it does not run."""
     ctx = _context()
-    pkg = resources.files("server.sim") / "kernels"
+    pkg = resources.files("gazehdr.sim") / "kernels"
     source = "\n".join((pkg / name).read_text() for name in files)
     options = ["-cl-fast-relaxed-math"]
     if "Portable Computing Language" in ctx.devices[0].platform.name:
@@ -428,7 +428,7 @@ class OpenCLBackend:
         """H×W×3 `v` as float32, or made ready to send without a pass over it in NumPy:
         out_dtype float16 gives H×W×3 half floats (round to nearest even, the same as
         `v.astype(np.float16)`), uint32 gives H×W RGB10_A2 words (`r | g << 10 | b << 20` of
-        round(1023 v), the same as server.protocol's rgb10a2 encoding)."""
+        round(1023 v), the same as gazehdr.protocol's rgb10a2 encoding)."""
         lay, b = self.lay, self.buf
         kind = np.dtype(out_dtype)
         if kind not in COMPOSE_OUTPUTS:

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from server.sim.layout import (
+from gazehdr.sim.layout import (
     LMS_TO_RGB,
     RGB_TO_LMS,
     Layout,
@@ -24,7 +24,7 @@ from server.sim.layout import (
     acuity_increments,
     gaussian_taps,
 )
-from server.sim.params import Params
+from gazehdr.sim.params import Params
 
 LN10 = math.log(10.0)
 

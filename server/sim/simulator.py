@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from server.sim.layout import (
+from gazehdr.sim.layout import (
     OUTPUTS,
     Layout,
     NoiseField,
@@ -19,9 +19,9 @@ from server.sim.layout import (
     fit_to_frame,
     sanitize_radiance,
 )
-from server.sim.models import Models, make_stages
-from server.sim.params import Params
-from server.sim.reference import bilinear
+from gazehdr.sim.models import Models, make_stages
+from gazehdr.sim.params import Params
+from gazehdr.sim.reference import bilinear
 
 BACKENDS = ("opencl", "reference")
 _DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}
@@ -30,11 +30,11 @@ MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no lon
 
 def _make_backend(name: str, layout: Layout, params: Params):
     if name == "reference":
-        from server.sim.reference import ReferenceBackend
+        from gazehdr.sim.reference import ReferenceBackend
 
         return ReferenceBackend(layout, params)
     if name == "opencl":
-        from server.sim.opencl import OpenCLBackend
+        from gazehdr.sim.opencl import OpenCLBackend
 
         return OpenCLBackend(layout, params)
     raise ValueError(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")

@@ -1,5 +1,5 @@
 """The models Jacobs et al. 2015 compare against, each as a NumPy reference and an OpenCL stage.
 
-See `server.sim.models` for how a stage plugs into the simulator, and docs/baselines/ for what
+See `gazehdr.sim.models` for how a stage plugs into the simulator, and docs/baselines/ for what
 each model does and where our reading of its paper fills a gap.
 """

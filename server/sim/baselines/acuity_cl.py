@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pyopencl as cl
 
-from server.sim.baselines.acuity import (
+from gazehdr.sim.baselines.acuity import (
     FERWERDA,
     VAR_FLOOR_PX2,
     bilateral_radius,
@@ -19,8 +19,8 @@ from server.sim.baselines.acuity import (
     noise_key,
     sigma_constants,
 )
-from server.sim.layout import gaussian_taps
-from server.sim.opencl import build_program
+from gazehdr.sim.layout import gaussian_taps
+from gazehdr.sim.opencl import build_program
 
 KERNEL_FILES = ("common.cl", "sec2_3_3_acuity_baselines.cl")
 

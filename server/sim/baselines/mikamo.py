@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from server.sim.layout import LMS_TO_RGB, RGB_TO_XYZ
-from server.sim.params import Params
-from server.sim.reference import blur2d, retina_input
+from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_XYZ
+from gazehdr.sim.params import Params
+from gazehdr.sim.reference import blur2d, retina_input
 
 SHIPPED_SEQUENCE = "padgham1968.csv"
 COLUMNS = ("t_s", "Y", "x", "y")
@@ -194,7 +194,7 @@ def parse_sequence(text: str, source: str) -> ColourSequence:
 def load_sequence(path: str | Path = "") -> ColourSequence:
     """The sequence in `path`, or the shipped one for "" (Params.mikamo_sequence)."""
     if not str(path):
-        res = resources.files("server.sim") / "data" / SHIPPED_SEQUENCE
+        res = resources.files("gazehdr.sim") / "data" / SHIPPED_SEQUENCE
         return parse_sequence(res.read_text(encoding="utf-8"), f"<shipped {SHIPPED_SEQUENCE}>")
     file = Path(path).expanduser()
     try:

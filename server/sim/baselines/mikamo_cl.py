@@ -8,14 +8,14 @@ from typing import Any
 import numpy as np
 import pyopencl as cl
 
-from server.sim.baselines.mikamo import (
+from gazehdr.sim.baselines.mikamo import (
     LUMINANCE_EPS,
     WHITE_XYZ,
     XYZ_TO_RGB,
     MikamoModel,
 )
-from server.sim.layout import RGB_TO_XYZ
-from server.sim.opencl import build_program
+from gazehdr.sim.layout import RGB_TO_XYZ
+from gazehdr.sim.opencl import build_program
 
 KERNEL_FILES = ("common.cl", "mikamo2012_afterimages.cl")
 

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from server.sim.layout import LMS_TO_RGB, Layout
-from server.sim.params import Params
-from server.sim.reference import blur2d, retina_input
+from gazehdr.sim.layout import LMS_TO_RGB, Layout
+from gazehdr.sim.params import Params
+from gazehdr.sim.reference import blur2d, retina_input
 
 # oRGB (Bratkova et al. 2009, Eq. 1): gamma-encoded R'G'B' -> luma L', C1 (yellow-blue), C2
 # (red-green), before the hue rotation. The inverse is the exact matrix inverse (the paper prints

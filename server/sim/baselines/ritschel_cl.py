@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pyopencl as cl
 
-from server.sim.baselines.ritschel import (
+from gazehdr.sim.baselines.ritschel import (
     ORGB_FROM_RGB,
     RGB_FROM_ORGB,
     RitschelStage,
@@ -20,7 +20,7 @@ from server.sim.baselines.ritschel import (
     saccade_sigma,
     steps,
 )
-from server.sim.opencl import VEC, build_program
+from gazehdr.sim.opencl import VEC, build_program
 
 KERNELS = ("ritschel_input", "ritschel_kinetics", "ritschel_maps")
 

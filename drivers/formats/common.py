@@ -1,0 +1,64 @@
+"""What the importers share: exact decimal times, finite floats, the mean of two eyes, and a
+screen geometry with what a file records put in."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
+from typing import Any
+
+from gazehdr.drivers.samples import EyeSample, ScreenGeometry
+
+
+def decimal_ns(text: str, unit_ns: int) -> int:
+    """A decimal time string in some unit (`unit_ns` ns each) → integer ns, exactly.
+
+    Through `Decimal`, so "2154556.5" ms is 2154556500000 ns with no float rounding.
+    Raises ValueError for anything but a finite number.
+    """
+    try:
+        value = Decimal(text.strip())
+    except InvalidOperation:
+        raise ValueError(f"not a number: {text!r}") from None
+    if not value.is_finite():
+        raise ValueError(f"not a finite number: {text!r}")
+    return int((value * unit_ns).to_integral_value(ROUND_HALF_EVEN))
+
+
+def finite_float(text: str) -> float:
+    """A finite float from text, or ValueError."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"not a finite number: {text!r}")
+    return value
+
+
+def mean_of_eyes(*eyes: EyeSample | None) -> tuple[float, float] | None:
+    """The mean position of the eyes that have one, or None when no eye has."""
+    found = [e for e in eyes if e is not None and math.isfinite(e.x) and math.isfinite(e.y)]
+    if not found:
+        return None
+    return sum(e.x for e in found) / len(found), sum(e.y for e in found) / len(found)
+
+
+def geometry_with(
+    base: ScreenGeometry | None,
+    *,
+    width_px: int | None = None,
+    height_px: int | None = None,
+    diagonal_m: float | None = None,
+    distance_m: float | None = None,
+) -> ScreenGeometry:
+    """`base` (or the defaults) with the values a file recorded put in."""
+    g = base or ScreenGeometry()
+    changes: dict[str, Any] = {}
+    if width_px is not None:
+        changes["screen_width_px"] = int(width_px)
+    if height_px is not None:
+        changes["screen_height_px"] = int(height_px)
+    if diagonal_m is not None:
+        changes["screen_diagonal_m"] = float(diagonal_m)
+    if distance_m is not None:
+        changes["viewing_distance_m"] = float(distance_m)
+    return replace(g, **changes)
