@@ -26,9 +26,10 @@ from fastapi.responses import PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
 from gazehdr.drivers import wire
+from gazehdr.gaze import TrackerFeed
 from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from gazehdr.metrics import Counter, Metrics
-from gazehdr.protocol import Ack, Gaze, ProtocolError, parse_control
+from gazehdr.protocol import Ack, ProtocolError, parse_control
 from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes import Scene
@@ -39,7 +40,6 @@ from gazehdr.sim import Params
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 from gazehdr.viewer import default_web_dir, viewer_files
 
-MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
 CLOSE_POLICY = 1008
 CLOSE_UNAUTHORIZED = 4401
 CLOSE_ORIGIN = 4403
@@ -157,7 +157,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             "status": "ok",
             "sessions": len(hub.sessions),
             "viewers": int(metrics.viewers.value),
-            "trackers": hub.remote.connections,
+            "trackers": hub.trackers.connections,
         }
 
     @app.get("/metrics", response_class=PlainTextResponse)
@@ -285,8 +285,6 @@ def create_app(config: ServerConfig) -> FastAPI:
                 if isinstance(control, Ack):
                     viewer.ack()
                     continue
-                if len(live.controls) >= MAX_PENDING_CONTROLS and not isinstance(control, Gaze):
-                    raise ProtocolError("too many messages; slow down", control.__class__.__name__)
                 live.submit(control)
             except ProtocolError as e:
                 metrics.protocol_errors.inc()
@@ -303,16 +301,14 @@ def create_app(config: ServerConfig) -> FastAPI:
             why = "missing" if not given else "wrong"
             await ws.close(CLOSE_UNAUTHORIZED, f"unauthorized: {why} bearer token")
             return
-        remote = hub.remote
-        remote.connections += 1
-        metrics.trackers.set(remote.connections)
+        hub.trackers.connections += 1
+        metrics.trackers.set(hub.trackers.connections)
         link = _GazeLink(ws, hub, metrics)
         try:
             await link.run()
         finally:
-            remote.connections -= 1
-            metrics.trackers.set(remote.connections)
-            hub.broadcast(_tracker_note(hub))
+            hub.trackers.connections -= 1
+            link.close()
 
     app.mount("/", StaticFiles(directory=web_dir, html=True), name="web")
     return app
@@ -334,16 +330,6 @@ async def _upload_body(name: str, request: Request, cap: int) -> list[bytes]:
             raise HTTPException(413, f"upload is over the {cap}-byte limit")
         chunks.append(chunk)
     return chunks
-
-
-def _tracker_note(hub: SessionHub) -> dict[str, Any]:
-    r = hub.remote
-    return {
-        "type": "tracker",
-        "connected": r.connections > 0,
-        "name": r.tracker,
-        "samples": r.samples,
-    }
 
 
 class _Limiter:
@@ -375,7 +361,9 @@ class _Limiter:
 
 
 class _GazeLink:
-    """One daemon connection: follows its fixations (or raw samples if it sends no events)."""
+    """One daemon connection: its tracker's feed follows the daemon's fixations (or its raw
+    samples, if it sends no events). The feed is the tracker its hello names; a daemon that
+    sends gaze before any hello is an unnamed tracker."""
 
     def __init__(self, ws: WebSocket, hub: SessionHub, metrics: Metrics) -> None:
         self.ws, self.hub, self.metrics = ws, hub, metrics
@@ -386,6 +374,7 @@ class _GazeLink:
         }
         self.uses_events = False
         self.said_hello = False
+        self.feed: TrackerFeed | None = None
         self.hold_s = 0.0  # how long to stop reading, after a message that went over a limit
 
     async def run(self) -> None:
@@ -414,6 +403,13 @@ class _GazeLink:
                 await asyncio.sleep(self.hold_s)
                 self.hold_s = 0.0
 
+    def close(self) -> None:
+        """The connection ended: its tracker is no longer connected; the viewers are told."""
+        self.metrics.trackers.set(self.hub.trackers.connections)
+        if self.feed is not None:
+            self.hub.trackers.disconnect(self.feed)
+            self._tell_viewers(self.feed)
+
     def handle(self, msg: wire.Message, now: float) -> wire.Reply | None:
         if isinstance(msg, wire.Hello):
             return self._hello(msg)
@@ -435,21 +431,37 @@ class _GazeLink:
         if self.said_hello:
             raise wire.WireError("hello: this connection has said hello already")
         self.said_hello = True
-        self.hub.remote.tracker = msg.tracker or "unnamed tracker"
-        self.hub.broadcast(_tracker_note(self.hub))
+        if self.feed is not None:  # gaze came first, as an unnamed tracker: that one ends
+            self.close()
+        self.feed = self._connect(msg.tracker)
         return wire.Welcome(wire.PROTOCOL)
+
+    def _connect(self, name: str | None) -> TrackerFeed:
+        feed = self.hub.trackers.connect(name)
+        self._tell_viewers(feed)
+        return feed
+
+    def _tell_viewers(self, feed: TrackerFeed) -> None:
+        self.hub.broadcast({"type": "tracker", **feed.describe()})
+
+    def _tracker(self) -> TrackerFeed:
+        if self.feed is None:
+            self.feed = self._connect(None)
+        return self.feed
 
     def _event(self, msg: wire.Event, now: float) -> None:
         self.uses_events = True
+        self._tracker().events += 1
         if msg.kind in ("fixation_start", "fixation_update"):
-            self.hub.remote.update(msg.x, msg.y, True, now)
+            self._tracker().fixate(msg.x, msg.y, True, now)
         elif msg.kind in ("blink_start", "blink_end"):
-            self.hub.remote.update(None, None, msg.kind == "blink_end", now)
+            self._tracker().fixate(None, None, msg.kind == "blink_end", now)
 
     def _samples(self, samples: tuple[wire.Sample, ...], now: float) -> None:
         self.metrics.gaze_samples.inc(len(samples))
-        self.hub.remote.samples += len(samples)
+        feed = self._tracker()
+        feed.samples += len(samples)
         if not self.uses_events:
             valid = [s for s in samples if s.valid]
             if valid:
-                self.hub.remote.update(valid[-1].x, valid[-1].y, True, now)
+                feed.fixate(valid[-1].x, valid[-1].y, True, now)

@@ -218,10 +218,11 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--gaze",
-        choices=("mouse", "synthetic", "remote"),
         default="mouse",
-        help="gaze of new sessions: the viewer's pointer, a seeded scan path, or the gaze "
-        "daemon (default: mouse)",
+        metavar="SOURCE",
+        help="gaze of new sessions: mouse (the viewer's pointer), synthetic (a seeded scan "
+        "path), remote:TRACKER (the gaze daemon whose hello names TRACKER), or remote (the "
+        "tracker, once exactly one is connected) (default: mouse)",
     )
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
     p.add_argument(

@@ -21,14 +21,16 @@ from datetime import datetime, timezone
 from typing import Any
 
 from gazehdr.drivers.sessionlog import SessionLogWriter
+from gazehdr.gaze import Trackers
 from gazehdr.metrics import Metrics
-from gazehdr.protocol import Control
+from gazehdr.protocol import Control, ProtocolError
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.library import SceneLibrary
-from gazehdr.session import Frame, RemoteGaze, Session, SessionSettings
+from gazehdr.session import Frame, Session, SessionSettings
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
+MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
 WINDOW = 2  # frames in flight to a viewer that acks: one being drawn, one on the way
 MAX_IDLE_S = 0.5  # a session steps at least this often, even when no viewer takes frames
 DEMAND_POLL_S = 0.002
@@ -179,7 +181,14 @@ class LiveSession:
         self.log = None
 
     def submit(self, control: Control) -> None:
-        self.controls.append((control, time.monotonic()))
+        """Queue `control` for the next step; the pointer and the eyes go straight to the
+        session's pointer, never waiting behind other controls (each step reads the newest)."""
+        now = time.monotonic()
+        if self.session.pointer.take(control, now):
+            return
+        if len(self.controls) >= MAX_PENDING_CONTROLS:
+            raise ProtocolError("too many messages; slow down", control.__class__.__name__)
+        self.controls.append((control, now))
 
     def broadcast(self, note: dict[str, Any]) -> None:
         for viewer in self.viewers:
@@ -224,7 +233,7 @@ class LiveSession:
 
 
 class SessionHub:
-    """All live sessions of a server, by id, plus the shared remote gaze."""
+    """All live sessions of a server, by id, and the gaze daemons' trackers they may follow."""
 
     def __init__(
         self,
@@ -240,7 +249,7 @@ class SessionHub:
         self.scenes = scenes
         self.recordings = recordings or RecordingLibrary(None)
         self.metrics = metrics
-        self.remote = RemoteGaze()
+        self.trackers = Trackers()
         self.sessions: dict[str, LiveSession] = {}
         self.grace_s = grace_s
         self.max_sessions = max_sessions
@@ -255,8 +264,9 @@ class SessionHub:
                 raise TooManySessionsError(f"the server already runs {self.max_sessions} sessions")
             new_id = secrets.token_urlsafe(9)
             session = await asyncio.to_thread(
-                Session, new_id, self.settings, self.scenes, self.remote, self.recordings
-            )
+                Session, new_id, self.settings, self.scenes, clock=time.perf_counter,
+                trackers=self.trackers, recordings=self.recordings,
+            )  # fmt: skip
             recording = (
                 await asyncio.to_thread(self._record, session) if session.recording else None
             )

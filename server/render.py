@@ -7,6 +7,8 @@ advances by exactly `1/fps` per frame, never by the wall clock.
 A recorded viewing session (`gazehdr serve --record`) also changed its scene, parameters and
 models and reset the eye as it ran; `recorded_changes` reads those from its log and `render`
 makes each before the first step that ends at or after its time, as the live session did.
+The eye steps exactly as a live session's does (`gazehdr.eye.Eye`, one pane), so a recorded
+session renders to the frames it showed.
 """
 
 from __future__ import annotations
@@ -28,10 +30,11 @@ from gazehdr.apng import ApngWriter
 from gazehdr.dither import dither8
 from gazehdr.drivers.samples import GazeTrack
 from gazehdr.drivers.sessionlog import SessionLog
+from gazehdr.eye import Eye
 from gazehdr.scenes import Scene
 from gazehdr.scenes.exr import write_exr
 from gazehdr.scenes.library import SceneLibrary
-from gazehdr.sim import Params, Simulator
+from gazehdr.sim import Params
 from gazehdr.sim.layout import check_frame_size
 from gazehdr.sim.models import Models
 
@@ -167,7 +170,11 @@ def render(
         params = Params.from_dict(params.to_dict() | first.params) if first.params else params
         models = first.models or models
     # Before touching the directory: a model or backend that cannot be built leaves it alone.
-    sim = _simulator(width, height, params, models, backend, seed)
+    x, y, eyes_open = track.at(0.0)
+    eye = Eye(
+        scene, (width, height), params, [models], backend=backend, seed=seed, gaze=(x, y),
+        eyes_open=eyes_open,
+    )  # fmt: skip
     out_dir = Path(out_dir)
     _prepare_out_dir(out_dir, overwrite)
     dither_rng = np.random.default_rng([seed, 1])
@@ -175,7 +182,6 @@ def render(
     digits = max(5, len(str(n - 1)))
     dt = 1.0 / fps
 
-    loaded: object = None
     with contextlib.ExitStack() as stack:
         movie = None
         if video:
@@ -185,29 +191,9 @@ def render(
         for i in tqdm(range(n), desc=scene.name, unit="frame", disable=not progress):
             t = i / fps
             x, y, eyes_open = track.at(t)
-            gaze = (x * width, y * height)
-            if i == 0:
-                sim.start(scene.render(t, width, height), gaze, eyes_open)
-                loaded = scene.state_at(t)
             while pending and pending[0].t_ns <= round(t * 1e9):  # as SessionTrack.at counts
-                change = pending.popleft()
-                now = sim.time  # as live: a change is made before the step it drives
-                if change.scene is not None:
-                    scene = change.scene
-                    sim.load_scene(scene.render(now, width, height), reset=True)
-                    loaded = scene.state_at(now)
-                if change.params is not None or change.models is not None:
-                    if change.params is not None:
-                        params = Params.from_dict(params.to_dict() | change.params)
-                    models = change.models or models
-                    old, sim = sim, _simulator(width, height, params, models, backend, seed)
-                    sim.start(scene.render(now, width, height), gaze, eyes_open, continue_from=old)
-                if change.reset:
-                    sim.reset()
-            if i and scene.animated and scene.state_at(t) != loaded:
-                sim.load_scene(scene.render(t, width, height), reset=False)
-                loaded = scene.state_at(t)
-            v = sim.step(dt if i else 0.0, gaze=gaze, eyes_open=eyes_open)
+                eye = _make(pending.popleft(), eye, (x, y), eyes_open)  # before the step it drives
+            (v,) = eye.step(dt if i else 0.0, (x, y), eyes_open)
             stem = out_dir / f"frame_{i:0{digits}d}"
             rgb = dither8(v, dither_rng)
             Image.fromarray(rgb).save(stem.with_suffix(".png"), compress_level=PNG_COMPRESS_LEVEL)
@@ -218,10 +204,16 @@ def render(
     return RenderSummary(n, out_dir, time.perf_counter() - started)
 
 
-def _simulator(
-    width: int, height: int, params: Params, models: Models, backend: str, seed: int
-) -> Simulator:
-    return Simulator(
-        width, height, params=params, backend=backend, seed=seed,
-        afterimage=models.afterimage, acuity=models.acuity,
-    )  # fmt: skip
+def _make(change: Change, eye: Eye, gaze: tuple[float, float], eyes_open: bool) -> Eye:
+    """`eye` after a recorded `change`, made as the live session made it."""
+    if change.scene is not None:
+        eye.look_at(change.scene)
+    if change.params is not None or change.models is not None:
+        params = eye.params
+        if change.params is not None:
+            params = Params.from_dict(params.to_dict() | change.params)
+        panes = [change.models] if change.models is not None else eye.panes
+        eye = eye.rebuilt(gaze, eyes_open, params=params, panes=panes)
+    if change.reset:
+        eye.reset()
+    return eye

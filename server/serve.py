@@ -12,10 +12,11 @@ from pathlib import Path
 import uvicorn
 
 from gazehdr.app import ServerConfig, create_app
+from gazehdr.gaze import is_tracker_source
 from gazehdr.protocol import Encoding
 from gazehdr.scenes import builtin_names
 from gazehdr.scenes.exr import ExrScene
-from gazehdr.session import SessionSettings
+from gazehdr.session import GAZE_SOURCES, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.layout import check_frame_size
 from gazehdr.sim.models import Models
@@ -52,6 +53,10 @@ def build_config(
     if not 0 <= port <= 65535:
         raise ValueError(f"port must be in [0, 65535], got {port}")
     check_frame_size(*size)
+    if gaze not in GAZE_SOURCES and not is_tracker_source(gaze):
+        raise ValueError(
+            f"gaze source {gaze!r}: choose {', '.join(GAZE_SOURCES)} or remote:TRACKER"
+        )
     model = Models(afterimage, acuity)  # unknown names: a ValueError listing the choices
     right = Models.parse(split) if split else None  # the right pane's, in split view
     params = Params()

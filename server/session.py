@@ -4,8 +4,11 @@ In split view the session runs two simulators, one per half of the frame, with t
 gaze and steps and a model each, so two models can be compared side by side.
 
 `Session` is synchronous and knows no sockets and no clock: the caller passes the elapsed
-time and the control messages that arrived, and gets back an encoded frame plus the JSON
-messages to tell the viewers. `gazehdr.live` runs it on a thread at real time.
+time, the control messages that arrived and a clock to time the step with, and gets back an
+encoded frame plus the JSON messages to tell the viewers. `gazehdr.live` runs it on a thread at
+real time. Its gaze comes through one `gazehdr.gaze.GazeInput`, read once per step: the
+viewer's pointer (`pointer`, which the caller writes), a tracker, or a track. The simulated eye
+and its stepping are `gazehdr.eye.Eye`'s, shared with offline rendering.
 
 A session that records keeps a journal of session-log records (drivers/sessionlog.py) for its
 caller to write: the scene, parameters and models it ran with and every change to them, resets,
@@ -18,24 +21,32 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import EllipsisType
 from typing import Any
 
-import numpy as np
-
 from gazehdr.drivers import sessionlog
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.tracks import open_track
+from gazehdr.eye import Eye, side_by_side
+from gazehdr.gaze import (
+    REMOTE,
+    REMOTE_PREFIX,
+    GazeInput,
+    GazeReading,
+    LatestGaze,
+    PointerGaze,
+    Trackers,
+    TrackGaze,
+    is_tracker_source,
+)
 from gazehdr.protocol import (
     SIM_OUTPUT,
     Choose,
     Control,
     Encoding,
-    Eyes,
     FrameHeader,
-    Gaze,
     ModelChange,
     ModelPick,
     ParamChange,
@@ -45,14 +56,13 @@ from gazehdr.protocol import (
     payload,
 )
 from gazehdr.recordings import RecordingLibrary
-from gazehdr.scenes import Scene
 from gazehdr.scenes.library import SceneLibrary
-from gazehdr.sim import Geometry, Params, Simulator
+from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 
-GAZE_SOURCES = ("mouse", "synthetic", "remote")
+GAZE_SOURCES = ("mouse", "synthetic", REMOTE)
 #: A stalled server steps the eye by at most this much at once (s), so it never leaps.
 MAX_FRAME_DT = 1.0
 SYNTHETIC_LOOP_S = 600.0  # the synthetic scan path repeats after this long
@@ -81,27 +91,6 @@ class SessionSettings:
     record: bool = False
 
 
-@dataclass
-class RemoteGaze:
-    """The latest gaze from the gaze daemons, shared by every session that follows them."""
-
-    x: float = 0.5
-    y: float = 0.5
-    eyes_open: bool = True
-    seq: int = 0  # bumps on every update, so a session can tell a new one
-    received_at: float = 0.0  # time.monotonic() of the update
-    tracker: str | None = None
-    connections: int = 0
-    samples: int = 0
-
-    def update(self, x: float | None, y: float | None, eyes_open: bool, now: float) -> None:
-        if x is not None and y is not None:
-            self.x, self.y = x, y
-        self.eyes_open = eyes_open
-        self.seq += 1
-        self.received_at = now
-
-
 @dataclass(frozen=True)
 class Frame:
     header: FrameHeader
@@ -126,52 +115,42 @@ def fit_size(budget: tuple[int, int], viewport: tuple[int, int]) -> tuple[int, i
     return (min(max(w, MIN_SIZE), MAX_SIZE[0]), min(max(h, MIN_SIZE), MAX_SIZE[1]))
 
 
-def pane_params(params: Params, width: int, pane_width: int) -> Params:
-    """`params` for a pane `pane_width` px wide of a frame `width` px wide. A pane is that part
-    of the screen, not a whole screen: its pixels keep their size and so the frame's pixels per
-    degree (blurs, the fovea and the retina's cells cover the angles the viewer sees), and two
-    half-width panes cost what one whole frame does."""
-    g = params.geometry
-    pitch = g.screen_diagonal_m / math.hypot(g.screen_width_px, g.screen_height_px)
-    covered = max(1, round(g.screen_width_px * pane_width / width))  # screen px of the pane
-    diagonal = pitch * math.hypot(covered, g.screen_height_px)
-    geometry = Geometry(diagonal, covered, g.screen_height_px, g.viewing_distance_m)
-    return dataclasses.replace(params, geometry=geometry)
-
-
 class Session:
+    """One viewing. `clock` (monotonic seconds) times the steps for the metrics and the frame
+    header; `trackers` are the server's gaze daemons, which a session may follow."""
+
     def __init__(
         self,
         session_id: str,
         settings: SessionSettings,
         scenes: SceneLibrary,
-        remote: RemoteGaze,
+        *,
+        clock: Callable[[], float],
+        trackers: Trackers | None = None,
         recordings: RecordingLibrary | None = None,
     ) -> None:
         self.id = session_id
         self.settings = settings
         self.scenes = scenes
-        self.remote = remote
+        self.clock = clock
+        self.trackers = trackers or Trackers()
         self.recordings = recordings or RecordingLibrary(None)
-        self.size = (settings.width, settings.height)
-        self.params = settings.params
-        self.gaze_source = settings.gaze_source
-        self.model = settings.model
-        self.split = settings.split
         self.scene_name = settings.scene
-        self.scene: Scene = scenes.open(settings.scene)
         self.frame = 0
-        self.gaze = (0.5, 0.5)  # fractions of the frame
-        self.gaze_seq = 0
-        self.eyes_open = True
-        self._new_gaze_at: float | None = None
-        self._remote_seq = -1
-        self._track = None
-        self._track_start = 0.0
-        if self.split is not None:
-            self._check_split_width(self.size)
-        #: One simulator per pane: the whole frame, or the left and right halves in split view.
-        self.sims = self._new_simulators(self._pane_models())
+        #: The viewer's pointer; its caller writes it (from any thread: readings are swapped).
+        self.pointer = PointerGaze()
+        self.gaze_source = settings.gaze_source
+        self._input = self._open_gaze(settings.gaze_source, 0.0, GazeReading())
+        self.reading = self._input.at(0.0)  # the gaze the last step followed
+        panes = [settings.model] if settings.split is None else [settings.model, settings.split]
+        size = (settings.width, settings.height)
+        if settings.split is not None:
+            _check_split_width(size)
+        self.eye = Eye(
+            scenes.open(settings.scene), size, settings.params, panes,
+            backend=settings.backend, seed=settings.seed, gaze=self.gaze,
+            eyes_open=self.reading.eyes_open,
+        )  # fmt: skip
         # The journal: records not yet taken, the time the next ones carry (ns, the end of the
         # coming step), and what it last said of the gaze and eyes.
         self._journal: list[sessionlog.Record] | None = [] if settings.record else None
@@ -184,14 +163,39 @@ class Session:
         self._log_params(Params())
         self._log(sessionlog.Note(0, f"gaze source {self.gaze_source}"))
 
+    # --- what the eye is doing -------------------------------------------------------------
+
     @property
     def sim(self) -> Simulator:
         """The simulator of the whole frame, or of the left pane in split view."""
-        return self.sims[0]
+        return self.eye.sims[0]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.eye.size
+
+    @property
+    def params(self) -> Params:
+        return self.eye.params
+
+    @property
+    def model(self) -> Models:
+        return self.eye.panes[0]
+
+    @property
+    def split(self) -> Models | None:
+        """The right pane's model in split view, else None."""
+        return self.eye.panes[1] if len(self.eye.panes) == 2 else None
+
+    @property
+    def gaze(self) -> tuple[float, float]:
+        """The gaze the last step followed, as fractions of the frame."""
+        return (self.reading.x, self.reading.y)
 
     # --- what the viewers are told ------------------------------------------------------------
 
     def state(self) -> dict[str, Any]:
+        trackers = self.trackers.describe()
         return {
             "scene": self.scene_name,
             "scenes": self.scenes.names(),
@@ -199,7 +203,12 @@ class Session:
             "split": None if self.split is None else _names(self.split),
             "models": {"afterimage": list(AFTERIMAGE_MODELS), "acuity": list(ACUITY_MODELS)},
             "gaze_source": self.gaze_source,
-            "gaze_sources": [*GAZE_SOURCES, *(f"replay:{n}" for n in self.recordings.names())],
+            "gaze_sources": [
+                *GAZE_SOURCES,
+                *(REMOTE_PREFIX + t["name"] for t in trackers),
+                *(f"replay:{n}" for n in self.recordings.names()),
+            ],
+            "trackers": trackers,
             "width": self.size[0],
             "height": self.size[1],
             "fps": self.settings.fps,
@@ -258,28 +267,21 @@ class Session:
         changed = False
         dt = min(max(dt, 0.0), MAX_FRAME_DT)
         self._now_ns = round((self.sim.time + dt) * 1e9)
-        for control, received_at in controls:
+        for control, _received_at in controls:
             try:
-                changed |= self.apply(control, received_at)
+                changed |= self.apply(control)
             except (ValueError, TypeError, OSError) as e:  # ProtocolError is a ValueError
                 notes.append({"type": "error", "message": str(e), "in": _type_of(control)})
+        changed |= self._bind_remote()
         if changed:
             notes.append({"type": "state", **self.state()})
         return self._advance(dt), notes
 
-    def apply(self, control: Control, received_at: float = 0.0) -> bool:
-        """One control message; True when the viewers' `state` changed."""
-        if isinstance(control, Gaze):
-            if self.gaze_source == "mouse":
-                self.gaze, self.gaze_seq = (control.x, control.y), control.seq
-                self._new_gaze_at = received_at
-            return False
-        if isinstance(control, Eyes):
-            self.eyes_open = control.open
-            return False
+    def apply(self, control: Control) -> bool:
+        """One control message; True when the viewers' `state` changed. (The pointer and the
+        eyes are not controls: they reach the session through `pointer`.)"""
         if isinstance(control, Reset):
-            for sim in self.sims:
-                sim.reset()
+            self.eye.reset()
             self._log(sessionlog.EyeReset(self._now_ns))
             return False
         if isinstance(control, Viewport):
@@ -290,11 +292,11 @@ class Session:
             if size == self.size:
                 return False
             # Too narrow for two panes: one model again, and the state tells the viewers.
-            split = self.split if size[0] >= 2 * MIN_SIZE else None
-            had = (self.model, self.split)
-            self._rebuild(size=size, split=split)
+            panes = self.eye.panes if size[0] >= 2 * MIN_SIZE else self.eye.panes[:1]
+            had = self.eye.panes
+            self._rebuild(size=size, panes=panes)
             self._log(sessionlog.Note(self._now_ns, f"frame {size[0]}x{size[1]}"))
-            if (self.model, self.split) != had:
+            if self.eye.panes != had:
                 self._log_models()
             return True
         if isinstance(control, ParamChange):
@@ -307,21 +309,41 @@ class Session:
 
     # --- internals ----------------------------------------------------------------------------
 
+    def _open_gaze(self, name: str, t: float, holding: GazeReading) -> GazeInput:
+        """The input for gaze source `name`: a track starts at simulation time `t`; `remote`
+        holds the gaze at `holding` until it is bound. An unknown name is a ValueError listing
+        the choices."""
+        if name == "mouse":
+            return self.pointer
+        if is_tracker_source(name):
+            return self.trackers.feed(name.removeprefix(REMOTE_PREFIX))
+        if name == REMOTE:  # bound to a tracker by `_bind_remote`; until then the gaze holds
+            return LatestGaze(holding)
+        if name == "synthetic":
+            track = open_track("synthetic", seed=self.settings.seed, duration=SYNTHETIC_LOOP_S)
+            return TrackGaze(track, 0.0, SYNTHETIC_LOOP_S)
+        if name.startswith("replay:"):
+            track = self.recordings.track(name.removeprefix("replay:"))
+            return TrackGaze(track, t, getattr(track, "duration", SYNTHETIC_LOOP_S))
+        known = ", ".join([*GAZE_SOURCES, REMOTE_PREFIX + "TRACKER", "replay:NAME"])
+        raise ValueError(f"unknown gaze source {name!r}; available: {known}")
+
+    def _bind_remote(self) -> bool:
+        """`remote` follows the tracker once exactly one is connected (see gazehdr.gaze)."""
+        if self.gaze_source != REMOTE or (feed := self.trackers.sole_connected()) is None:
+            return False
+        self.gaze_source, self._input = REMOTE_PREFIX + feed.name, feed
+        self._log(sessionlog.Note(self._now_ns, f"gaze source {self.gaze_source}"))
+        return True
+
     def _choose(self, what: str, name: str) -> bool:
         if what == "scene":
-            self.scene = self.scenes.open(name)
+            scene = self.scenes.open(name)
+            self.eye.look_at(scene)
             self.scene_name = name
-            self._load_scene(reset=True)
             self._log(sessionlog.SceneChange(self._now_ns, name))
             return True
-        if name.startswith("replay:"):
-            self._track = self.recordings.track(name.removeprefix("replay:"))
-            self._track_start = self.sim.time
-        elif name in GAZE_SOURCES:
-            self._track = None
-        else:
-            known = ", ".join([*GAZE_SOURCES, "replay:NAME"])
-            raise ValueError(f"unknown gaze source {name!r}; available: {known}")
+        self._input = self._open_gaze(name, self.sim.time, self.reading)
         self.gaze_source = name
         self._log(sessionlog.Note(self._now_ns, f"gaze source {name}"))
         return True
@@ -352,25 +374,18 @@ class Session:
         else:  # a part not named follows the pane's current model, or the left one's
             right = _merge(self.split or model, split)
         if right is not None:
-            self._check_split_width(self.size)
-        if (model, right) == (self.model, self.split):
+            _check_split_width(self.size)
+        panes = (model,) if right is None else (model, right)
+        if panes == self.eye.panes:
             return False
-        self._rebuild(model=model, split=right)
+        self._rebuild(panes=panes)
         self._log_models()
         return True
 
     def _rebuild(self, **changes: Any) -> None:
-        """Set `changes` (size, params, model, split) and new simulators for them, continuing
-        the eye; if a simulator cannot be built, nothing changes."""
-        before = {name: getattr(self, name) for name in changes}
-        for name, value in changes.items():
-            setattr(self, name, value)
-        try:
-            self.sims = self._new_simulators(self._pane_models(), keep_from=self.sims)
-        except Exception:
-            for name, value in before.items():
-                setattr(self, name, value)
-            raise
+        """A new eye with `changes` (size, params, panes), continuing this one; if it cannot
+        be built, nothing changes."""
+        self.eye = self.eye.rebuilt(self.gaze, self.reading.eyes_open, **changes)
 
     def _log(self, record: sessionlog.Record) -> None:
         if self._journal is not None:
@@ -394,131 +409,42 @@ class Session:
         terms (a pane's, in split view), as a sample in `log_screen` pixels and one fixation."""
         if self._journal is None:  # every step: nothing to work out unless it is kept
             return
-        panes = len(self.sims)
-        (gx, gy), (w, h) = self._pane_gaze(panes), self._pane_size(panes)
+        (gx, gy), (w, h) = self.eye.pane_gaze(self.gaze), self.eye.pane_size
         point = (
             gx / w * self.log_screen.screen_width_px,
             gy / h * self.log_screen.screen_height_px,
         )
         last_point, last_eyes = self._journaled
+        eyes_open = self.reading.eyes_open
         t = self._now_ns
         if point != last_point:
             self._fixations += 1
             self._log(GazeSample(t, *point))
             self._log(sessionlog.GazeEvent("fixation_start", self._fixations, t, *point))
-        if self.eyes_open != last_eyes:
-            self._blinks += not self.eyes_open
-            kind = "blink_end" if self.eyes_open else "blink_start"
+        if eyes_open != last_eyes:
+            self._blinks += not eyes_open
+            kind = "blink_end" if eyes_open else "blink_start"
             self._log(sessionlog.GazeEvent(kind, self._blinks, t))
-        self._journaled = (point, self.eyes_open)
-
-    def _pane_models(self) -> list[Models]:
-        return [self.model] if self.split is None else [self.model, self.split]
-
-    @staticmethod
-    def _check_split_width(size: tuple[int, int]) -> None:
-        if size[0] < 2 * MIN_SIZE:
-            raise ValueError(f"a frame {size[0]} px wide is too narrow for split view")
-
-    def _pane_size(self, panes: int) -> tuple[int, int]:
-        """Pixels of one pane: the frame, or half of it (an odd last column stays black)."""
-        return (self.size[0] // panes, self.size[1])
-
-    def _pane_gaze(self, panes: int) -> tuple[float, float]:
-        """The gaze in one pane's pixels. In split view the pointer (or tracker) over either
-        half looks at the same point of the scene: x - pane width over the right half; a gaze
-        left or right of the screen stays off the pane on that side."""
-        w, h = self._pane_size(panes)
-        x = self.gaze[0] * self.size[0]
-        return (x - w if panes == 2 and x >= w else x, self.gaze[1] * h)
-
-    def _new_simulators(
-        self, panes: list[Models], keep_from: list[Simulator] | None = None
-    ) -> list[Simulator]:
-        """A settled simulator per pane, each continuing the eye of the old pane at its place
-        (a new right pane continues the left one); the scene as it is at that time."""
-        s = self.settings
-        w, h = self._pane_size(len(panes))
-        params = pane_params(self.params, self.size[0], w)
-        gaze = self._pane_gaze(len(panes))
-        t = keep_from[0].time if keep_from else 0.0
-        frame = self.scene.render(t, w, h)
-        sims = []
-        for i, model in enumerate(panes):
-            try:
-                sim = Simulator(
-                    w, h, params=params, backend=s.backend, seed=s.seed,
-                    afterimage=model.afterimage, acuity=model.acuity,
-                )  # fmt: skip
-            except ImportError as e:  # a baseline that is not part of this installation
-                raise ValueError(f"model {model} is not available: {e}") from None
-            old = keep_from[min(i, len(keep_from) - 1)] if keep_from else None
-            sim.start(frame, gaze, self.eyes_open, continue_from=old)
-            sims.append(sim)
-        self._loaded = self.scene.state_at(t)
-        return sims
-
-    def _load_scene(self, reset: bool) -> None:
-        t = self.sim.time
-        self._loaded = self.scene.state_at(t)
-        frame = self.scene.render(t, *self._pane_size(len(self.sims)))
-        for sim in self.sims:
-            sim.load_scene(frame, reset=reset)
-
-    def _sync_scene(self) -> None:
-        """Load the scene as it is at the simulators' time, if that differs from what they see."""
-        if self.scene.animated and self.scene.state_at(self.sim.time) != self._loaded:
-            self._load_scene(reset=False)
-
-    def _current_gaze(self) -> bool:
-        """Update gaze and eyes from the session's source; True when it came from a tracker."""
-        if self.gaze_source == "remote":
-            r = self.remote
-            self.gaze, self.eyes_open = (r.x, r.y), r.eyes_open
-            if r.seq != self._remote_seq:
-                self._remote_seq, self._new_gaze_at = r.seq, r.received_at
-            return True
-        if self.gaze_source == "synthetic" and self._track is None:
-            seed = self.settings.seed
-            self._track = open_track("synthetic", seed=seed, duration=SYNTHETIC_LOOP_S)
-            self._track_start = 0.0
-        if self._track is None:
-            return False
-        # Tracks loop: a recording replays from where it was chosen, over and over.
-        length = max(getattr(self._track, "duration", SYNTHETIC_LOOP_S), 1e-3)
-        x, y, self.eyes_open = self._track.at((self.sim.time - self._track_start) % length)
-        self.gaze = (x, y)
-        return True
+        self._journaled = (point, eyes_open)
 
     def _advance(self, dt: float) -> Frame:
-        started = time.perf_counter()
-        tracker = self._current_gaze()
+        started = self.clock()
+        previous, self.reading = self.reading, self._input.at(self.sim.time)
+        new_gaze_at = self.reading.received_at
+        if new_gaze_at == previous.received_at:
+            new_gaze_at = None
         self._log_gaze()
-        sim, (w, h) = self.sim, self.size
-        gaze = self._pane_gaze(len(self.sims))
-        # Split the step where the scene changes: a flash shorter than a frame is seen for
-        # exactly its duration, never skipped nor stretched to the whole frame. All panes
-        # take the same steps.
-        end = sim.time + dt
-        while (change := self.scene.next_change(sim.time)) is not None and change < end:
-            step = change - sim.time
-            for pane in self.sims:
-                pane.step(step, gaze=gaze, eyes_open=self.eyes_open)
-            self._sync_scene()
-        self._sync_scene()
-        encoding = self.settings.encoding
-        step = max(0.0, end - sim.time)
-        outs = [
-            pane.step(step, gaze=gaze, eyes_open=self.eyes_open, output=SIM_OUTPUT[encoding])
-            for pane in self.sims
-        ]
-        stepped = time.perf_counter()
-        data = payload(_side_by_side(outs, w))  # the device already encoded each pane
-        encoded = time.perf_counter()
+        eyes_open = self.reading.eyes_open
+        outs = self.eye.step(dt, self.gaze, eyes_open, SIM_OUTPUT[self.settings.encoding])
+        stepped = self.clock()
+        w, h = self.size
+        data = payload(side_by_side(outs, w))  # the device already encoded each pane
+        encoded = self.clock()
+        sim = self.sim
         gx, gy = sim.gaze
         header = FrameHeader(
             frame=self.frame,
-            gaze_seq=self.gaze_seq,
+            gaze_seq=self.reading.seq,
             time=sim.time,
             gaze_x=gx / w,
             gaze_y=gy / h,
@@ -527,14 +453,18 @@ class Session:
             width=w,
             height=h,
             encoding=self.settings.encoding,
-            eyes_open=self.eyes_open,
-            tracker=tracker,
+            eyes_open=eyes_open,
+            tracker=self._input is not self.pointer,
             server_ms=(encoded - started) * 1e3,
-            split=len(self.sims) == 2,
+            split=len(self.eye.sims) == 2,
         )
         self.frame += 1
-        new_gaze_at, self._new_gaze_at = self._new_gaze_at, None
         return Frame(header, data, stepped - started, encoded - stepped, new_gaze_at)
+
+
+def _check_split_width(size: tuple[int, int]) -> None:
+    if size[0] < 2 * MIN_SIZE:
+        raise ValueError(f"a frame {size[0]} px wide is too narrow for split view")
 
 
 def _names(model: Models) -> dict[str, str]:
@@ -546,25 +476,12 @@ def _merge(model: Models, pick: ModelPick) -> Models:
     return Models(pick.afterimage or model.afterimage, pick.acuity or model.acuity)
 
 
-def _side_by_side(panes: list[np.ndarray], width: int) -> np.ndarray:
-    """The encoded panes next to each other in a frame `width` px wide (one pane: as it is)."""
-    if len(panes) == 1:
-        return panes[0]
-    first = panes[0]
-    frame = np.zeros((first.shape[0], width, *first.shape[2:]), first.dtype)  # 0 is black
-    w = first.shape[1]
-    for i, pane in enumerate(panes):
-        frame[:, i * w : (i + 1) * w] = pane
-    return frame
-
-
 def _type_of(control: Control) -> str:
     if isinstance(control, Choose):
         return control.what
     return {
-        Viewport: "viewport", Gaze: "gaze", Eyes: "eyes", ModelChange: "model",
-        ParamChange: "params", Reset: "reset",
+        Viewport: "viewport", ModelChange: "model", ParamChange: "params", Reset: "reset",
     }.get(type(control), "unknown")  # fmt: skip
 
 
-__all__ = ["GAZE_SOURCES", "Frame", "RemoteGaze", "Session", "SessionSettings", "pane_params"]
+__all__ = ["GAZE_SOURCES", "Frame", "Session", "SessionSettings"]

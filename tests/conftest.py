@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 
 from gazehdr.app import ServerConfig
+from gazehdr.gaze import TrackerFeed
 from gazehdr.serve import BackgroundServer
 from gazehdr.session import SessionSettings
 
@@ -39,3 +40,14 @@ def live_server(tmp_path: Path) -> Iterator[Callable[..., BackgroundServer]]:
     yield start
     for live in started:
         live.stop()
+
+
+def sole_tracker(server: BackgroundServer) -> TrackerFeed:
+    """The one tracker a test's daemon streamed to `server` as."""
+    (feed,) = server.hub.trackers.feeds()
+    return feed
+
+
+def samples_received(server: BackgroundServer) -> int:
+    """Samples `server` received from its daemons so far (0 before any has connected)."""
+    return sum(feed.samples for feed in server.hub.trackers.feeds())

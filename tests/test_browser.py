@@ -437,6 +437,42 @@ def test_pointer_moves_the_gaze(live_server, open_viewer) -> None:
     assert h["gaze_x"] < 0 or h["gaze_y"] < 0
 
 
+def test_panel_lists_the_connected_trackers_and_follows_the_one_chosen(
+    live_server, open_viewer
+) -> None:
+    """A gaze daemon connects after the page opened: the panel offers its tracker, choosing it
+    makes the session follow its fixations (the pointer no longer moves the gaze), and the HUD
+    names it."""
+    from websockets.sync.client import connect
+
+    W, H = 320, 176
+    srv = live_server(scene="lamp", size=(W, H), token="t")
+    viewer = open_viewer(srv.url, W, H)
+    viewer.page.keyboard.press("p")
+    options = "() => [...document.querySelectorAll('#source-select option')].map(o => o.value)"
+    assert "remote:bench rig" not in viewer.js(options)
+    auth = {"Authorization": "Bearer t"}
+    with connect(srv.ws_url + "/ws/gaze", additional_headers=auth) as daemon:
+        daemon.send(json.dumps({"type": "hello", "protocol": 1, "tracker": "bench rig"}))
+        assert json.loads(daemon.recv())["type"] == "welcome"
+        fixation = {"type": "event", "kind": "fixation_start", "id": 1, "t": 1, "x": 0.7,
+                    "y": 0.2}  # fmt: skip
+        daemon.send(json.dumps(fixation))
+        daemon.send(json.dumps({"type": "samples", "samples": [{"t": 2, "x": 0.7, "y": 0.2}]}))
+        viewer.wait(f"() => ({options})().includes('remote:bench rig')")
+        viewer.page.select_option("#source-select", "remote:bench rig")
+        h = viewer.wait("() => window.gazehdr.lastHeader.tracker_gaze && window.gazehdr.lastHeader")
+        assert (h["gaze_x"], h["gaze_y"]) == (pytest.approx(0.7), pytest.approx(0.2))
+        viewer.page.mouse.move(10, 10)
+        h = viewer.next_frame(viewer.next_frame()["frame"])
+        assert h["gaze_x"] == pytest.approx(0.7)  # the pointer is not the gaze now
+        viewer.wait("() => /tracker bench rig/.test(document.getElementById('hud').textContent)")
+    viewer.wait(
+        "() => /bench rig · not connected/.test(document.getElementById('hud').textContent)"
+    )
+    assert viewer.errors == []
+
+
 def _afterimage_centroid(v: np.ndarray) -> tuple[np.ndarray, float, float]:
     """Centroid (x, y; pixel centres at +0.5) of the pixels above half the peak, the peak, and
     how far the farthest of those pixels is from the centroid, for a frame seen with the eyes

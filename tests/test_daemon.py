@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 import websockets
+from conftest import samples_received, sole_tracker
 
 from gazehdr import app as app_module
 from gazehdr.app import ServerConfig, create_app
@@ -46,6 +47,7 @@ from gazehdr.drivers.sessionlog import (
     write_session_log,
 )
 from gazehdr.drivers.sources import IterableSource, SourceInfo, SyntheticSource
+from gazehdr.gaze import TrackerFeed
 from gazehdr.protocol import decode_frame
 from gazehdr.serve import uvicorn_server
 from gazehdr.session import SessionSettings
@@ -78,6 +80,11 @@ def received(monkeypatch) -> list[tuple[int, list[int]]]:
     return log
 
 
+def _position(feed: TrackerFeed) -> tuple[float, float]:
+    """Where a tracker's gaze is, as fractions of its screen."""
+    return (feed.reading.x, feed.reading.y)
+
+
 @pytest.fixture
 def followed(monkeypatch) -> list[tuple[wire.Message, float, float]]:
     """Every message any server handles, with where its remote gaze is once it has."""
@@ -86,7 +93,7 @@ def followed(monkeypatch) -> list[tuple[wire.Message, float, float]]:
 
     def handle(self, msg, now):
         reply = original(self, msg, now)
-        log.append((msg, self.hub.remote.x, self.hub.remote.y))
+        log.append((msg, *_position(self.feed)))
         return reply
 
     monkeypatch.setattr(app_module._GazeLink, "handle", handle)
@@ -153,8 +160,8 @@ def test_samples_arrive_in_order_and_are_recorded(live_server, received, tmp_pat
     produced = stats.samples_produced
     assert produced == 751 and stats.samples_delivered == produced
     assert stats.samples_dropped == stats.samples_undelivered == 0
-    assert server.hub.remote.samples == produced
-    assert server.hub.remote.tracker == "synthetic (seed 2)"
+    assert sole_tracker(server).samples == produced
+    assert sole_tracker(server).name == "synthetic (seed 2)"
     times = [t for _, batch in received for t in batch]
     recorded = read_session_log(record)
     assert times == [s.t_ns for s in recorded.samples]  # all, once, in order
@@ -162,8 +169,9 @@ def test_samples_arrive_in_order_and_are_recorded(live_server, received, tmp_pat
     # the server follows the last fixation start or update the daemon sent
     follows = ("fixation_start", "fixation_update")
     last_fix = [e for e in recorded.events if e.kind in follows][-1]
-    assert server.hub.remote.x == pytest.approx(last_fix.x / GEOMETRY.screen_width_px)
-    assert server.hub.remote.y == pytest.approx(last_fix.y / GEOMETRY.screen_height_px)
+    reading = sole_tracker(server).reading
+    assert reading.x == pytest.approx(last_fix.x / GEOMETRY.screen_width_px)
+    assert reading.y == pytest.approx(last_fix.y / GEOMETRY.screen_height_px)
     assert stats.events_delivered == stats.events_produced == len(recorded.events) > 0
     # one process, one monotonic clock: the offset is 0 within its uncertainty
     assert stats.clock is not None and stats.clock.uncertainty_ns < 50_000_000
@@ -285,7 +293,7 @@ def test_restarted_server_gets_everything_the_buffer_kept(live_server, received,
     _nothing_lost_but_counted(
         read_session_log(record), stats, hubs[id(first.hub)], hubs[id(restarted.hub)]
     )
-    assert restarted.hub.remote.samples > 0
+    assert sole_tracker(restarted).samples > 0
     assert first.metrics.gaze_rate_limited.value == restarted.metrics.gaze_rate_limited.value == 0
 
 
@@ -346,7 +354,7 @@ def test_cli_replays_a_log_to_the_server(live_server, tmp_path, capsys) -> None:
     out = tmp_path / "out.jsonl"
     argv = ["--source", f"replay:{log}@max", "--server", server.ws_url, "--token", "t"]
     assert daemon_main([*argv, "--record", str(out), "--detector", "idt", "-q"]) == 0
-    assert server.hub.remote.samples == len(samples) == 501
+    assert sole_tracker(server).samples == len(samples) == 501
     assert read_session_log(out).samples == samples  # the replay emitted what was recorded
     assert "delivered 501 samples" in capsys.readouterr().err
 
@@ -394,7 +402,7 @@ def test_a_flood_is_paced_below_the_limit_without_harming_a_viewer(live_server, 
 
     quiet, flooded, stats, elapsed = run(check())
     n = len(samples)
-    assert server.hub.remote.samples == stats.samples_delivered == n  # a replay waits, no loss
+    assert sole_tracker(server).samples == stats.samples_delivered == n  # a replay waits, no loss
     assert server.metrics.gaze_rate_limited.value == 0 and stats.server_rate_limited == {}
     assert elapsed >= (n - 1000) / 2000  # paced: never faster than the server's limit
     sent = list(stats.sent_times)
@@ -414,7 +422,7 @@ def test_times_the_wire_cannot_carry_are_not_sent_nor_counted_delivered(
     stats = run(run_daemon(ReplaySource(log, speed=math.inf), server.ws_url, "t", detector=None))
     sendable = [s.t_ns for s in samples if s.t_ns >= 0]
     assert [t for _, batch in received for t in batch] == sendable  # every one, in order
-    assert server.hub.remote.samples == stats.samples_delivered == len(sendable) == 70
+    assert sole_tracker(server).samples == stats.samples_delivered == len(sendable) == 70
     assert stats.samples_unsendable == 30 and stats.samples_undelivered == 0
     assert "30 samples, 0 events not sendable" in stats.summary()
 
@@ -625,7 +633,7 @@ def test_a_replayed_recording_is_followed_fixation_by_fixation(
             held = means[msg.id]
         if held is not None:  # from the first fixation on, only fixations move the gaze
             assert math.dist((x, y), held) < SCREEN_TOLERANCE, (msg, (x, y), held)
-    assert math.dist((server.hub.remote.x, server.hub.remote.y), means[3]) < SCREEN_TOLERANCE
+    assert math.dist(_position(sole_tracker(server)), means[3]) < SCREEN_TOLERANCE
 
 
 def test_a_binocular_recording_is_followed_by_one_eye(live_server, followed) -> None:
@@ -645,9 +653,7 @@ def test_a_binocular_recording_is_followed_by_one_eye(live_server, followed) -> 
     assert stats.events_delivered == len(own) and stats.events_unsendable == 0
     w, h = log.header.screen.screen_width_px, log.header.screen.screen_height_px
     end = next(e for e in own if e.kind == "fixation_end")
-    assert math.dist((server.hub.remote.x, server.hub.remote.y), (end.x / w, end.y / h)) < (
-        SCREEN_TOLERANCE
-    )
+    assert math.dist(_position(sole_tracker(server)), (end.x / w, end.y / h)) < (SCREEN_TOLERANCE)
     assert log.fixation_track().at(0.002)[:2] == pytest.approx((end.x / w, end.y / h))
 
 
@@ -686,7 +692,7 @@ def test_a_recording_whose_events_place_no_fixation_is_run_through_the_detector(
     assert [(m.kind, m.id, m.t_ns) for m in sent] == [(e.kind, e.id, e.t_ns) for e in detected]
     assert stats.events_unsendable == 0 and stats.events_delivered == len(detected)
     b = next(e for e in detected if e.kind == "fixation_end" and e.id == 2)
-    final = (server.hub.remote.x, server.hub.remote.y)
+    final = _position(sole_tracker(server))
     assert math.dist(final, (b.x / GEOMETRY.screen_width_px, b.y / GEOMETRY.screen_height_px)) < (
         SCREEN_TOLERANCE
     )
@@ -768,7 +774,7 @@ def test_a_signal_stops_the_daemon_cleanly_and_the_screen_flags_reach_hello_and_
     proc = subprocess.Popen([*command, *flags], stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 20
-        while server.hub.remote.samples < 500:  # a second of gaze
+        while samples_received(server) < 500:  # a second of gaze
             assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
             time.sleep(0.02)
         proc.send_signal(signum)
@@ -782,7 +788,7 @@ def test_a_signal_stops_the_daemon_cleanly_and_the_screen_flags_reach_hello_and_
     log = read_session_log(record)
     assert not log.truncated and log.header.screen == geometry
     n, k = len(log.samples), len(log.events)
-    assert n >= 500 and server.hub.remote.samples == n
+    assert n >= 500 and sole_tracker(server).samples == n
     assert (
         f"{n} samples, {k} events from the source; delivered {n} samples, {k} events; "
         f"dropped 0 samples, 0 events (buffer full)"

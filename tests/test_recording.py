@@ -7,6 +7,7 @@ applies the log's changes where the live session made them (server/render.py).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import time
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 import pytest
+from sessions import new_session, tick
 
 from gazehdr.cli import main
 from gazehdr.drivers.sessionlog import (
@@ -40,7 +42,8 @@ from gazehdr.protocol import (
 from gazehdr.protocol import ModelChange as ModelControl
 from gazehdr.render import recorded_changes, render
 from gazehdr.scenes.library import SceneLibrary
-from gazehdr.session import RemoteGaze, Session, SessionSettings
+from gazehdr.scenes.procedural import Flash
+from gazehdr.session import Session, SessionSettings
 from tests.test_server import TIMEOUT, Client, http, run
 
 W, H, FPS = 64, 36, 30
@@ -67,8 +70,8 @@ def play(session: Session, writer: SessionLogWriter | None = None) -> list[np.nd
     """Tick through SCRIPT; the frames as H×W×3 float32 `v`, the journal into `writer`."""
     frames = []
     for i in range(TICKS):
-        controls = [(c, 0.0) for tick, c in SCRIPT if tick == i]
-        frame, notes = session.tick(0.0 if i == 0 else 1 / FPS, controls)
+        controls = [(c, 0.0) for at, c in SCRIPT if at == i]
+        frame, notes = tick(session, 0.0 if i == 0 else 1 / FPS, controls)
         assert [n for n in notes if n["type"] == "error"] == []
         frames.append(decode_frame(frame.header.pack() + frame.payload)[1])
         if writer is not None:
@@ -84,7 +87,7 @@ def ns(tick: int) -> int:
 
 
 def test_the_journal_holds_what_the_session_ran_with_and_every_change() -> None:
-    session = Session("rec", SETTINGS, SceneLibrary(), RemoteGaze())
+    session = new_session(SETTINGS, "rec")
     play(session)
     journal = session.take_journal()
     assert session.take_journal() == []  # taken once
@@ -122,8 +125,8 @@ def test_the_journal_holds_what_the_session_ran_with_and_every_change() -> None:
 
 def test_a_session_that_does_not_record_keeps_no_journal() -> None:
     settings = SessionSettings(**{**vars(SETTINGS), "record": False})
-    session = Session("rec", settings, SceneLibrary(), RemoteGaze())
-    session.tick(0.0, [(Gaze(0.2, 0.2, 1), 0.0)])
+    session = new_session(settings, "rec")
+    tick(session, 0.0, [(Gaze(0.2, 0.2, 1), 0.0)])
     assert not session.recording and session.take_journal() == []
 
 
@@ -131,10 +134,10 @@ def test_split_view_journals_the_gaze_on_the_scene() -> None:
     """Either pane under the pointer looks at the same point of the scene: that point is what
     the log holds, so a one-pane replay looks where the session did."""
     settings = SessionSettings(**{**vars(SETTINGS), "width": 96, "split": SETTINGS.model})
-    session = Session("rec", settings, SceneLibrary(), RemoteGaze())
-    session.tick(0.0, [(Gaze(0.25, 0.5, 1), 0.0)])  # left pane, a quarter of the frame
-    session.tick(0.1, [(Gaze(0.75, 0.5, 2), 0.0)])  # the same point in the right pane
-    session.tick(0.1, [(Gaze(0.5, 0.25, 3), 0.0)])  # the right pane's left edge
+    session = new_session(settings, "rec")
+    tick(session, 0.0, [(Gaze(0.25, 0.5, 1), 0.0)])  # left pane, a quarter of the frame
+    tick(session, 0.1, [(Gaze(0.75, 0.5, 2), 0.0)])  # the same point in the right pane
+    tick(session, 0.1, [(Gaze(0.5, 0.25, 3), 0.0)])  # the right pane's left edge
     starts = [
         (e.x, e.y) for e in session.take_journal() if getattr(e, "kind", "") == "fixation_start"
     ]
@@ -143,7 +146,7 @@ def test_split_view_journals_the_gaze_on_the_scene() -> None:
 
 def write_recording(path: Path) -> list[np.ndarray]:
     """Play SCRIPT in a recording session, its journal written as `serve --record` does."""
-    session = Session("rec", SETTINGS, SceneLibrary(), RemoteGaze())
+    session = new_session(SETTINGS, "rec")
     with SessionLogWriter(path, session.log_header()) as writer:
         return play(session, writer)
 
@@ -175,8 +178,8 @@ def test_a_recorded_session_renders_offline_to_the_frames_it_showed(tmp_path: Pa
     assert max(worst) <= 2**-10, worst
     # and it is not trivially so: each recorded change stands out (10x) from the ticks around it
     steps = [float(np.abs(b - a).mean()) for a, b in itertools.pairwise(live)]
-    for tick in (8, 10, 12, 14, 16, 18):
-        assert steps[tick - 1] > 10 * max(steps[tick - 2], steps[tick]), (tick, steps)
+    for n in (8, 10, 12, 14, 16, 18):
+        assert steps[n - 1] > 10 * max(steps[n - 2], steps[n]), (n, steps)
     # Without the log's changes the same gaze gives other frames from tick 8 on.
     render(
         SceneLibrary().open("lamp"), track, seconds=TICKS / FPS, fps=FPS, width=W, height=H,
@@ -185,6 +188,40 @@ def test_a_recorded_session_renders_offline_to_the_frames_it_showed(tmp_path: Pa
     plain = exr_frames(tmp_path / "plain")
     assert all(np.array_equal(a, b) for a, b in zip(plain[:8], offline[:8], strict=True))
     assert not np.allclose(plain[8], offline[8], atol=1e-3)
+
+
+def test_a_flash_between_two_frames_renders_offline_as_it_was_seen_live(tmp_path: Path) -> None:
+    """Live and offline rendering step the same way (gazehdr.eye): a flash that starts and ends
+    between two frames is seen for exactly its 20 ms by both, and leaves the same afterimage."""
+    brief = Flash(first=0.51, duration=0.02, period=10.0)  # between ticks 15 and 16
+    scenes = SceneLibrary(None, {"brief": brief})
+    session = Session(
+        "rec", dataclasses.replace(SETTINGS, scene="brief"), scenes, clock=time.perf_counter
+    )
+    log_path = tmp_path / "flash.jsonl"
+    with SessionLogWriter(log_path, session.log_header()) as writer:
+        live = []
+        for i in range(TICKS):
+            frame, _ = tick(session, 0.0 if i == 0 else 1 / FPS, [])
+            live.append(decode_frame(frame.header.pack() + frame.payload)[1])
+            writer.write_all(session.take_journal())
+        writer.write_all(session.end_journal())
+    log = read_session_log(log_path)
+    track = log.fixation_track()
+    render(
+        brief, track, seconds=TICKS / FPS, fps=FPS, width=W, height=H, seed=5,
+        backend="reference", out_dir=tmp_path / "out", exr=True, progress=False,
+        changes=recorded_changes(log, track.t0_ns, scenes),
+    )  # fmt: skip
+    offline = exr_frames(tmp_path / "out")
+    worst = [
+        float(np.abs(a.astype(np.float16) - b).max()) for a, b in zip(offline, live, strict=True)
+    ]
+    assert max(worst) <= 2**-10, worst
+    # The flash was seen: the frame after it differs from the one before far more than the
+    # frames around it do.
+    steps = [float(np.abs(b - a).mean()) for a, b in itertools.pairwise(live)]
+    assert steps[15] > 10 * max(steps[13], steps[14]), steps
 
 
 def test_cli_render_takes_the_scene_seed_and_length_from_the_log(tmp_path: Path) -> None:
@@ -279,7 +316,7 @@ def test_a_log_that_cannot_be_written_stops_recording_not_the_session(
     from gazehdr.live import LiveSession
     from gazehdr.metrics import Metrics
 
-    session = Session("rec", SETTINGS, SceneLibrary(), RemoteGaze())
+    session = new_session(SETTINGS, "rec")
     writer = SessionLogWriter(tmp_path / "s.jsonl", session.log_header())
     live = LiveSession(session, Metrics(), writer)
 
@@ -291,7 +328,8 @@ def test_a_log_that_cannot_be_written_stops_recording_not_the_session(
     assert frame.payload and live.log is None
     assert notes == [{"type": "error", "message": "recording stopped: [Errno 28] No space left "
                       "on device", "in": None}]  # fmt: skip
-    frame, notes = live._tick(1 / FPS, [(Gaze(0.1, 0.1, 1), 0.0)])
+    live.submit(Gaze(0.1, 0.1, 1))
+    frame, notes = live._tick(1 / FPS, [])
     assert frame.header.gaze_seq == 1 and notes == []
     assert read_session_log(tmp_path / "s.jsonl").header.tracker["session"] == "rec"
 

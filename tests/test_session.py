@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import sessions
+from sessions import tick
 
+from gazehdr.drivers.tracks import open_track
+from gazehdr.eye import pane_params
 from gazehdr.protocol import (
     Choose,
     Eyes,
@@ -17,7 +21,7 @@ from gazehdr.protocol import (
     decode_frame,
 )
 from gazehdr.scenes.library import SceneLibrary
-from gazehdr.session import MAX_FRAME_DT, RemoteGaze, Session, SessionSettings, pane_params
+from gazehdr.session import MAX_FRAME_DT, SYNTHETIC_LOOP_S, Session, SessionSettings
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import Layout
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
@@ -27,7 +31,7 @@ SETTINGS = SessionSettings(width=96, height=54, fps=30.0, scene="flash", seed=3)
 
 def new_session(**changes) -> Session:
     settings = SessionSettings(**{**vars(SETTINGS), **changes})
-    return Session("test", settings, SceneLibrary(), RemoteGaze())
+    return sessions.new_session(settings)
 
 
 SCRIPT = [  # (dt, controls): a flash seen at one place, then the eye moves and closes
@@ -40,7 +44,7 @@ SCRIPT = [  # (dt, controls): a flash seen at one place, then the eye moves and 
 
 
 def play(session: Session) -> list[bytes]:
-    return [session.tick(dt, [(c, 0.0) for c in controls])[0].payload for dt, controls in SCRIPT]
+    return [tick(session, dt, [(c, 0.0) for c in controls])[0].payload for dt, controls in SCRIPT]
 
 
 def test_same_inputs_same_frames() -> None:
@@ -53,34 +57,35 @@ def test_same_inputs_same_frames() -> None:
 
 def test_header_reports_what_the_frame_used() -> None:
     session = new_session()
-    frame, _ = session.tick(0.0, [(Gaze(0.25, 0.75, 7), 123.0)])
+    frame, _ = tick(session, 0.0, [(Gaze(0.25, 0.75, 7), 123.0)])
     h = frame.header
     assert (h.frame, h.gaze_seq, h.gaze_x, h.gaze_y, h.eyes_open) == (0, 7, 0.25, 0.75, True)
     assert frame.gaze_received_at == 123.0
     assert h.adaptation == pytest.approx(session.sim.adaptation)
     header, v = decode_frame(h.pack() + frame.payload)
     assert v.shape == (54, 96, 3) and header.width == 96
-    frame, _ = session.tick(0.1, [])
+    frame, _ = tick(session, 0.1, [])
     assert frame.gaze_received_at is None and frame.header.frame == 1  # no new gaze this time
 
 
 def test_long_stall_is_clamped() -> None:
     session = new_session()
-    session.tick(5.0, [])
+    tick(session, 5.0, [])
     assert session.sim.time == MAX_FRAME_DT
 
 
 def test_controls_and_refusals() -> None:
     session = new_session(scene="lamp")
-    session.tick(0.5, [])
+    tick(session, 0.5, [])
     A = session.sim.adaptation
-    _, notes = session.tick(0.0, [(ParamChange({"j1": 0.1}), 0.0)])
+    _, notes = tick(session, 0.0, [(ParamChange({"j1": 0.1}), 0.0)])
     assert [n["type"] for n in notes] == ["state"] and session.params.j1 == 0.1
     # A parameter change continues the same eye: same time, same adaptation.
     assert session.sim.time == 0.5 and session.sim.adaptation == pytest.approx(A)
 
     before = session.state()
-    _, notes = session.tick(
+    _, notes = tick(
+        session,
         0.0,
         [
             (ParamChange({"j1": -1.0, "n": 0}), 0.0),
@@ -95,7 +100,7 @@ def test_controls_and_refusals() -> None:
     assert "cannot be set remotely" in notes[-1]["message"]
     assert session.state() == before
 
-    _, notes = session.tick(0.0, [(Viewport(1000, 1000), 0.0), (Reset(), 0.0)])
+    _, notes = tick(session, 0.0, [(Viewport(1000, 1000), 0.0), (Reset(), 0.0)])
     assert notes[-1]["width"] == notes[-1]["height"] == 72 and session.sim.time == 0.5
 
 
@@ -103,10 +108,11 @@ def test_synthetic_gaze_source_moves_the_eye_from_fixation_to_fixation() -> None
     session = new_session(gaze_source="synthetic")
     seen = set()
     for _ in range(40):
-        frame, _ = session.tick(0.1, [(Gaze(0.9, 0.9, 1), 0.0)])  # pointer is ignored
+        frame, _ = tick(session, 0.1, [(Gaze(0.9, 0.9, 1), 0.0)])  # pointer is ignored
         seen.add((round(frame.header.gaze_x, 9), round(frame.header.gaze_y, 9)))
         assert frame.header.tracker
-    targets = {(round(f.x, 9), round(f.y, 9)) for f in session._track.path.fixations}
+    path = open_track("synthetic", seed=SETTINGS.seed, duration=SYNTHETIC_LOOP_S).path
+    targets = {(round(f.x, 9), round(f.y, 9)) for f in path.fixations}
     assert len(seen) > 3 and seen <= targets  # never a point along a saccade
 
 
@@ -120,12 +126,12 @@ def test_a_flash_inside_a_long_frame_is_seen_for_its_duration() -> None:
     split at the flash's edges, so the eye bleaches as much as with 10 ms frames."""
     coarse, fine = new_session(), new_session()
     for s in (coarse, fine):
-        s.tick(0.0, [(Gaze(0.5, 0.42, 1), 0.0)])
-        s.tick(0.9, [])
+        tick(s, 0.0, [(Gaze(0.5, 0.42, 1), 0.0)])
+        tick(s, 0.9, [])
     rest = _bleaching_peak(coarse)
-    coarse.tick(0.5, [])
+    tick(coarse, 0.5, [])
     for _ in range(50):
-        fine.tick(0.01, [])
+        tick(fine, 0.01, [])
     assert coarse.sim.time == pytest.approx(fine.sim.time)
     assert _bleaching_peak(coarse) > 5 * rest
     assert _bleaching_peak(coarse) == pytest.approx(_bleaching_peak(fine), rel=0.05)
@@ -149,7 +155,7 @@ def _look(session: Session, first: list[ModelChange] = ()) -> list[bytes]:
     frames = []
     for i, (dt, gaze) in enumerate(LOOK):
         controls = [*(first if i == 0 else ()), *([gaze] if gaze else [])]
-        frames.append(session.tick(dt, [(c, 0.0) for c in controls])[0].payload)
+        frames.append(tick(session, dt, [(c, 0.0) for c in controls])[0].payload)
     return frames
 
 
@@ -160,9 +166,9 @@ def test_a_model_switch_changes_the_frames_and_the_state(pick: ModelPick) -> Non
     lamp = dict(scene="lamp", backend="reference", width=64, height=36)
     default, switched = new_session(**lamp), new_session(**lamp)
     for s in (default, switched):
-        s.tick(0.5, [(Gaze(0.5, 0.3, 1), 0.0)])
+        tick(s, 0.5, [(Gaze(0.5, 0.3, 1), 0.0)])
     retina, A = switched.sim._backend.get("state"), switched.sim.adaptation
-    _, notes = switched.tick(0.0, [(ModelChange(pick), 0.0)])
+    _, notes = tick(switched, 0.0, [(ModelChange(pick), 0.0)])
     want = {"afterimage": pick.afterimage or "jacobs", "acuity": pick.acuity or "stochastic"}
     assert [n["type"] for n in notes] == ["state"]
     assert notes[0]["model"] == want and notes[0]["split"] is None
@@ -179,8 +185,9 @@ def test_state_lists_the_models_and_unknown_names_are_refused() -> None:
     assert state["models"] == {"afterimage": [*AFTERIMAGE_MODELS], "acuity": [*ACUITY_MODELS]}
     assert state["model"] == {"afterimage": "jacobs", "acuity": "stochastic"}
     assert state["split"] is None
-    sims = session.sims
-    _, notes = session.tick(
+    sims = session.eye.sims
+    _, notes = tick(
+        session,
         0.1,
         [
             (ModelChange(ModelPick("magic")), 0.0),
@@ -191,11 +198,11 @@ def test_state_lists_the_models_and_unknown_names_are_refused() -> None:
     assert [(n["type"], n["in"]) for n in notes] == [("error", "model")] * 3
     assert "unknown afterimage model 'magic'; choose one of jacobs, " in notes[0]["message"]
     assert "unknown acuity model 'blur'; choose one of stochastic, " in notes[1]["message"]
-    assert session.state() == state and session.sims is sims  # nothing changed
-    frame, notes = session.tick(0.1, [])  # and the session carries on
+    assert session.state() == state and session.eye.sims is sims  # nothing changed
+    frame, notes = tick(session, 0.1, [])  # and the session carries on
     assert notes == [] and frame.header.time == pytest.approx(0.2)
     # Asking for what runs already changes nothing and tells nobody.
-    assert session.tick(0.0, [(ModelChange(ModelPick("jacobs")), 0.0)])[1] == []
+    assert tick(session, 0.0, [(ModelChange(ModelPick("jacobs")), 0.0)])[1] == []
 
 
 def _pane_gaze(x: float, y: float, w: int, h: int) -> tuple[float, float]:
@@ -238,7 +245,7 @@ def test_split_view_is_two_half_width_simulators_side_by_side(backend: str, righ
         panes.append(sim)
     gaze, eyes = (0.5, 0.5), True
     for dt, controls in SPLIT_SCRIPT:
-        frame, notes = session.tick(dt, [(c, 0.0) for c in controls])
+        frame, notes = tick(session, dt, [(c, 0.0) for c in controls])
         assert notes == []
         for c in controls:
             gaze, eyes = ((c.x, c.y), eyes) if isinstance(c, Gaze) else (gaze, c.open)
@@ -260,8 +267,8 @@ def test_either_pane_under_the_pointer_drives_the_same_gaze() -> None:
 
     def frame_for(x: float) -> tuple[float, bytes]:
         session = new_session(scene="lamp", width=W, height=H, split=Models(acuity="none"))
-        session.tick(0.0, [(Gaze(x, 0.4, 1), 0.0)])
-        frame, _ = session.tick(0.2, [])
+        tick(session, 0.0, [(Gaze(x, 0.4, 1), 0.0)])
+        frame, _ = tick(session, 0.2, [])
         return frame.header.gaze_x, frame.payload
 
     left, right = frame_for(0.25), frame_for(0.75)  # pane pixel 24 in both cases
@@ -274,29 +281,29 @@ def test_either_pane_under_the_pointer_drives_the_same_gaze() -> None:
 
 def test_split_view_on_off_and_models_per_pane() -> None:
     session = new_session(scene="lamp", backend="reference", width=64, height=36)
-    session.tick(0.3, [(Gaze(0.5, 0.3, 1), 0.0)])
+    tick(session, 0.3, [(Gaze(0.5, 0.3, 1), 0.0)])
     A, whole = session.sim.adaptation, session.sim.layout
-    _, notes = session.tick(0.0, [(ModelChange(ModelPick(), ModelPick(acuity="none")), 0.0)])
+    _, notes = tick(session, 0.0, [(ModelChange(ModelPick(), ModelPick(acuity="none")), 0.0)])
     assert notes[-1]["split"] == {"afterimage": "jacobs", "acuity": "none"}
-    assert [(s.width, s.acuity) for s in session.sims] == [(32, "stochastic"), (32, "none")]
+    assert [(s.width, s.acuity) for s in session.eye.sims] == [(32, "stochastic"), (32, "none")]
     # Two panes cost what the whole frame did: the retina grids add up to the whole one's.
-    cells = [s.layout.grid_w * s.layout.grid_h for s in session.sims]
+    cells = [s.layout.grid_w * s.layout.grid_h for s in session.eye.sims]
     assert sum(cells) == whole.grid_w * whole.grid_h
     # Both panes continue the eye: its time and (up to the pane's own adaptation field) A.
-    assert all(s.time == 0.3 for s in session.sims)
-    assert all(s.adaptation == pytest.approx(A) for s in session.sims)
+    assert all(s.time == 0.3 for s in session.eye.sims)
+    assert all(s.adaptation == pytest.approx(A) for s in session.eye.sims)
     # Changing only the left model keeps the right pane's.
-    session.tick(0.1, [(ModelChange(ModelPick(acuity="gaussian")), 0.0)])
-    assert [s.acuity for s in session.sims] == ["gaussian", "none"]
-    _, notes = session.tick(0.1, [(ModelChange(ModelPick(), None), 0.0)])
+    tick(session, 0.1, [(ModelChange(ModelPick(acuity="gaussian")), 0.0)])
+    assert [s.acuity for s in session.eye.sims] == ["gaussian", "none"]
+    _, notes = tick(session, 0.1, [(ModelChange(ModelPick(), None), 0.0)])
     assert notes[-1]["split"] is None and notes[-1]["model"]["acuity"] == "gaussian"
-    assert len(session.sims) == 1 and session.sim.width == 64
-    assert not session.tick(0.1, [])[0].header.split
+    assert len(session.eye.sims) == 1 and session.sim.width == 64
+    assert not tick(session, 0.1, [])[0].header.split
 
     # A frame too narrow for two panes refuses split view; a viewport that makes it so ends it.
     narrow = new_session(width=24, height=54, backend="reference")
-    _, notes = narrow.tick(0.0, [(ModelChange(ModelPick(), ModelPick()), 0.0)])
+    _, notes = tick(narrow, 0.0, [(ModelChange(ModelPick(), ModelPick()), 0.0)])
     assert notes[0]["type"] == "error" and "too narrow for split view" in notes[0]["message"]
     split = new_session(split=Models(), backend="reference")
-    _, notes = split.tick(0.0, [(Viewport(1, 1000), 0.0)])
-    assert notes[-1]["width"] == 16 and notes[-1]["split"] is None and len(split.sims) == 1
+    _, notes = tick(split, 0.0, [(Viewport(1, 1000), 0.0)])
+    assert notes[-1]["width"] == 16 and notes[-1]["split"] is None and len(split.eye.sims) == 1

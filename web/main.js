@@ -46,7 +46,9 @@ const stats = {
   connects: 0, // sockets opened, reconnects included
 };
 const state = {}; // the last hello/state from the server
-const tracker = { connected: false, name: null, samples: 0 };
+// The gaze daemons' trackers this server has heard of, by name (state and `tracker` notes):
+// a session follows one of them by choosing gaze source `remote:NAME`.
+const trackers = new Map();
 
 // ---- connection -------------------------------------------------------------------------
 
@@ -175,6 +177,8 @@ function onText(text) {
     case 'state': {
       const { type, ...rest } = msg;
       Object.assign(state, rest);
+      trackers.clear();
+      for (const t of state.trackers ?? []) trackers.set(t.name, t);
       panel.update(state);
       break;
     }
@@ -182,9 +186,16 @@ function onText(text) {
       stats.errors += 1;
       toast(`${msg.in ? `${msg.in}: ` : ''}${msg.message}`);
       break;
-    case 'tracker':
-      Object.assign(tracker, msg);
+    case 'tracker': { // a daemon connected or left: its tracker can be followed by name
+      const { type, ...t } = msg;
+      trackers.set(t.name, t);
+      const source = `remote:${t.name}`;
+      if (state.gaze_sources && !state.gaze_sources.includes(source)) {
+        state.gaze_sources = [...state.gaze_sources, source];
+        panel.update(state);
+      }
       break;
+    }
     case 'scenes': // the scene list changed (an upload), sent to every session
       state.scenes = msg.scenes;
       panel.update(state);
@@ -287,10 +298,22 @@ function hudInfo(now) {
     model: state.model,
     split: state.split,
     gazeSource: state.gaze_source,
-    tracker: tracker.connected
-      ? `${tracker.name ?? 'connected'} · ${tracker.samples} samples`
-      : 'not connected',
+    tracker: trackerStatus(state.gaze_source ?? ''),
   };
+}
+
+/** The HUD's tracker line: the tracker this session follows, or what it waits for. */
+function trackerStatus(source) {
+  const connected = [...trackers.values()].filter((t) => t.connected);
+  if (source.startsWith('remote:')) {
+    const name = source.slice('remote:'.length);
+    const t = trackers.get(name);
+    return t?.connected ? `${name} · ${t.samples} samples` : `${name} · not connected`;
+  }
+  if (source === 'remote') {
+    return connected.length > 1 ? `${connected.length} connected: choose one` : 'waiting for one';
+  }
+  return connected.length ? `${connected.length} connected, not followed` : 'not connected';
 }
 
 function tick(now) {
@@ -314,7 +337,7 @@ function tick(now) {
 }
 
 // For tests and debugging; keep it small.
-const api = { state, lastHeader, stats, lastPayload, renderer, connection: conn, tracker };
+const api = { state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers };
 window.gazehdr = api;
 
 conn.open();

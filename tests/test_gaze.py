@@ -1,0 +1,156 @@
+"""One gaze path into a session (server/gaze.py): pointer, trackers and tracks behind
+`GazeInput.at(t)`, and trackers that each drive only the sessions bound to them — directly,
+then through a real server with two daemons."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import pytest
+import websockets
+from sessions import new_session, tick
+
+from gazehdr.drivers.samples import GazePoint
+from gazehdr.gaze import PointerGaze, Trackers, TrackGaze
+from gazehdr.protocol import Choose, Eyes, Gaze, Reset
+from gazehdr.session import SessionSettings
+from tests.test_server import Client, run
+
+SETTINGS = SessionSettings(width=32, height=18, scene="lamp", backend="reference")
+
+
+# --- the inputs ----------------------------------------------------------------------------
+
+
+def test_pointer_takes_gaze_and_eyes_and_nothing_else() -> None:
+    pointer = PointerGaze()
+    assert pointer.take(Gaze(0.2, 0.7, 4), now=10.0)
+    r = pointer.at(123.0)
+    assert (r.x, r.y, r.eyes_open, r.seq, r.received_at) == (0.2, 0.7, True, 4, 10.0)
+    assert pointer.take(Eyes(False), now=11.0)
+    closed = pointer.at(0.0)
+    # closing the eyes is no new gaze: the latency metrics keep timing the last pointer move
+    assert (closed.x, closed.eyes_open, closed.received_at) == (0.2, False, 10.0)
+    assert not pointer.take(Reset(), now=12.0)
+    assert pointer.at(0.0) is closed
+
+
+def test_a_track_replays_from_where_it_was_chosen_and_loops() -> None:
+    class Ramp:  # x = t
+        def at(self, t: float) -> GazePoint:
+            return GazePoint(t, 0.5, True)
+
+    gaze = TrackGaze(Ramp(), start=2.0, length=3.0)
+    assert [gaze.at(t).x for t in (2.0, 3.5, 5.0, 6.0)] == [0.0, 1.5, 0.0, 1.0]
+
+
+def test_trackers_with_the_same_name_are_told_apart_and_get_their_feed_back() -> None:
+    trackers = Trackers()
+    first, second = trackers.connect("Tobii Pro"), trackers.connect("Tobii Pro")
+    assert (first.name, second.name) == ("Tobii Pro", "Tobii Pro #2")
+    assert trackers.sole_connected() is None  # two stations: nobody guesses
+    trackers.disconnect(first)
+    assert trackers.sole_connected() is second
+    assert trackers.connect("Tobii Pro") is first  # the first station reconnects as itself
+    assert trackers.connect(None).name == "unnamed tracker"
+    assert [t["name"] for t in trackers.describe()] == [
+        "Tobii Pro", "Tobii Pro #2", "unnamed tracker",
+    ]  # fmt: skip
+
+
+# --- a session follows one input -----------------------------------------------------------
+
+
+def test_a_session_follows_only_the_tracker_it_chose() -> None:
+    trackers = Trackers()
+    a, b = trackers.connect("station A"), trackers.connect("station B")
+    session = new_session(SETTINGS, trackers=trackers)
+    _, notes = tick(session, 0.0, [(Choose("gaze_source", "remote:station B"), 0.0)])
+    assert notes[-1]["gaze_source"] == "remote:station B"
+    assert {"remote:station A", "remote:station B"} <= set(notes[-1]["gaze_sources"])
+    a.fixate(0.1, 0.1, True, now=1.0)
+    b.fixate(0.8, 0.3, True, now=2.0)
+    frame, _ = tick(session, 0.1, [(Gaze(0.5, 0.5, 1), 3.0)])  # the pointer is not followed
+    h = frame.header
+    assert (h.gaze_x, h.gaze_y, h.tracker) == (pytest.approx(0.8), pytest.approx(0.3), True)
+    assert frame.gaze_received_at == 2.0
+    a.fixate(0.2, 0.9, False, now=4.0)  # station A blinks and moves: nothing here
+    frame, _ = tick(session, 0.1, [])
+    assert (frame.header.gaze_x, frame.header.eyes_open) == (pytest.approx(0.8), True)
+    assert frame.gaze_received_at is None  # no new gaze from B
+
+
+def test_remote_binds_once_exactly_one_tracker_is_connected() -> None:
+    trackers = Trackers()
+    session = new_session(SETTINGS, trackers=trackers, name="s")
+    first = trackers.connect("rig 1")
+    second = trackers.connect("rig 2")
+    _, notes = tick(session, 0.0, [(Choose("gaze_source", "remote"), 0.0)])
+    assert notes[-1]["gaze_source"] == "remote"  # two connected: waits for the viewer
+    first.fixate(0.9, 0.9, True, now=1.0)
+    frame, _ = tick(session, 0.1, [])
+    assert frame.header.gaze_x == pytest.approx(0.5)  # held where it was
+    trackers.disconnect(first)
+    second.fixate(0.25, 0.75, True, now=2.0)
+    frame, notes = tick(session, 0.1, [])
+    assert notes[-1]["gaze_source"] == "remote:rig 2"
+    assert (frame.header.gaze_x, frame.header.gaze_y) == (pytest.approx(0.25), 0.75)
+    trackers.connect("rig 1")  # bound now: another tracker coming back changes nothing
+    first.fixate(0.9, 0.9, True, now=3.0)
+    frame, notes = tick(session, 0.1, [])
+    assert notes == [] and frame.header.gaze_x == pytest.approx(0.25)
+
+
+def test_the_session_times_its_step_with_the_clock_it_is_given() -> None:
+    readings = iter([10.0, 10.25, 10.5])
+    session = new_session(SETTINGS)
+    session.clock = lambda: next(readings)
+    frame, _ = tick(session, 0.0, [])
+    assert (frame.sim_seconds, frame.encode_seconds) == (0.25, 0.25)
+    assert frame.header.server_ms == 500.0
+
+
+# --- through a real server -------------------------------------------------------------------
+
+
+async def _daemon(server, name: str, x: float, y: float) -> websockets.ClientConnection:
+    auth = {"Authorization": f"Bearer {server.token}"}
+    ws = await websockets.connect(server.ws_url + "/ws/gaze", additional_headers=auth)
+    await ws.send(json.dumps({"type": "hello", "protocol": 1, "tracker": name}))
+    assert json.loads(await ws.recv())["type"] == "welcome"
+    fixation = {"type": "event", "kind": "fixation_start", "id": 1, "t": 1, "x": x, "y": y}
+    await ws.send(json.dumps(fixation))
+    return ws
+
+
+def test_two_stations_on_one_server_each_drive_only_their_sessions(live_server) -> None:
+    server = live_server(token="t", gaze_source="remote")
+
+    async def check() -> None:
+        a = await _daemon(server, "station A", 0.2, 0.3)
+        b = await _daemon(server, "station B", 0.7, 0.6)
+        viewers = [await Client.open(server), await Client.open(server)]
+        for viewer in viewers:
+            assert {"remote:station A", "remote:station B"} <= set(viewer.hello["gaze_sources"])
+            assert viewer.hello["gaze_source"] == "remote"  # two trackers: it waits
+        for viewer, name in zip(viewers, ("station A", "station B"), strict=True):
+            await viewer.send(type="gaze_source", name=f"remote:{name}")
+        h_a, _ = await viewers[0].frame(lambda h: abs(h.gaze_x - 0.2) < 1e-6)
+        h_b, _ = await viewers[1].frame(lambda h: abs(h.gaze_x - 0.7) < 1e-6)
+        assert (h_a.gaze_y, h_b.gaze_y) == (pytest.approx(0.3), pytest.approx(0.6))
+        # Station B's next fixation moves B's session only; A's keeps following A.
+        move = {"type": "event", "kind": "fixation_start", "id": 2, "t": 2, "x": 0.9, "y": 0.1}
+        await b.send(json.dumps(move))
+        await viewers[1].frame(lambda h: abs(h.gaze_x - 0.9) < 1e-6)
+        for _ in range(5):
+            header, _ = await viewers[0].frame()
+            assert header.gaze_x == pytest.approx(0.2) and header.tracker
+        await a.close()
+        note = await viewers[1].note("tracker")
+        assert note == {"type": "tracker", "name": "station A", "connected": False, "samples": 0}
+        await b.close()
+        for viewer in viewers:
+            await viewer.ws.close()
+
+    run(asyncio.wait_for(check(), 120))
