@@ -14,7 +14,7 @@ samples. A recording may also say where its fixations are before they end
   `rate_hz`, paced in real time by default (or as fast as possible with `realtime=False`);
 - `replay:FILE[@SPEED]`: a native session log or any recording `gazehdr.drivers.formats` imports, at
   recorded speed, `@2` (twice as fast), `@0.5`, or `@max` (as fast as the reader takes it);
-- `hid[:PATH]`: a USB HID eye tracker (`hid.HidSource`, imported only when asked for).
+- `hid[:PATH]`: a USB HID eye tracker (`hid.source.HidGazeSource`, imported only when asked for).
 
 `screen` (`ScreenGeometry` field names → values, e.g. from `gazehdr daemon --screen
 --diagonal --distance`) says what the user knows about the screen: it sets the synthetic
@@ -320,7 +320,7 @@ def open_source(
         return ReplaySource(path, speed=speed, clock=clock, sleep=sleep, **options)
     if kind == "hid":
         try:
-            from gazehdr.drivers.hid import HidSource  # another module; optional dependencies
+            from gazehdr.drivers.hid.source import HidGazeSource  # optional dependencies
         except ImportError as e:
             raise SourceUnavailableError(f"HID source unavailable: {e}") from None
         if rest:
@@ -331,7 +331,7 @@ def open_source(
             options.setdefault("screen", screen)
         try:
             options.setdefault("open_now", not wait)
-            source = HidSource(**options)
+            source = HidGazeSource(**options)
             if wait:
                 source.wait_for_tracker()
             return source

@@ -341,7 +341,7 @@ def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _devices(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.drivers.hid import devices_main
+    from gazehdr.drivers.hid.devices import devices_main
 
     return devices_main(extra)
 

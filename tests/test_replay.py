@@ -235,16 +235,9 @@ def test_hid_source_without_a_tracker_is_a_clear_error() -> None:
 
 
 def test_hid_source_is_opened_lazily_with_a_clear_error(monkeypatch) -> None:
-    import builtins
+    import sys
 
-    real_import = builtins.__import__
-
-    def no_hid(name, *args, **kwargs):
-        if name == "gazehdr.drivers.hid":
-            raise ModuleNotFoundError("No module named 'gazehdr.drivers.hid'")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", no_hid)
+    monkeypatch.setitem(sys.modules, "gazehdr.drivers.hid.source", None)  # as if not importable
     with pytest.raises(SourceUnavailableError, match="HID source unavailable"):
         open_source("hid")
 
