@@ -50,9 +50,10 @@ from gazehdr.drivers.hid.usages import (
     TRACKER_QUALITY,
     TRACKING_DATA,
 )
+from gazehdr.drivers.registry import open_source
 from gazehdr.drivers.samples import ScreenGeometry
 from gazehdr.drivers.sessionlog import read_session_log
-from gazehdr.drivers.sources import Source, open_source
+from gazehdr.drivers.sources import Source
 
 # --- HID 1.11 short items ---------------------------------------------------------------------
 

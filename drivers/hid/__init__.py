@@ -10,7 +10,7 @@ The decoding is pure and tested with bytes alone; the device I/O is a thin shell
   the Device Mode to request, a decoded report as a `GazeSample` in screen pixels;
 - `clock`: Sensor Timestamps (µs on the tracker's clock) as host monotonic ns;
 - `source`: hidapi (which backend, and why), opening a tracker, reading it, reconnecting with
-  back-off: `HidGazeSource`, the `hid[:PATH]` source of `gazehdr.drivers.sources`;
+  back-off: `HidGazeSource`, the `hid[:PATH]` source of `gazehdr.drivers.registry`;
 - `devices`: the `gazehdr devices` command.
 
 Nothing is imported here, so that `gazehdr.drivers.hid.descriptor` comes without the I/O; the

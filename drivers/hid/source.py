@@ -41,7 +41,8 @@ from gazehdr.drivers.hid.tracker import (
     shape_differs,
 )
 from gazehdr.drivers.hid.usages import SENSOR_TIMESTAMP, USAGE_PAGE
-from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.registry import SourceUnavailableError
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sources import SourceInfo
 
 log = logging.getLogger(__name__)
@@ -360,3 +361,25 @@ class HidGazeSource:
 
     def __iter__(self) -> Iterator[GazeSample]:
         return self.samples()
+
+
+def open_hid(request: StreamRequest) -> HidGazeSource:
+    """The `hid[:PATH]` stream of `gazehdr.drivers.registry`: the tracker at PATH (else the
+    first on usage page 0x12); `geometry` replaces what it reports, `screen` overrides single
+    fields; with `wait`, waits for a tracker to be plugged in. SourceUnavailableError when there
+    is none or it cannot be used (the registry reports a missing hidapi, an ImportError)."""
+    options = dict(request.options)
+    if request.arg:
+        options.setdefault("path", request.arg)
+    if request.geometry is not None:
+        options.setdefault("geometry", request.geometry)
+    if request.screen:
+        options.setdefault("screen", request.screen)
+    options.setdefault("open_now", not request.wait)
+    try:
+        source = HidGazeSource(**options)
+        if request.wait:
+            source.wait_for_tracker()
+        return source
+    except (OSError, LookupError, ValueError) as e:  # no tracker, or not one we can use
+        raise SourceUnavailableError(f"HID source unavailable: {e}") from None
