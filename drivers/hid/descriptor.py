@@ -157,9 +157,9 @@ class Value:
     """One decoded value of a report.
 
     `raw` is the logical value as sent (joined, for a value array). `value` is in the usage's
-    canonical unit (µm, µs, Hz; see `CANONICAL_UNITS`) after the physical range, Unit and Unit
-    Exponent of the descriptor; None when the raw value lies outside the logical range (HID's
-    "no data" / null state).
+    canonical unit (µm, µs, Hz; see `usages.CANONICAL_UNITS`) after the physical range, Unit
+    and Unit Exponent of the descriptor; None when the raw value lies outside the logical range
+    (HID's "no data" / null state).
     """
 
     usage: int
