@@ -849,8 +849,10 @@ def test_clock_drift_is_followed(ppm: float) -> None:
     src.close()
 
 
-def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
-    no_timestamp = b"".join(
+def gaze_only_descriptor(*more: bytes) -> bytes:
+    """An eye tracker without report ids and without Sensor Timestamp: Gaze Point X/Y as i16
+    (µm, the usage's own unit), then the items `more` inside its application collection."""
+    return b"".join(
         [
             usage_page(0x12),
             usage(0x01),
@@ -864,9 +866,14 @@ def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
             count(2),
             input_(DATA),
             END,
+            *more,
             END,
         ]
     )
+
+
+def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
+    no_timestamp = gaze_only_descriptor()
     t = FakeTracker(PATH, no_timestamp, {})
     report = struct.pack("<2h", 100, 200)
     t.queue = [report] * 3

@@ -19,14 +19,13 @@ from test_hid import (
     collection,
     count,
     feature,
-    input_,
+    gaze_only_descriptor,
     logical,
     microsoft_style_descriptor,
     size,
     tracker_descriptor,
     tracking_report,
     usage,
-    usage_page,
 )
 
 from gazehdr.drivers.hid.clock import ReportClock, TrackerClock
@@ -53,31 +52,8 @@ ENTRY = {
 
 def unnumbered_descriptor() -> bytes:
     """A tracker without report ids: Gaze Point X/Y, i16 µm; a Device Mode Request feature."""
-    return b"".join(
-        [
-            usage_page(0x12),
-            usage(0x01),
-            collection(1),
-            usage(0x24),
-            collection(0),
-            usage(0x21),
-            usage(0x22),
-            logical(-32767, 32767),
-            size(16),
-            count(2),
-            input_(DATA),
-            END,
-            usage(0x14),
-            collection(2),
-            usage(0x400),
-            logical(0, 7),
-            size(8),
-            count(1),
-            feature(DATA),
-            END,
-            END,
-        ]
-    )
+    mode = [usage(0x14), collection(2), usage(0x400), logical(0, 7), size(8), count(1)]
+    return gaze_only_descriptor(*mode, feature(DATA), END)
 
 
 def reports(descriptor: bytes | None = None) -> TrackerReports:
