@@ -63,15 +63,10 @@ from urllib.parse import urlsplit, urlunsplit
 from gazehdr.drivers import wire
 from gazehdr.drivers.fixations import DETECTORS, make_detector
 from gazehdr.drivers.formats import positive_arg, screen_size_arg  # as `gazehdr import` reads them
+from gazehdr.drivers.registry import SourceUnavailableError, open_source
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
-from gazehdr.drivers.sources import (
-    SourceInfo,
-    SourceUnavailableError,
-    fixation_places_of,
-    open_source,
-    records_of,
-)
+from gazehdr.drivers.sources import SourceInfo, fixation_places_of, records_of
 
 log = logging.getLogger("gazehdr.daemon")
 

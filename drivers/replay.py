@@ -13,6 +13,8 @@ A replay also knows what a live stream cannot: where each fixation is before it 
 `fixation_places()` gives it (`gazehdr.drivers.sessionlog.fixation_places`, the places
 `SessionLog.fixation_track` holds), so that a consumer can place the fixation starts that
 recorders such as EyeLink (`SFIX`) and BIDS physioevents leave without a position.
+
+`open_replay` is the `replay:FILE[@SPEED]` stream of `gazehdr.drivers.registry`.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sessionlog import (
     FORMAT,
     FixationPlace,
@@ -196,3 +198,46 @@ def replay(
 ) -> list[Record]:
     """Every record a replay emits, read as fast as possible unless `speed` says otherwise."""
     return list(ReplaySource(recording, speed=speed, **options).records())
+
+
+def parse_speed(text: str) -> float:
+    """`max` (as fast as possible), or a positive factor such as `2`, `0.5`, `x2`, `2x`."""
+    t = text.strip().lower()
+    if t in ("max", "inf", "fast"):
+        return math.inf
+    t = t.removeprefix("x").removeprefix("×").removesuffix("x")
+    try:
+        value = float(t)
+    except ValueError:
+        raise ValueError(
+            f"replay speed {text!r}: expected a factor such as 2 or 0.5, or max"
+        ) from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"replay speed {text!r}: must be positive and finite, or max")
+    return value
+
+
+def split_replay_spec(rest: str) -> tuple[str, float]:
+    """`FILE[@SPEED]` → (FILE, speed); an `@` that is part of the file name stays in it."""
+    if "@" in rest:
+        name, _, speed = rest.rpartition("@")
+        try:
+            return name, parse_speed(speed)
+        except ValueError:
+            if Path(rest).exists():
+                return rest, 1.0
+            raise
+    return rest, 1.0
+
+
+def open_replay(request: StreamRequest) -> ReplaySource:
+    """The `replay:FILE[@SPEED]` stream; the request's geometry (with its `screen` fields) fills
+    in what an imported recording does not record."""
+    if not request.arg:
+        raise ValueError("replay needs a file: replay:FILE[@SPEED]")
+    path, speed = split_replay_spec(request.arg)
+    options = dict(request.options)
+    geometry = request.screen_geometry()
+    if geometry is not None:
+        options.setdefault("geometry", geometry)
+    return ReplaySource(path, speed=speed, clock=request.clock, sleep=request.sleep, **options)

@@ -1,4 +1,5 @@
-"""Gaze data types shared by every source: raw samples, fixations, and gaze tracks.
+"""Gaze data types shared by every source: raw samples, fixations, gaze tracks, and the requests
+`gazehdr.drivers.registry` hands a source's opener.
 
 Two coordinate systems on purpose. Samples and fixations are what a tracker reports: screen
 pixels of the tracker's calibrated screen, timestamps in monotonic nanoseconds on the source's
@@ -10,8 +11,10 @@ tracker machine installs only `gazehdr[daemon]`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import NamedTuple, Protocol, runtime_checkable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 
 @dataclass(frozen=True)
@@ -113,3 +116,42 @@ class GazeTrack(Protocol):
     """
 
     def at(self, t: float) -> GazePoint: ...
+
+
+@dataclass(frozen=True)
+class StreamRequest:
+    """A stream spec as `gazehdr.drivers.registry.open_source` hands it to the opener of its
+    kind: `arg` (what follows `kind:`), the options every kind may take (each uses those that
+    apply to it), and `options`, passed on to the source itself."""
+
+    arg: str = ""
+    rate_hz: float | None = None
+    realtime: bool = True
+    geometry: ScreenGeometry | None = None
+    screen: Mapping[str, float] = field(default_factory=dict)
+    wait: bool = False
+    clock: Callable[[], int] | None = None  # monotonic ns
+    sleep: Callable[[float], None] | None = None  # seconds
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    def screen_geometry(self) -> ScreenGeometry | None:
+        """`geometry` with the `screen` fields set, for sources that take the screen as a whole
+        (ValueError for a field or value that is not one)."""
+        if not self.screen:
+            return self.geometry
+        return replace(self.geometry or ScreenGeometry(), **self.screen)
+
+
+@dataclass(frozen=True)
+class TrackRequest:
+    """A gaze spec as `gazehdr.drivers.registry.open_track` hands it to the opener of its kind:
+    the spec itself (for a file kind, its path), and the seed and duration a generated track
+    (the synthetic scan path) is made with; other kinds ignore them."""
+
+    spec: str
+    seed: int = 0
+    duration: float = 60.0
+
+    @property
+    def path(self) -> Path:
+        return Path(self.spec)

@@ -835,8 +835,8 @@ class SessionTrack:
 
 
 def read_session_track(path: Path) -> SessionTrack:
-    """The `FILE_TRACKS` reader for `.jsonl` session logs: the log's fixations, as a live
-    session replaying it follows them."""
+    """A session log as a gaze track (`LOG.jsonl` in `gazehdr.drivers.registry`): the log's
+    fixations, as a live session replaying it follows them."""
     return read_session_log(path).fixation_track()
 
 

@@ -8,13 +8,10 @@ with its samples in the order they were first emitted; plain sources' `records()
 samples. A recording may also say where its fixations are before they end
 (`fixation_places()`, see `fixation_places_of`).
 
-`open_source(spec)` builds one from a command-line spec:
-
-- `synthetic[:SEED]`: a seeded scan path (`gazehdr.drivers.synthetic.SyntheticScanPath`) sampled at
-  `rate_hz`, paced in real time by default (or as fast as possible with `realtime=False`);
-- `replay:FILE[@SPEED]`: a native session log or any recording `gazehdr.drivers.formats` imports, at
-  recorded speed, `@2` (twice as fast), `@0.5`, or `@max` (as fast as the reader takes it);
-- `hid[:PATH]`: a USB HID eye tracker (`hid.HidSource`, imported only when asked for).
+`gazehdr.drivers.registry.open_source(spec)` opens one from a command-line spec; each kind's
+opener gets a `samples.StreamRequest`. The synthetic scan path's source is here (`synthetic[:SEED]`,
+`open_synthetic`); the others live in their own modules (`replay`, `hid`), which import this
+one and never the other way round.
 
 `screen` (`ScreenGeometry` field names → values, e.g. from `gazehdr daemon --screen
 --diagonal --distance`) says what the user knows about the screen: it sets the synthetic
@@ -30,11 +27,10 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
-from gazehdr.drivers.samples import GazeSample, ScreenGeometry
+from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.synthetic import SyntheticScanPath
 
 Clock = Callable[[], int]  # monotonic nanoseconds
@@ -43,10 +39,6 @@ Sleep = Callable[[float], None]  # seconds
 #: Chunk of synthetic scan path planned at once; an endless source chains chunks.
 SYNTHETIC_CHUNK_S = 600.0
 DEFAULT_SYNTHETIC_RATE_HZ = 250.0
-
-
-class SourceUnavailableError(RuntimeError):
-    """A source that cannot be opened here (missing driver, no device); the text says why."""
 
 
 @dataclass(frozen=True)
@@ -240,103 +232,19 @@ class SyntheticSource:
         return iter(self)
 
 
-def parse_speed(text: str) -> float:
-    """`max` (as fast as possible), or a positive factor such as `2`, `0.5`, `x2`, `2x`."""
-    t = text.strip().lower()
-    if t in ("max", "inf", "fast"):
-        return math.inf
-    t = t.removeprefix("x").removeprefix("×").removesuffix("x")
+def open_synthetic(request: StreamRequest) -> SyntheticSource:
+    """The `synthetic[:SEED]` stream: `rate_hz` (default 250 Hz), paced in real time unless
+    `realtime` is False."""
     try:
-        value = float(t)
+        seed = int(request.arg) if request.arg else 0
     except ValueError:
-        raise ValueError(
-            f"replay speed {text!r}: expected a factor such as 2 or 0.5, or max"
-        ) from None
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"replay speed {text!r}: must be positive and finite, or max")
-    return value
-
-
-def split_replay_spec(rest: str) -> tuple[str, float]:
-    """`FILE[@SPEED]` → (FILE, speed); an `@` that is part of the file name stays in it."""
-    if "@" in rest:
-        name, _, speed = rest.rpartition("@")
-        try:
-            return name, parse_speed(speed)
-        except ValueError:
-            if Path(rest).exists():
-                return rest, 1.0
-            raise
-    return rest, 1.0
-
-
-def open_source(
-    spec: str,
-    *,
-    rate_hz: float | None = None,
-    realtime: bool = True,
-    geometry: ScreenGeometry | None = None,
-    screen: Mapping[str, float] | None = None,
-    wait: bool = False,
-    clock: Clock | None = None,
-    sleep: Sleep | None = None,
-    **options: Any,
-) -> Source:
-    """A source from its spec: `synthetic[:SEED]`, `replay:FILE[@SPEED]`, or `hid[:PATH]`.
-
-    `rate_hz`, `realtime` and `geometry` apply to the synthetic source; `geometry` also to
-    imported recordings that do not record their screen, and replaces what a HID tracker
-    reports. `screen` overrides single `ScreenGeometry` fields (see the module docstring).
-    `wait` (hid): when no tracker is plugged in, wait for one with back-off, a message per
-    attempt, instead of failing. Other `options` go to the source. Raises `ValueError` for a spec
-    it does not know or a geometry that is not one, and `SourceUnavailableError` for a source
-    that cannot run here.
-    """
-    kind, _, rest = spec.partition(":")
-    if screen and kind != "hid":
-        geometry = replace(geometry or ScreenGeometry(), **screen)
-    if kind == "synthetic":
-        try:
-            seed = int(rest) if rest else 0
-        except ValueError:
-            raise ValueError(f"synthetic:SEED needs an integer seed, got {rest!r}") from None
-        return SyntheticSource(
-            seed,
-            rate_hz or DEFAULT_SYNTHETIC_RATE_HZ,
-            realtime=realtime,
-            geometry=geometry,
-            clock=clock,
-            sleep=sleep,
-            **options,
-        )
-    if kind == "replay":
-        if not rest:
-            raise ValueError("replay needs a file: replay:FILE[@SPEED]")
-        from gazehdr.drivers.replay import ReplaySource
-
-        path, speed = split_replay_spec(rest)
-        if geometry is not None:
-            options.setdefault("geometry", geometry)
-        return ReplaySource(path, speed=speed, clock=clock, sleep=sleep, **options)
-    if kind == "hid":
-        try:
-            from gazehdr.drivers.hid import HidSource  # another module; optional dependencies
-        except ImportError as e:
-            raise SourceUnavailableError(f"HID source unavailable: {e}") from None
-        if rest:
-            options.setdefault("path", rest)
-        if geometry is not None:
-            options.setdefault("geometry", geometry)
-        if screen:
-            options.setdefault("screen", screen)
-        try:
-            options.setdefault("open_now", not wait)
-            source = HidSource(**options)
-            if wait:
-                source.wait_for_tracker()
-            return source
-        except (OSError, ImportError, LookupError, ValueError) as e:  # no tracker, no hidapi
-            raise SourceUnavailableError(f"HID source unavailable: {e}") from None
-    raise ValueError(
-        f"unknown gaze source {spec!r}; known: synthetic[:SEED], replay:FILE[@SPEED], hid"
+        raise ValueError(f"synthetic:SEED needs an integer seed, got {request.arg!r}") from None
+    return SyntheticSource(
+        seed,
+        request.rate_hz or DEFAULT_SYNTHETIC_RATE_HZ,
+        realtime=request.realtime,
+        geometry=request.screen_geometry(),
+        clock=request.clock,
+        sleep=request.sleep,
+        **request.options,
     )

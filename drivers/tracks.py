@@ -1,8 +1,8 @@
-"""Gaze tracks from files, and the one place that turns a gaze spec string into a track.
+"""Gaze tracks: the openers of the track kinds in `gazehdr.drivers.registry`, and CSV tracks.
 
-A file format plugs in by adding a reader to `FILE_TRACKS` (suffix → reader); everything that
-renders only sees the `GazeTrack` protocol. A native session log (`*.jsonl`) renders as its
-fixations (`SessionLog.fixation_track`), exactly what a live session replaying it follows.
+Each opener takes a `TrackRequest`; everything that renders only sees the `GazeTrack` protocol.
+A native session log (`*.jsonl`) renders as its fixations (`SessionLog.fixation_track`), exactly
+what a live session replaying it follows.
 
 CSV gaze format (`*.csv`): one sample per row, `t,x,y[,eyes_open]`.
 
@@ -20,19 +20,16 @@ import bisect
 import csv
 import itertools
 import math
-import re
-from collections.abc import Callable
 from pathlib import Path
 
-from gazehdr.drivers.samples import GazePoint, GazeTrack
-from gazehdr.drivers.sessionlog import read_session_track
+from gazehdr.drivers.registry import open_track as open_track  # gazehdr.session imports it here
+from gazehdr.drivers.samples import GazePoint, TrackRequest
+from gazehdr.drivers.sessionlog import SessionTrack, read_session_track
 from gazehdr.drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath
 
 _TRUE = {"1", "true", "yes"}
 _FALSE = {"0", "false", "no"}
 _HEADERS = (["t", "x", "y"], ["t", "x", "y", "eyes_open"])
-_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_POINT = re.compile(rf"\s*({_NUMBER})\s*,\s*({_NUMBER})\s*")
 
 
 class CsvGazeTrack:
@@ -93,34 +90,28 @@ def _parse_row(fields: list[str], where: str) -> tuple[float, GazePoint]:
     return t, GazePoint(x, y, eyes in _TRUE)
 
 
-#: Gaze file readers by lower-case suffix; session logs and imported recordings join here.
-FILE_TRACKS: dict[str, Callable[[Path], GazeTrack]] = {
-    ".csv": CsvGazeTrack.read,
-    ".jsonl": read_session_track,  # a native session log's fixations (drivers/sessionlog.py)
-}
+def synthetic_track(request: TrackRequest) -> FixationView:
+    """`synthetic`: the seeded scan path, followed from fixation to fixation (SPEC §4) like a
+    recorded session, so that a saccade does not sweep the retina."""
+    return FixationView(SyntheticScanPath(seed=request.seed, duration=request.duration))
 
 
-def open_track(spec: str, *, seed: int = 0, duration: float = 60.0) -> GazeTrack:
-    """The track a gaze spec names: `synthetic`, `fixed`, `X,Y` (normalised) or a file path.
+def fixed_track(request: TrackRequest) -> FixedGaze:
+    """`fixed`: the centre of the screen."""
+    return FixedGaze()
 
-    `seed` and `duration` configure the synthetic scan path and are ignored otherwise. Like a
-    recorded session, the scan path is followed from fixation to fixation (SPEC §4): a
-    saccade does not sweep the retina.
-    """
-    if spec == "synthetic":
-        return FixationView(SyntheticScanPath(seed=seed, duration=duration))
-    if spec == "fixed":
-        return FixedGaze()
-    point = _POINT.fullmatch(spec)
-    if point:
-        return FixedGaze(float(point[1]), float(point[2]))
-    path = Path(spec)
-    reader = FILE_TRACKS.get(path.suffix.lower())
-    if reader is None:
-        raise ValueError(
-            f"gaze {spec!r}: expected synthetic, fixed, X,Y or a file ending in "
-            f"{', '.join(sorted(FILE_TRACKS))}"
-        )
-    if not path.is_file():
-        raise ValueError(f"gaze file {spec!r} not found")
-    return reader(path)
+
+def point_track(request: TrackRequest) -> FixedGaze:
+    """`X,Y`: a fixed point in normalised coordinates (the registry matched two numbers)."""
+    x, y = request.spec.split(",")
+    return FixedGaze(float(x), float(y))
+
+
+def csv_track(request: TrackRequest) -> CsvGazeTrack:
+    """`FILE.csv`: the samples of a CSV gaze file (see the module docstring)."""
+    return CsvGazeTrack.read(request.path)
+
+
+def session_log_track(request: TrackRequest) -> SessionTrack:
+    """`LOG.jsonl`: a native session log's fixations (`gazehdr.drivers.sessionlog`)."""
+    return read_session_track(request.path)

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
 
+from gazehdr.drivers import registry
+
 PROG = "gazehdr"
 
 
@@ -93,11 +95,9 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         "--gaze",
         default="synthetic",
         metavar="SPEC",
-        help="synthetic (seeded scan path, fixation to fixation), fixed (centre), X,Y "
-        "(normalised point), a CSV of t,x,y[,eyes_open] rows or a session log .jsonl "
-        "(its fixations; a recorded viewing session also brings its scene, parameter and "
-        "model changes and resets, unless SCENE, --params or a model option replaces them) "
-        "(default: synthetic)",
+        help=f"{registry.describe(registry.TRACK)}; a recorded viewing session also brings "
+        "its scene, parameter and model changes and resets, unless SCENE, --params or a model "
+        "option replaces them (default: synthetic)",
     )
     p.add_argument("--seconds", type=float, help="duration (default: a session log's, else 6)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
@@ -134,7 +134,6 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
 
 def _render(args: argparse.Namespace, extra: list[str]) -> int:
     from gazehdr.drivers.sessionlog import read_session_log
-    from gazehdr.drivers.tracks import open_track
     from gazehdr.render import recorded_changes, render
     from gazehdr.scenes import open_scene
     from gazehdr.scenes.library import SceneLibrary
@@ -176,7 +175,7 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
         seconds = (max(r.t_ns for r in log.records()) - track.t0_ns) / 1e9 + 1 / args.fps
     seconds = 6.0 if seconds is None else seconds
     if log is None:
-        track = open_track(args.gaze, seed=seed, duration=seconds)
+        track = registry.open_track(args.gaze, seed=seed, duration=seconds)
     if args.scene is not None:
         scene = open_scene(args.scene, scale=args.scale)
     elif not any(c.scene for c in changes):
@@ -342,7 +341,7 @@ def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _devices(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.drivers.hid import devices_main
+    from gazehdr.drivers.hid.devices import devices_main
 
     return devices_main(extra)
 
@@ -455,7 +454,7 @@ COMMANDS: dict[str, Command] = {
         passthrough=True,
     ),
     "daemon": Command(
-        "stream gaze (hid, replay:FILE[@SPEED], synthetic[:SEED]) to a server's /ws/gaze "
+        f"stream gaze ({registry.choices(registry.STREAM)}) to a server's /ws/gaze "
         "(arguments pass through; see 'gazehdr daemon --help')",
         _daemon,
         passthrough=True,

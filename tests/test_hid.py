@@ -26,11 +26,35 @@ from typing import Any
 import pytest
 from conftest import samples_received, sole_tracker
 
-from gazehdr.drivers import hid, wire
+from gazehdr.drivers import wire
 from gazehdr.drivers.daemon import Daemon
+from gazehdr.drivers.hid.descriptor import (
+    FEATURE,
+    INPUT,
+    Descriptor,
+    DescriptorError,
+    ReportError,
+)
+from gazehdr.drivers.hid.devices import devices_main, list_devices
+from gazehdr.drivers.hid.source import HidGazeSource
+from gazehdr.drivers.hid.tracker import TrackerReports
+from gazehdr.drivers.hid.usages import (
+    CALIBRATED_SCREEN_HEIGHT,
+    CALIBRATED_SCREEN_WIDTH,
+    GAZE_POINT,
+    LEFT_EYE_POSITION,
+    POSITION_X,
+    POSITION_Y,
+    POSITION_Z,
+    SAMPLING_FREQUENCY,
+    SENSOR_TIMESTAMP,
+    TRACKER_QUALITY,
+    TRACKING_DATA,
+)
+from gazehdr.drivers.registry import open_source
 from gazehdr.drivers.samples import ScreenGeometry
 from gazehdr.drivers.sessionlog import read_session_log
-from gazehdr.drivers.sources import Source, open_source
+from gazehdr.drivers.sources import Source
 
 # --- HID 1.11 short items ---------------------------------------------------------------------
 
@@ -296,91 +320,91 @@ def microsoft_style_descriptor() -> bytes:
 
 
 def test_descriptor_layout_comes_from_the_descriptor() -> None:
-    d = hid.Descriptor(tracker_descriptor())
+    d = Descriptor(tracker_descriptor())
     assert d.numbered
-    assert sorted(d.report_ids(hid.INPUT)) == [0x10]
-    assert sorted(d.report_ids(hid.FEATURE)) == [0x11, 0x12, 0x13, 0x14]
+    assert sorted(d.report_ids(INPUT)) == [0x10]
+    assert sorted(d.report_ids(FEATURE)) == [0x11, 0x12, 0x13, 0x14]
     # 1 id + 3 pad + 4 ts + 6 left eye + 8 gaze + 1 flag/pad
-    assert d.report_bytes(hid.INPUT, 0x10) == 23
-    assert d.report_bytes(hid.FEATURE, 0x12) == 10
-    rid, fx = d.find(hid.INPUT, hid.POSITION_X, inside=hid.GAZE_POINT)
+    assert d.report_bytes(INPUT, 0x10) == 23
+    assert d.report_bytes(FEATURE, 0x12) == 10
+    rid, fx = d.find(INPUT, POSITION_X, inside=GAZE_POINT)
     assert rid == 0x10
     assert (fx.logical_min, fx.logical_max, fx.size) == (-1_000_000, 1_000_000, 32)
     assert fx.unit_exp == -4
-    _, lx = d.find(hid.INPUT, hid.POSITION_X, inside=hid.LEFT_EYE_POSITION)
+    _, lx = d.find(INPUT, POSITION_X, inside=LEFT_EYE_POSITION)
     assert lx is not fx and lx.start < fx.start  # the left eye comes first in the report
 
 
 def test_input_report_decodes_to_micrometres_and_microseconds() -> None:
-    d = hid.Descriptor(tracker_descriptor())
+    d = Descriptor(tracker_descriptor())
     report = tracking_report(4_000_000_123, (-31, 12, 654), (263_520, -1_500))
-    decoded = d.decode(hid.INPUT, report)
+    decoded = d.decode(INPUT, report)
     assert decoded.report_id == 0x10
-    ts = decoded.find(hid.SENSOR_TIMESTAMP)
+    ts = decoded.find(SENSOR_TIMESTAMP)
     assert ts is not None and ts.raw == 4_000_000_123  # u32 above 2³¹ stays unsigned
     assert ts.value == pytest.approx(4_000_000_123.0)  # s·10⁻⁶ → µs
-    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
-    gy = decoded.find(hid.POSITION_Y, inside=hid.GAZE_POINT)
+    gx = decoded.find(POSITION_X, inside=GAZE_POINT)
+    gy = decoded.find(POSITION_Y, inside=GAZE_POINT)
     assert gx is not None and gy is not None
     assert (gx.raw, gy.raw) == (263_520, -1_500)  # signed
     assert gx.value == pytest.approx(263_520.0) and gy.value == pytest.approx(-1_500.0)
     # Left eye: i16 in mm (cm·10⁻¹) → µm
-    lx = decoded.find(hid.POSITION_X, inside=hid.LEFT_EYE_POSITION)
-    lz = decoded.find(hid.POSITION_Z, inside=hid.LEFT_EYE_POSITION)
+    lx = decoded.find(POSITION_X, inside=LEFT_EYE_POSITION)
+    lz = decoded.find(POSITION_Z, inside=LEFT_EYE_POSITION)
     assert lx is not None and lz is not None
     assert lx.raw == -31 and lx.value == pytest.approx(-31_000.0)
     assert lz.value == pytest.approx(654_000.0)
     # The Position Z after the Gaze Point collection closed is in no eye/gaze collection.
-    flags = [v for v in decoded.values if v.usage == hid.POSITION_Z]
+    flags = [v for v in decoded.values if v.usage == POSITION_Z]
     assert len(flags) == 2
     assert flags[1].raw == 1
-    assert hid.GAZE_POINT not in flags[1].path and hid.LEFT_EYE_POSITION not in flags[1].path
-    assert hid.TRACKING_DATA in flags[1].path
+    assert GAZE_POINT not in flags[1].path and LEFT_EYE_POSITION not in flags[1].path
+    assert TRACKING_DATA in flags[1].path
 
 
 def test_constant_flagged_gaze_is_data_not_padding() -> None:
-    d = hid.Descriptor(tracker_descriptor(gaze_flags=CONST))
-    decoded = d.decode(hid.INPUT, tracking_report(7, (0, 0, 0), (1000, 2000)))
-    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
+    d = Descriptor(tracker_descriptor(gaze_flags=CONST))
+    decoded = d.decode(INPUT, tracking_report(7, (0, 0, 0), (1000, 2000)))
+    gx = decoded.find(POSITION_X, inside=GAZE_POINT)
     assert gx is not None and gx.constant and gx.value == pytest.approx(1000.0)
 
 
 def test_feature_reports_constant_fields_and_units() -> None:
-    d = hid.Descriptor(tracker_descriptor())
-    conf = d.decode(hid.FEATURE, FEATURES[0x12])
-    w = conf.find(hid.CALIBRATED_SCREEN_WIDTH)
-    h = conf.find(hid.CALIBRATED_SCREEN_HEIGHT)
+    d = Descriptor(tracker_descriptor())
+    conf = d.decode(FEATURE, FEATURES[0x12])
+    w = conf.find(CALIBRATED_SCREEN_WIDTH)
+    h = conf.find(CALIBRATED_SCREEN_HEIGHT)
     assert w is not None and h is not None and w.constant
     assert (w.value, h.value) == (527_040.0, 296_460.0)
-    caps = d.decode(hid.FEATURE, FEATURES[0x11])
-    assert caps.find(hid.TRACKER_QUALITY).raw == 2  # type: ignore[union-attr]
-    status = d.decode(hid.FEATURE, FEATURES[0x13])
-    assert status.find(hid.SAMPLING_FREQUENCY).value == pytest.approx(120.0)  # type: ignore[union-attr]
+    caps = d.decode(FEATURE, FEATURES[0x11])
+    assert caps.find(TRACKER_QUALITY).raw == 2  # type: ignore[union-attr]
+    status = d.decode(FEATURE, FEATURES[0x13])
+    assert status.find(SAMPLING_FREQUENCY).value == pytest.approx(120.0)  # type: ignore[union-attr]
 
 
 def test_out_of_logical_range_means_no_data() -> None:
-    d = hid.Descriptor(tracker_descriptor())
-    decoded = d.decode(hid.INPUT, tracking_report(5, (0, 0, 0), (-0x80000000, 1_000_001)))
-    assert decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT).value is None  # type: ignore[union-attr]
-    assert decoded.find(hid.POSITION_Y, inside=hid.GAZE_POINT).value is None  # type: ignore[union-attr]
+    d = Descriptor(tracker_descriptor())
+    decoded = d.decode(INPUT, tracking_report(5, (0, 0, 0), (-0x80000000, 1_000_001)))
+    assert decoded.find(POSITION_X, inside=GAZE_POINT).value is None  # type: ignore[union-attr]
+    assert decoded.find(POSITION_Y, inside=GAZE_POINT).value is None  # type: ignore[union-attr]
 
 
 def test_value_array_push_pop_and_byte_unit_exponent() -> None:
-    d = hid.Descriptor(microsoft_style_descriptor())
+    d = Descriptor(microsoft_style_descriptor())
     report = (
         bytes([0x10, 0, 0, 0])
         + struct.pack("<Q", 0x0123_4567_89AB_CDEF)
         + struct.pack("<2i", -42, 100_000)
         + struct.pack("<3i", 1, -2, 650_000)
     )
-    assert d.report_bytes(hid.INPUT, 0x10) == len(report)
-    decoded = d.decode(hid.INPUT, report)
-    ts = decoded.find(hid.SENSOR_TIMESTAMP)
+    assert d.report_bytes(INPUT, 0x10) == len(report)
+    decoded = d.decode(INPUT, report)
+    ts = decoded.find(SENSOR_TIMESTAMP)
     assert ts is not None and ts.raw == 0x0123_4567_89AB_CDEF and ts.bits == 64
-    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
+    gx = decoded.find(POSITION_X, inside=GAZE_POINT)
     assert gx is not None and gx.value == pytest.approx(-42.0)  # no Unit item: µm as tabled
     # Unit cm with exponent 0xFC (−4) survives the Push: µm
-    rz = decoded.find(hid.POSITION_Z, inside=hid.LEFT_EYE_POSITION)
+    rz = decoded.find(POSITION_Z, inside=LEFT_EYE_POSITION)
     assert rz is not None and rz.value == pytest.approx(650_000.0)
 
 
@@ -406,30 +430,30 @@ def test_signed_logical_maximum_and_physical_range() -> None:
             END,
         ]
     )
-    d = hid.Descriptor(desc)
+    d = Descriptor(desc)
     assert not d.numbered
-    decoded = d.decode(hid.INPUT, bytes([0x9C, 0xFF, 0xFF]))  # −100, −1, −1
-    z = decoded.find(hid.POSITION_Z)
+    decoded = d.decode(INPUT, bytes([0x9C, 0xFF, 0xFF]))  # −100, −1, −1
+    z = decoded.find(POSITION_Z)
     assert z is not None and z.raw == -1 and z.value == pytest.approx(-20.0)
-    gx = decoded.find(hid.POSITION_X, inside=hid.GAZE_POINT)
-    gy = decoded.find(hid.POSITION_Y, inside=hid.GAZE_POINT)
+    gx = decoded.find(POSITION_X, inside=GAZE_POINT)
+    gy = decoded.find(POSITION_Y, inside=GAZE_POINT)
     assert gx is not None and gy is not None
     assert gx.value == pytest.approx(-2000.0) and gy.value == pytest.approx(-20.0)
     # 0 is above the logical maximum −1: no data
-    assert d.decode(hid.INPUT, bytes([0x9C, 0x00, 0xFF])).values[1].value is None
+    assert d.decode(INPUT, bytes([0x9C, 0x00, 0xFF])).values[1].value is None
 
 
 def test_bad_inputs_are_errors() -> None:
-    d = hid.Descriptor(tracker_descriptor())
-    with pytest.raises(hid.ReportError, match="no Input report with id 99"):
-        d.decode(hid.INPUT, bytes([99, 0, 0]))
-    with pytest.raises(hid.ReportError, match="bytes"):
-        d.decode(hid.INPUT, tracking_report(1, (0, 0, 0), (0, 0))[:10])
-    with pytest.raises(hid.DescriptorError):
-        hid.Descriptor(b"\x05\x12\x09\x01\xa1\x01\xc0\xc0")  # one End Collection too many
+    d = Descriptor(tracker_descriptor())
+    with pytest.raises(ReportError, match="no Input report with id 99"):
+        d.decode(INPUT, bytes([99, 0, 0]))
+    with pytest.raises(ReportError, match="bytes"):
+        d.decode(INPUT, tracking_report(1, (0, 0, 0), (0, 0))[:10])
+    with pytest.raises(DescriptorError):
+        Descriptor(b"\x05\x12\x09\x01\xa1\x01\xc0\xc0")  # one End Collection too many
     no_gaze = b"".join([usage_page(1), usage(2), collection(1), END])
-    with pytest.raises(hid.DescriptorError, match="Gaze Point"):
-        hid._tracking_report(hid.Descriptor(no_gaze))
+    with pytest.raises(DescriptorError, match="Gaze Point"):
+        TrackerReports(Descriptor(no_gaze))
     length_as_time = b"".join(
         [
             usage_page(0x12),
@@ -441,8 +465,8 @@ def test_bad_inputs_are_errors() -> None:
             input_(DATA),
         ]
     )
-    with pytest.raises(hid.DescriptorError, match="not convertible to µs"):
-        hid.Descriptor(length_as_time)
+    with pytest.raises(DescriptorError, match="not convertible to µs"):
+        Descriptor(length_as_time)
 
 
 # --- a fake hidapi ----------------------------------------------------------------------------
@@ -604,9 +628,9 @@ def timed_stream(
     return Stream(reports, sensor, taken, read)
 
 
-def timed_source(t: FakeTracker, **options: Any) -> hid.HidGazeSource:
+def timed_source(t: FakeTracker, **options: Any) -> HidGazeSource:
     """A source on `t` whose host clock is the fake's (moved by each read)."""
-    return hid.HidGazeSource(backend=FakeBus(t), clock_ns=lambda: t.now_ns, **options)
+    return HidGazeSource(backend=FakeBus(t), clock_ns=lambda: t.now_ns, **options)
 
 
 def diffs(values: list[int]) -> list[int]:
@@ -654,7 +678,7 @@ def test_open_source_builds_the_hid_source() -> None:
     stream = timed_stream(1)
     stream.queue(t)
     src = open_source("hid:" + PATH.decode(), backend=FakeBus(t), clock_ns=lambda: t.now_ns)
-    assert isinstance(src, hid.HidSource) and src.tracker_info is not None
+    assert isinstance(src, HidGazeSource) and src.tracker_info is not None
     assert src.tracker_info.path == PATH.decode()
     (s,) = itertools.islice(src, 1)
     assert s.t_ns == stream.read_ns[0]
@@ -691,7 +715,7 @@ def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
             t.plugged = True
             after.queue(t)
 
-    src = hid.HidGazeSource(
+    src = HidGazeSource(
         backend=bus,
         sleep=sleep,
         clock=lambda: now[0],
@@ -826,8 +850,10 @@ def test_clock_drift_is_followed(ppm: float) -> None:
     src.close()
 
 
-def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
-    no_timestamp = b"".join(
+def gaze_only_descriptor(*more: bytes) -> bytes:
+    """An eye tracker without report ids and without Sensor Timestamp: Gaze Point X/Y as i16
+    (µm, the usage's own unit), then the items `more` inside its application collection."""
+    return b"".join(
         [
             usage_page(0x12),
             usage(0x01),
@@ -841,9 +867,14 @@ def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
             count(2),
             input_(DATA),
             END,
+            *more,
             END,
         ]
     )
+
+
+def test_tracker_without_sensor_timestamp_gets_host_time() -> None:
+    no_timestamp = gaze_only_descriptor()
     t = FakeTracker(PATH, no_timestamp, {})
     report = struct.pack("<2h", 100, 200)
     t.queue = [report] * 3
@@ -864,8 +895,8 @@ def test_give_up_when_no_tracker() -> None:
         now[0] += s
 
     with pytest.raises(OSError, match="no HID eye tracker found"):
-        hid.HidGazeSource(backend=FakeBus())  # opened at once: nothing to wait for
-    src = hid.HidGazeSource(
+        HidGazeSource(backend=FakeBus())  # opened at once: nothing to wait for
+    src = HidGazeSource(
         backend=FakeBus(), sleep=sleep, clock=lambda: now[0], give_up_after_s=2, open_now=False
     )
     with pytest.raises(OSError, match=r"no HID eye tracker for 3\.8 s"):
@@ -977,8 +1008,8 @@ import sys
 
 sys.path.insert(0, sys.argv[1])
 import test_hid
-from gazehdr.drivers import hid
 from gazehdr.drivers.daemon import daemon_main
+from gazehdr.drivers.hid import source
 
 tracker = test_hid.make_tracker()
 tracker.plugged = False
@@ -997,7 +1028,7 @@ class LateBus(test_hid.FakeBus):
 
 
 bus = LateBus(tracker)
-hid._default_backend = lambda: bus
+source.default_backend = lambda: bus
 raise SystemExit(daemon_main(sys.argv[3:]))
 """
 
@@ -1060,7 +1091,7 @@ def test_list_devices_says_why(tmp_path: Any) -> None:
         "usage": 0x01,
     }
     bus = FakeBus(make_tracker(), others=[KEYBOARD, locked])
-    found = {d.path: d for d in hid.list_devices(bus, access=lambda p, m: False)}
+    found = {d.path: d for d in list_devices(bus, access=lambda p, m: False)}
     kbd = found["/dev/hidraw-test-kbd"]
     assert not kbd.usable and "usage page 0x0001" in kbd.reason
     lock = found[str(node)]
@@ -1076,22 +1107,24 @@ def test_list_devices_says_why(tmp_path: Any) -> None:
 
 def test_devices_main_prints_rule_and_status(capsys: pytest.CaptureFixture[str]) -> None:
     bus = FakeBus(make_tracker(), others=[KEYBOARD])
-    assert hid.devices_main([], backend=bus) == 0
+    assert devices_main([], backend=bus) == 0
     out = capsys.readouterr().out
     assert "ok   /dev/hidraw-test-0 2104:0127 Gaze 120: eye tracker" in out
     assert "skip /dev/hidraw-test-kbd 046d:c31c Keyboard: usage page 0x0001" in out
-    assert hid.devices_main(["--trackers-only"], backend=FakeBus(others=[KEYBOARD])) == 1
+    assert devices_main(["--trackers-only"], backend=FakeBus(others=[KEYBOARD])) == 1
     assert "no HID eye trackers found" in capsys.readouterr().out
 
 
 def test_drivers_hid_imports_neither_server_nor_pyopencl() -> None:
-    import subprocess
-    import sys
-
+    """Every module of the HID package, imported: no server side, no pyopencl, and neither
+    hidapi nor hid-tools until a tracker is opened or a descriptor parsed."""
     code = (
-        "import sys, gazehdr.drivers.hid; "
-        "bad = [m for m in sys.modules if m.split('.')[0] == 'pyopencl' "
-        "or m.startswith('gazehdr.') and not m.startswith('gazehdr.drivers')]; "
+        "import importlib, pkgutil, sys, gazehdr.drivers.hid as h; "
+        "names = [m.name for m in pkgutil.iter_modules(h.__path__, h.__name__ + '.')]; "
+        "[importlib.import_module(n) for n in names]; "
+        "assert {'gazehdr.drivers.hid.source', 'gazehdr.drivers.hid.descriptor'} <= set(names); "
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('pyopencl', 'hidraw', 'hid', "
+        "'hidtools') or m.startswith('gazehdr.') and not m.startswith('gazehdr.drivers')]; "
         "sys.exit(1 if bad else 0)"
     )
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from gazehdr.drivers import sources
+from gazehdr.drivers import registry, sources
 from gazehdr.drivers.fixations import make_detector
 from gazehdr.drivers.formats import import_recording
-from gazehdr.drivers.replay import ReplaySource, is_session_log, replay
+from gazehdr.drivers.registry import SourceUnavailableError, open_source
+from gazehdr.drivers.replay import ReplaySource, is_session_log, parse_speed, replay
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import (
     GazeEvent,
@@ -20,14 +21,7 @@ from gazehdr.drivers.sessionlog import (
     encode_record,
     read_session_log,
 )
-from gazehdr.drivers.sources import (
-    Pacer,
-    Source,
-    SourceUnavailableError,
-    SyntheticSource,
-    open_source,
-    parse_speed,
-)
+from gazehdr.drivers.sources import Pacer, Source, SyntheticSource
 
 DATA = Path(__file__).parent / "data" / "formats"
 
@@ -235,16 +229,11 @@ def test_hid_source_without_a_tracker_is_a_clear_error() -> None:
 
 
 def test_hid_source_is_opened_lazily_with_a_clear_error(monkeypatch) -> None:
-    import builtins
+    import sys
 
-    real_import = builtins.__import__
-
-    def no_hid(name, *args, **kwargs):
-        if name == "gazehdr.drivers.hid":
-            raise ModuleNotFoundError("No module named 'gazehdr.drivers.hid'")
-        return real_import(name, *args, **kwargs)
-
-    monkeypatch.setattr(builtins, "__import__", no_hid)
+    hid = next(k for k in registry.KINDS if k.name == "hid")
+    assert hid.stream is not None
+    monkeypatch.setitem(sys.modules, hid.stream.module, None)  # as if it could not be imported
     with pytest.raises(SourceUnavailableError, match="HID source unavailable"):
         open_source("hid")
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from gazehdr.drivers.fixations import make_detector
+from gazehdr.drivers.registry import open_track
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import (
     ClockInfo,
@@ -29,7 +30,6 @@ from gazehdr.drivers.sessionlog import (
     write_session_log,
 )
 from gazehdr.drivers.synthetic import SyntheticScanPath
-from gazehdr.drivers.tracks import open_track
 
 SCREEN = ScreenGeometry(0.6, 1000, 500, 0.8)
 
@@ -488,7 +488,7 @@ def test_render_follows_the_fixations_of_a_log(tmp_path: Path, with_events: bool
 
 @pytest.mark.parametrize("with_events", [True, False])
 def test_render_and_live_replay_of_a_log_agree(tmp_path: Path, with_events: bool) -> None:
-    """The offline track (`FILE_TRACKS`) and a live session's `replay:NAME` track are one."""
+    """The offline track (`open_track`) and a live session's `replay:NAME` track are one."""
     from gazehdr.recordings import RecordingLibrary
 
     _, file = _recorded_scan(tmp_path, with_events=with_events)

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gazehdr.drivers.registry import open_track
 from gazehdr.drivers.samples import GazePoint, GazeSample, GazeTrack, ScreenGeometry
 from gazehdr.drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath, peak_velocity
-from gazehdr.drivers.tracks import CsvGazeTrack, open_track
+from gazehdr.drivers.tracks import CsvGazeTrack
 
 RATE_HZ = 2000.0  # dense enough that finite differences resolve a 25 ms saccade's peak
 
