@@ -145,6 +145,14 @@ def kinds(how: How | None = None) -> tuple[SourceKind, ...]:
     return tuple(k for k in KINDS if how is None or k.opening(how) is not None)
 
 
+def named_tracks() -> tuple[SourceKind, ...]:
+    """The kinds that open as a track by their name alone (no file, no point): what a live
+    session can follow by name."""
+    return tuple(
+        k for k in kinds(TRACK) if k.track and k.track.pattern is None and k.track.suffix is None
+    )
+
+
 def choices(how: How) -> str:
     """The specs of the kinds that open `how`, as error messages list them."""
     openings = [o for k in kinds(how) if (o := k.opening(how)) is not None]

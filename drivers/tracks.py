@@ -22,7 +22,6 @@ import itertools
 import math
 from pathlib import Path
 
-from gazehdr.drivers.registry import open_track as open_track  # gazehdr.session imports it here
 from gazehdr.drivers.samples import GazePoint, TrackRequest
 from gazehdr.drivers.sessionlog import SessionTrack, read_session_track
 from gazehdr.drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath

@@ -219,9 +219,11 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         "--gaze",
         default="mouse",
         metavar="SOURCE",
-        help="gaze of new sessions: mouse (the viewer's pointer), synthetic (a seeded scan "
-        "path), remote:TRACKER (the gaze daemon whose hello names TRACKER), or remote (the "
-        "tracker, once exactly one is connected) (default: mouse)",
+        help="gaze of new sessions: mouse (the viewer's pointer), remote:TRACKER (the gaze "
+        "daemon whose hello names TRACKER), remote (the tracker, once exactly one is "
+        "connected), or a track: "
+        + ", ".join(f"{k.name} ({k.track.help})" for k in registry.named_tracks() if k.track)
+        + " (default: mouse)",
     )
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
     p.add_argument(

@@ -26,9 +26,8 @@ from dataclasses import dataclass, field
 from types import EllipsisType
 from typing import Any
 
-from gazehdr.drivers import sessionlog
+from gazehdr.drivers import registry, sessionlog
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
-from gazehdr.drivers.tracks import open_track
 from gazehdr.eye import Eye, side_by_side
 from gazehdr.gaze import (
     REMOTE,
@@ -62,10 +61,13 @@ from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 
-GAZE_SOURCES = ("mouse", "synthetic", REMOTE)
+#: Tracks a session follows by name alone (a recording is `replay:NAME`, from the server's
+#: recordings).
+NAMED_TRACKS = tuple(k.name for k in registry.named_tracks())
+GAZE_SOURCES = ("mouse", *NAMED_TRACKS, REMOTE)
 #: A stalled server steps the eye by at most this much at once (s), so it never leaps.
 MAX_FRAME_DT = 1.0
-SYNTHETIC_LOOP_S = 600.0  # the synthetic scan path repeats after this long
+SYNTHETIC_LOOP_S = 600.0  # a named track (the synthetic scan path) repeats after this long
 SIZE_STEP = 8  # frame sides are multiples of this when fitted to a viewport
 
 
@@ -319,8 +321,8 @@ class Session:
             return self.trackers.feed(name.removeprefix(REMOTE_PREFIX))
         if name == REMOTE:  # bound to a tracker by `_bind_remote`; until then the gaze holds
             return LatestGaze(holding)
-        if name == "synthetic":
-            track = open_track("synthetic", seed=self.settings.seed, duration=SYNTHETIC_LOOP_S)
+        if name in NAMED_TRACKS:
+            track = registry.open_track(name, seed=self.settings.seed, duration=SYNTHETIC_LOOP_S)
             return TrackGaze(track, 0.0, SYNTHETIC_LOOP_S)
         if name.startswith("replay:"):
             track = self.recordings.track(name.removeprefix("replay:"))

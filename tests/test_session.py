@@ -7,7 +7,7 @@ import pytest
 import sessions
 from sessions import tick
 
-from gazehdr.drivers.tracks import open_track
+from gazehdr.drivers.registry import open_track
 from gazehdr.eye import pane_params
 from gazehdr.protocol import (
     Choose,
