@@ -61,8 +61,8 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from gazehdr.drivers import wire
+from gazehdr.drivers.cli_args import positive_arg, screen_size_arg
 from gazehdr.drivers.fixations import DETECTORS, make_detector
-from gazehdr.drivers.formats import positive_arg, screen_size_arg  # as `gazehdr import` reads them
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
 from gazehdr.drivers.sources import (

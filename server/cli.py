@@ -17,21 +17,14 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+
+from gazehdr.drivers.cli_args import OneLineParser
 
 PROG = "gazehdr"
 
 
 class UsageError(Exception):
     """A mistake in what the user asked for; reported in one line with status 2."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors: the message and where to get help, no usage dump."""
-
-    def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"{PROG}: error: {message} (see '{self.prog} --help')\n")
-        raise SystemExit(2)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -478,7 +471,7 @@ COMMANDS: dict[str, Command] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = OneLineParser(
         prog=PROG,
         description="Gaze-adaptive HDR display: simulates adaptation, afterimages and mesopic "
         "vision (Jacobs et al. 2015) on an ordinary monitor.",
@@ -492,6 +485,7 @@ def build_parser() -> argparse.ArgumentParser:
             epilog=command.epilog,
             formatter_class=argparse.RawDescriptionHelpFormatter,
             add_help=not command.passthrough,
+            error_prog=PROG,
         )
         if command.configure:
             command.configure(p)
