@@ -63,6 +63,7 @@ from urllib.parse import urlsplit, urlunsplit
 from gazehdr.drivers import wire
 from gazehdr.drivers.cli_args import positive_arg, screen_size_arg
 from gazehdr.drivers.fixations import DETECTORS, make_detector
+from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import EVENT_KINDS, ClockInfo, SessionHeader, SessionLogWriter
 from gazehdr.drivers.sources import (
@@ -129,28 +130,6 @@ class ClockEstimator:
     @property
     def best(self) -> ClockEstimate | None:
         return min(self.window, key=lambda e: e.rtt_ns) if self.window else None
-
-
-# --- pacing ----------------------------------------------------------------------------------
-
-
-class TokenBucket:
-    """`rate` items per second on average, at most `burst` at once; starts full."""
-
-    def __init__(self, rate: float, burst: float, clock: Any = time.monotonic) -> None:
-        if not (rate > 0 and burst >= 1):
-            raise ValueError(f"rate must be positive and burst at least 1, got {rate}, {burst}")
-        self.rate, self.burst, self.clock = rate, burst, clock
-        self.level, self.at = burst, clock()
-
-    def available(self) -> int:
-        now = self.clock()
-        self.level = min(self.burst, self.level + (now - self.at) * self.rate)
-        self.at = now
-        return int(self.level)
-
-    def take(self, n: int) -> None:
-        self.level -= n
 
 
 # --- statistics ------------------------------------------------------------------------------
@@ -796,7 +775,7 @@ class Daemon:
             if room <= 0:
                 break
             if isinstance(queue[0], GazeSample):
-                tokens = self._bucket.available()
+                tokens = self._bucket.available(time.monotonic())
                 n = min(self.batch, room, tokens)
                 if n <= 0:
                     limited = True
