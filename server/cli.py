@@ -328,7 +328,7 @@ def _export(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.drivers.daemon import daemon_main
+    from gazehdr.drivers.daemon_cli import daemon_main
 
     return daemon_main(extra)
 
