@@ -449,7 +449,6 @@ class Delivery:
         """The server welcomed us: a fresh bucket, echo cadence and clock (this may be another
         server, or the same one rebooted), and the note of what the outage dropped."""
         self.stats.connects += 1
-        self._marks.clear()
         self.clock = ClockEstimator(self.clock.window.maxlen or 1)
         self._bucket = TokenBucket(self.max_rate, self.burst)
         self._last_echo_ns = None
