@@ -147,11 +147,15 @@ class DaemonStats:
             if self.clock
             else "clock offset unknown"
         )
+        undelivered = _counted(self.samples_undelivered, self.events_undelivered, "never delivered")
+        unsendable = _counted(
+            self.samples_unsendable, self.events_unsendable, "not sendable (recorded only)"
+        )
         return (
             f"{self.samples_produced} samples, {self.events_produced} events from the source; "
             f"delivered {self.samples_delivered} samples, {self.events_delivered} events; "
             f"dropped {self.samples_dropped} samples, {self.events_dropped} events "
-            f"(buffer full){self._undelivered()}{self._unsendable()}; "
+            f"(buffer full){undelivered}{unsendable}; "
             f"{self.connects} connection(s); {clock}{self._limited()}{self._recorded()}"
         )
 
@@ -169,21 +173,10 @@ class DaemonStats:
             f"to {self.record_path}"
         )
 
-    def _unsendable(self) -> str:
-        if not (self.samples_unsendable or self.events_unsendable):
-            return ""
-        return (
-            f"; {self.samples_unsendable} samples, {self.events_unsendable} events not sendable "
-            "(recorded only)"
-        )
 
-    def _undelivered(self) -> str:
-        if not (self.samples_undelivered or self.events_undelivered):
-            return ""
-        return (
-            f"; {self.samples_undelivered} samples, {self.events_undelivered} events "
-            "never delivered"
-        )
+def _counted(samples: int, events: int, what: str) -> str:
+    """A summary's clause on items that were not delivered, said only when there were any."""
+    return f"; {samples} samples, {events} events {what}" if samples or events else ""
 
 
 # --- the wire form ---------------------------------------------------------------------------
@@ -310,7 +303,8 @@ class Delivery:
 
     @property
     def unsent(self) -> int:
-        """Items in the send buffer, never sent: what a replay waits on (`buffer` at most)."""
+        """Items in the send buffer, never sent: a live source's stay within `buffer`, a
+        replay is made to wait while they fill it."""
         return len(self._unsent)
 
     @property
