@@ -26,6 +26,7 @@ from fastapi.responses import PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
 from gazehdr.drivers import wire
+from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.gaze import TrackerFeed
 from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from gazehdr.metrics import Counter, Metrics
@@ -72,22 +73,6 @@ def origin_allowed(origin: str | None, host: str | None, allowed: tuple[str, ...
     if origin is None:
         return True
     return origin in allowed or (host is not None and urlsplit(origin).netloc == host)
-
-
-class TokenBucket:
-    """Allows `rate` items per second on average, `burst` at once."""
-
-    def __init__(self, rate: float, burst: float) -> None:
-        self.rate, self.burst, self.level, self.at = rate, burst, burst, time.monotonic()
-
-    def take(self, n: int) -> int:
-        """How many of `n` items may pass now."""
-        now = time.monotonic()
-        self.level = min(self.burst, self.level + (now - self.at) * self.rate)
-        self.at = now
-        allowed = min(n, int(self.level))
-        self.level -= allowed
-        return allowed
 
 
 @dataclass(frozen=True)
@@ -345,7 +330,7 @@ class _Limiter:
 
     def admit(self, n: int, now: float) -> tuple[int, wire.Notice | None]:
         """How many of `n` items pass, and the note to send, if one is due."""
-        allowed = self.bucket.take(n)
+        allowed = self.bucket.admit(n, now)
         if allowed == n:
             return allowed, None
         self.dropped.inc(n - allowed)

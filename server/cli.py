@@ -17,23 +17,15 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
 
 from gazehdr.drivers import registry
+from gazehdr.drivers.cli_args import OneLineParser
 
 PROG = "gazehdr"
 
 
 class UsageError(Exception):
     """A mistake in what the user asked for; reported in one line with status 2."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors: the message and where to get help, no usage dump."""
-
-    def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"{PROG}: error: {message} (see '{self.prog} --help')\n")
-        raise SystemExit(2)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -337,7 +329,7 @@ def _export(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.drivers.daemon import daemon_main
+    from gazehdr.drivers.daemon_cli import daemon_main
 
     return daemon_main(extra)
 
@@ -480,7 +472,7 @@ COMMANDS: dict[str, Command] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = OneLineParser(
         prog=PROG,
         description="Gaze-adaptive HDR display: simulates adaptation, afterimages and mesopic "
         "vision (Jacobs et al. 2015) on an ordinary monitor.",
@@ -494,6 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
             epilog=command.epilog,
             formatter_class=argparse.RawDescriptionHelpFormatter,
             add_help=not command.passthrough,
+            error_prog=PROG,
         )
         if command.configure:
             command.configure(p)

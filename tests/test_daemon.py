@@ -24,15 +24,14 @@ from gazehdr import app as app_module
 from gazehdr.app import ServerConfig, create_app
 from gazehdr.drivers import wire
 from gazehdr.drivers.daemon import (
-    ClockEstimator,
     Daemon,
-    DaemonStats,
     UnauthorizedError,
-    daemon_main,
     gaze_url,
     open_record_dir,
     run_daemon,
 )
+from gazehdr.drivers.daemon_cli import daemon_main
+from gazehdr.drivers.delivery import ClockEstimator, DaemonStats
 from gazehdr.drivers.fixations import detect
 from gazehdr.drivers.formats import import_recording
 from gazehdr.drivers.formats.bids import write_bids

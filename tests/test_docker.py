@@ -23,8 +23,9 @@ import pytest
 import yaml
 
 from gazehdr.cli import build_parser
-from gazehdr.drivers.daemon import RECORD_DIR_ENV, gaze_url
-from gazehdr.drivers.daemon import build_parser as daemon_parser
+from gazehdr.drivers.daemon import gaze_url
+from gazehdr.drivers.daemon_cli import RECORD_DIR_ENV
+from gazehdr.drivers.daemon_cli import build_parser as daemon_parser
 
 if sys.version_info >= (3, 11):
     import tomllib

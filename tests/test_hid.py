@@ -1008,7 +1008,7 @@ import sys
 
 sys.path.insert(0, sys.argv[1])
 import test_hid
-from gazehdr.drivers.daemon import daemon_main
+from gazehdr.drivers.daemon_cli import daemon_main
 from gazehdr.drivers.hid import source
 
 tracker = test_hid.make_tracker()

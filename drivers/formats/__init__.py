@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
-import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
+from gazehdr.drivers.cli_args import OneLineParser, positive_arg, screen_size_arg
 from gazehdr.drivers.formats.common import geometry_with
 from gazehdr.drivers.sessionlog import FormatError, SessionLog, write_session_log
 
@@ -77,44 +76,13 @@ def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> Ses
 # --- command lines ----------------------------------------------------------------------------
 
 
-def screen_size_arg(text: str) -> tuple[int, int]:
-    """argparse type of a screen size `WxH` in pixels (`gazehdr import`, `gazehdr daemon`)."""
-    parts = text.lower().replace("×", "x").split("x")
-    try:
-        width, height = (int(v) for v in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected WIDTHxHEIGHT such as 1920x1080, got {text!r}"
-        ) from None
-    return width, height
-
-
-def positive_arg(text: str) -> float:
-    """argparse type of a positive number, such as a length in metres."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
-
-
-class _Parser(argparse.ArgumentParser):
-    """One-line usage errors, as the rest of the `gazehdr` command line gives them."""
-
-    def error(self, message: str) -> NoReturn:
-        sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
-        raise SystemExit(2)
-
-
 def import_main(argv: Sequence[str] | None = None) -> int:
     """`gazehdr import FILE --out LOG.jsonl`: a recording → a native session log.
 
     Returns 0; bad arguments exit with status 2 (one line on stderr); unreadable or malformed
     input raises (`FormatError`/`ValueError`/`OSError`), for the caller to report.
     """
-    p = _Parser(
+    p = OneLineParser(
         prog="gazehdr import",
         description="Convert an eye-tracking recording into a gazehdr session log (JSON Lines).",
         epilog="examples:\n"
@@ -175,7 +143,7 @@ def import_main(argv: Sequence[str] | None = None) -> int:
 
 def export_main(argv: Sequence[str] | None = None) -> int:
     """`gazehdr export LOG.jsonl --out DIR`: a native session log → BIDS physio files."""
-    p = _Parser(
+    p = OneLineParser(
         prog="gazehdr export",
         description="Write a gazehdr session log as BIDS eye-tracking physio files "
         "(*_recording-eye<N>_physio.tsv.gz + .json, *_physioevents.tsv.gz + .json).",
@@ -209,11 +177,8 @@ def export_main(argv: Sequence[str] | None = None) -> int:
 __all__ = [
     "IMPORTERS",
     "FormatError",
-    "decimal_ns",
     "detect_format",
     "export_main",
-    "geometry_with",
     "import_main",
     "import_recording",
-    "mean_of_eyes",
 ]
