@@ -26,11 +26,11 @@ from gazehdr.sim.layout import (
     Layout,
     NoiseFrame,
     acuity_increments,
+    adaptation_window,
     gaussian_taps,
 )
 from gazehdr.sim.params import Params
 from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
-from gazehdr.sim.reference import adaptation_window
 
 KERNEL_FILES = (
     "common.cl",

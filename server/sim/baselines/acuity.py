@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from gazehdr.sim.layout import Layout
+from gazehdr.sim.layout import Layout, bilinear
 from gazehdr.sim.params import Params
-from gazehdr.sim.reference import bilinear, blur2d, screen_coords
+from gazehdr.sim.reference import blur2d, screen_coords
 
 # Ferwerda et al. 1996, fit to Shaler's data: R(L) = 17.25 atan(1.4 log10 L + 0.35) + 25.72 cpd.
 FERWERDA = (17.25, 1.4, 0.35, 25.72)
