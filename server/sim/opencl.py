@@ -20,9 +20,8 @@ from importlib import resources
 import numpy as np
 import pyopencl as cl
 
+from gazehdr.sim.kernel_params import MAX_BANDS, pack_params, params_struct
 from gazehdr.sim.layout import (
-    LMS_TO_RGB,
-    RGB_TO_LMS,
     Layout,
     NoiseFrame,
     acuity_increments,
@@ -39,7 +38,6 @@ KERNEL_FILES = (
     "sec2_3_mesopic.cl",
     "sec2_4_display.cl",
 )
-MAX_BANDS = 8
 TAPS_CACHE = 32  # blur tap buffers kept per backend
 STATE_PLANES = 8  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
@@ -53,39 +51,6 @@ COMPOSE_OUTPUTS = {
     np.dtype(np.float16): ("compose_half", "v16", lambda lay: (lay.height, lay.width, 3)),
     np.dtype(np.uint32): ("compose_rgb10", "v10", lambda lay: (lay.height, lay.width)),
 }
-
-PARAMS_DTYPE = np.dtype(
-    [
-        ("gamma", "f4"), ("n", "f4"), ("a1", "f4"), ("a2", "f4"),
-        ("b1", "f4", 3), ("b2", "f4", 3),
-        ("c2", "f4"), ("j1", "f4"), ("j2", "f4"), ("m1", "f4"), ("m2", "f4"),
-        ("w_P", "f4", 3), ("w_S", "f4", 3), ("k_s", "f4", 3),
-        ("g", "f4"), ("A_min", "f4"), ("alpha_eps", "f4"), ("Y_min", "f4"),
-        ("ln_K_m", "f4"), ("n_minus_m", "f4"),
-        ("H", "f4", 9), ("rgb2lms", "f4", 9), ("lms2rgb", "f4", 9),
-        ("rho_i", "f4", MAX_BANDS), ("bands", "i4"),
-    ]
-)  # fmt: skip
-
-
-def pack_params(p: Params) -> np.ndarray:
-    """The kernels' `params_t` block (see kernels/common.cl), field for field."""
-    if p.bands > MAX_BANDS:
-        raise ValueError(f"the OpenCL backend supports at most {MAX_BANDS} acuity bands")
-    m = p.n * p.plateau_m_over_n
-    rec = np.zeros(1, PARAMS_DTYPE)
-    for name in ("gamma", "n", "a1", "a2", "c2", "j1", "j2", "m1", "m2", "g", "A_min"):
-        rec[name] = getattr(p, name)
-    for name in ("b1", "b2", "w_P", "w_S", "k_s", "alpha_eps", "Y_min"):
-        rec[name] = getattr(p, name)
-    rec["ln_K_m"] = m * math.log(p.plateau_K)
-    rec["n_minus_m"] = p.n - m
-    rec["H"] = np.asarray(p.H).ravel()
-    rec["rgb2lms"] = RGB_TO_LMS.ravel()
-    rec["lms2rgb"] = LMS_TO_RGB.ravel()
-    rec["rho_i"][0, : p.bands] = p.rho_i()
-    rec["bands"] = p.bands
-    return rec
 
 
 def pick_device() -> cl.Device:
@@ -114,10 +79,11 @@ def _context() -> cl.Context:
 def build_program(files: tuple[str, ...]) -> cl.Program:
     """`kernels/` files built as one program, once per process: building takes seconds on
     PoCL. A baseline model builds common.cl plus its own file, so the default pipeline does
-    not pay for models it does not run."""
+    not pay for models it does not run. The parameter block `params_t` comes first, generated
+    from `Params` (kernel_params.py)."""
     ctx = _context()
     pkg = resources.files("gazehdr.sim") / "kernels"
-    source = "\n".join((pkg / name).read_text() for name in files)
+    source = "\n".join([params_struct(), *((pkg / name).read_text() for name in files)])
     options = ["-cl-fast-relaxed-math"]
     if "Portable Computing Language" in ctx.devices[0].platform.name:
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
