@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
@@ -123,6 +123,11 @@ class OpenCLStageBackend(StageBackend, Protocol):
     def grid_args(self, gaze: Gaze) -> tuple[np.int32 | np.float32, ...]:
         """The kernels' retina-grid arguments: low_w, low_h, cell, grid_w, grid_h, gaze x, y."""
         ...
+
+
+#: The backend of a stage base both implementations share (Generic[StageBackendT]); each
+#: implementation names its protocol, e.g. RitschelStage[OpenCLStageBackend].
+StageBackendT = TypeVar("StageBackendT", bound=StageBackend)
 
 
 class JacobsAfterimage:

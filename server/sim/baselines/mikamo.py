@@ -26,12 +26,12 @@ import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import Generic
 
 import numpy as np
 
 from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_XYZ
-from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackend
+from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackendT
 from gazehdr.sim.params import Params
 from gazehdr.sim.reference import blur2d, retina_input
 
@@ -47,7 +47,6 @@ LUMINANCE_EPS = 1e-12  # display units; a clamped colour darker than this is bla
 #: Ours: the mask keeps cells within this relative distance below the threshold, so that the
 #: interior of a flat light at the threshold is not holed by the rounding of bilinear samples.
 MASK_SLACK = 1e-5
-B = TypeVar("B", bound=StageBackend)  # the backend's protocol, per implementation
 
 
 class SequenceError(ValueError):
@@ -270,13 +269,13 @@ def gamut_fix(rgb: np.ndarray, Y: np.ndarray) -> np.ndarray:
     return c * np.where(ok, np.maximum(Y, 0.0) / np.where(ok, Yc, 1.0), 0.0)
 
 
-class MikamoModel(Generic[B]):
+class MikamoModel(Generic[StageBackendT]):
     """Host-side part both backends share: the sequence, its L*a*b* table, the parameters,
     and the I_on statistics of the mask (prepared() runs on every scene or eyelid change)."""
 
     state_channels = STATE_CHANNELS
 
-    def __init__(self, backend: B, seed: int) -> None:
+    def __init__(self, backend: StageBackendT, seed: int) -> None:
         self.backend, self.p, self.lay = backend, backend.p, backend.lay
         check_params(self.p)
         self.sequence = load_sequence(self.p.mikamo_sequence)

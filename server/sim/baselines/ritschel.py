@@ -13,12 +13,12 @@ The OpenCL stage (ritschel_cl.py, kernels/ritschel2012_afterimages.cl) mirrors t
 from __future__ import annotations
 
 import math
-from typing import Generic, TypeVar
+from typing import Generic
 
 import numpy as np
 
 from gazehdr.sim.layout import LMS_TO_RGB, Layout
-from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackend
+from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackendT
 from gazehdr.sim.params import Params
 from gazehdr.sim.reference import blur2d, retina_input
 
@@ -34,7 +34,6 @@ ORGB_FROM_RGB = np.array(
 )
 RGB_FROM_ORGB = np.linalg.inv(ORGB_FROM_RGB)
 _R_MIN = 1e-30  # guard of r_inf's denominator (c_d = 0 in darkness would be 0/0)
-B = TypeVar("B", bound=StageBackend)  # the backend's protocol, per implementation
 
 
 # --- oRGB ----------------------------------------------------------------------------------------
@@ -141,13 +140,13 @@ def afterimage_maps(r: np.ndarray, L: np.ndarray, flight: float, p: Params) -> n
     return np.concatenate([np.ones_like(add), add])
 
 
-class RitschelStage(Generic[B]):
+class RitschelStage(Generic[StageBackendT]):
     """What both backends share: three state planes (r of L, M, S) and the flight-of-colours
     clock, the time since the last reset (deterministic: only dt moves it)."""
 
     state_channels = 3
 
-    def __init__(self, backend: B, seed: int) -> None:
+    def __init__(self, backend: StageBackendT, seed: int) -> None:
         self.backend = backend
         self.clock = 0.0
 
