@@ -23,10 +23,10 @@ from gazehdr.sim.layout import (
     Layout,
     NoiseFrame,
     acuity_increments,
+    adaptation_window,
     gaussian_taps,
 )
 from gazehdr.sim.models import Models, each_beside_default
-from gazehdr.sim.reference import adaptation_window
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")

@@ -1,4 +1,5 @@
-"""Pure helpers both backends share: colour matrices, frame layout, filter taps, noise, fitting.
+"""Pure helpers both backends share: colour matrices, frame layout, filter taps, sampling,
+noise, fitting.
 
 Everything here is host-side NumPy and deterministic; the kernels and the reference model get
 their constants from these functions so that the two cannot drift apart.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,6 +110,47 @@ def acuity_increments(params: Params, ppd: float) -> list[float]:
     """Sigmas that blur level i-1 into level i of the bank (level -1 is the input)."""
     sig = params.sigma_i(ppd)
     return [sig[0]] + [math.sqrt(max(b * b - a * a, 0.0)) for a, b in itertools.pairwise(sig)]
+
+
+# --- sampling conventions, host side ---------------------------------------------------------
+# Pixel centres at i + 0.5, as in the kernels (common.cl). The reference model and the OpenCL
+# backend's host side (the adaptation window, rho at the gaze) both use these: the production
+# backend must not depend on the oracle it is tested against.
+
+
+def bilinear(
+    img: np.ndarray, xs: np.ndarray, ys: np.ndarray, border: Sequence[float] | None = None
+) -> np.ndarray:
+    """Sample planar `img` at continuous coordinates; outside taps clamp, or take `border`."""
+    c, h, w = img.shape
+    u, v = xs - 0.5, ys - 0.5
+    x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    fx, fy = u - x0, v - y0
+    out = np.zeros((c, *xs.shape), np.float64)
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            xi, yi = x0 + dx, y0 + dy
+            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            val = img[:, np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)]
+            if border is not None:
+                val = np.where(inside, val, np.asarray(border, np.float64)[:, None, None])
+            out += wx * wy * val
+    return out
+
+
+def adaptation_window(
+    gaze: Sequence[float], lay: Layout, p: Params
+) -> tuple[float, float, float, int, int, int, int]:
+    """Centre, sigma and inclusive integer low-res window (x0, x1, y0, y1) of the Gaussian patch
+    of A_T (Sec. 2.1; gaze clamped to the screen)."""
+    cx = min(max(gaze[0], 0.0), lay.width)
+    cy = min(max(gaze[1], 0.0), lay.height)
+    sig = lay.px(p.adaptation_sigma_deg)
+    x0 = max(0, math.floor((cx - 3 * sig) / lay.cell))
+    x1 = min(lay.low_w - 1, math.floor((cx + 3 * sig) / lay.cell))
+    y0 = max(0, math.floor((cy - 3 * sig) / lay.cell))
+    y1 = min(lay.low_h - 1, math.floor((cy + 3 * sig) / lay.cell))
+    return cx, cy, sig, x0, x1, y0, y1
 
 
 # --- acuity noise field (Sec. 2.3.3) ---------------------------------------------------------

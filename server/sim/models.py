@@ -8,7 +8,8 @@ beside it, so every model sees the same scene, gaze and clock (see docs/baseline
 - acuity: `stochastic` (Sec. 2.3.3), `none`, `gaussian` (Ferwerda et al. 1996), `bilateral`
   (Jensen et al. 2000), `thompson` (Thompson et al. 2002).
 
-A stage is built as `Stage(backend, seed)` and works on the backend's maps:
+A stage is built as `Stage(backend, seed)` and works on the backend's maps, through what the
+backend's protocol declares (`ReferenceStageBackend`, `OpenCLStageBackend`) and nothing else:
 
 - an afterimage stage advances its state on the retina grid in `retina(gaze, dt, reset)` and
   writes the six `maps` that `compose` reads at `x - gaze`: a multiplicative gain per cone
@@ -24,9 +25,19 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
-from gazehdr.sim.layout import NoiseFrame
+import numpy as np
+
+from gazehdr.sim.layout import Layout, NoiseFrame
+from gazehdr.sim.params import Params
+
+if TYPE_CHECKING:  # annotations only: a reference simulator never loads pyopencl
+    import pyopencl as cl
+
+    Taps = tuple[cl.Buffer, int]  # normalised Gaussian taps on the device, and their radius
+
+Gaze = tuple[float, float]
 
 
 class AfterimageStage(Protocol):
@@ -34,11 +45,89 @@ class AfterimageStage(Protocol):
 
     def prepared(self) -> None: ...
 
-    def retina(self, gaze: tuple[float, float], dt: float, reset: bool) -> None: ...
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None: ...
 
 
 class AcuityStage(Protocol):
-    def acuity(self, noise: NoiseFrame, gaze: tuple[float, float], t: float) -> None: ...
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None: ...
+
+
+# --- what a stage may ask of its backend ---------------------------------------------------------
+# tests/test_sim_interfaces.py runs every stage against a proxy that has only these members.
+
+
+class StageBackend(Protocol):
+    """What every backend gives every stage."""
+
+    name: str  # "reference" or "opencl": picks the stage's implementation
+    lay: Layout  # sizes of every map (screen, low-res, retina grid) and pixels per degree
+    p: Params
+
+    def get(self, name: str) -> np.ndarray:
+        """A copy of map `name` on the host, e.g. "down" (L, M, S, Y_P, Y_S per cell) or "rho"."""
+        ...
+
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
+        """Sec. 2.2 on the backend's own state and maps (the `jacobs` stage)."""
+        ...
+
+    def acuity(self, noise: NoiseFrame) -> None:
+        """Sec. 2.3.3 into G (the `stochastic` stage)."""
+        ...
+
+
+class ReferenceStageBackend(StageBackend, Protocol):
+    """The NumPy reference: stages read and replace its float64 arrays."""
+
+    #: Every map by name, as `get` lists them: "scene" (3, H, W), "down", "rho", "A", "state"
+    #: (the afterimage stage's planes on the retina grid), "maps" (6 planes it writes), "G".
+    a: dict[str, np.ndarray]
+
+
+class OpenCLStageBackend(StageBackend, Protocol):
+    """The OpenCL backend: stages enqueue their own kernels on its queue, on its buffers."""
+
+    ctx: cl.Context  # to make a stage's own buffers
+    queue: cl.CommandQueue  # every kernel and copy of a frame, in order
+    P: cl.Buffer  # the parameter block params_t (kernel_params.py), the kernels' first argument
+    #: Device maps by name, planar float32, shaped as `ReferenceStageBackend.a`, plus the scratch
+    #: plane set "grid_a" (STATE_PLANES planes of the retina grid). A stage that writes "maps"
+    #: writes all of the grid (the backend completes only maps its own `retina` left partial).
+    buf: dict[str, cl.Buffer]
+
+    def kernels(self, files: tuple[str, ...]) -> dict[str, cl.Kernel]:
+        """Own kernel objects (arguments are state) of the program built from `files` in
+        kernels/, once per process; common.cl first."""
+        ...
+
+    def taps_for(self, sigma: float) -> Taps:
+        """Gaussian taps of `sigma` (px) on the device, cached for the sigmas in use."""
+        ...
+
+    def blur(self, src: cl.Buffer, dst: cl.Buffer, tmp: cl.Buffer, taps: Taps, w: int, h: int,
+             channels: int) -> None:  # fmt: skip
+        """Separable blur of `channels` planes of w x h from `src` into `dst` (through `tmp`),
+        edges clamped: the blur the reference's blur2d mirrors."""
+        ...
+
+    def rho_full(self) -> cl.Buffer:
+        """rho (Eq. 13, unclamped) at every screen pixel, bilinear from the low-res map; remade
+        after a scene change."""
+        ...
+
+    def rows8(self) -> tuple[int, int]:
+        """Global size of a per-pixel kernel that makes 8 neighbouring pixels of a row per
+        work-item (VEC in common.cl)."""
+        ...
+
+    def grid_args(self, gaze: Gaze) -> tuple[np.int32 | np.float32, ...]:
+        """The kernels' retina-grid arguments: low_w, low_h, cell, grid_w, grid_h, gaze x, y."""
+        ...
+
+
+#: The backend of a stage base both implementations share (Generic[StageBackendT]); each
+#: implementation names its protocol, e.g. RitschelStage[OpenCLStageBackend].
+StageBackendT = TypeVar("StageBackendT", bound=StageBackend)
 
 
 class JacobsAfterimage:
@@ -46,23 +135,23 @@ class JacobsAfterimage:
 
     state_channels = 6
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: StageBackend, seed: int) -> None:
         self.backend = backend
 
     def prepared(self) -> None:
         pass
 
-    def retina(self, gaze: tuple[float, float], dt: float, reset: bool) -> None:
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         self.backend.retina(gaze, dt, reset)
 
 
 class StochasticAcuity:
     """Sec. 2.3.3: the Gaussian bank with bands kept where rho + g X exceeds their threshold."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: StageBackend, seed: int) -> None:
         self.backend = backend
 
-    def acuity(self, noise: NoiseFrame, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         self.backend.acuity(noise)
 
 
@@ -136,7 +225,9 @@ def _load(path: str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-def make_stages(models: Models, backend: Any, seed: int) -> tuple[AfterimageStage, AcuityStage]:
+def make_stages(
+    models: Models, backend: StageBackend, seed: int
+) -> tuple[AfterimageStage, AcuityStage]:
     """Build the chosen stages for `backend` (its `name` picks the implementation); `seed`
     fixes any random field a stage draws."""
     afterimage = _load(AFTERIMAGE_MODELS[models.afterimage][backend.name])(backend, seed)

@@ -20,17 +20,16 @@ from importlib import resources
 import numpy as np
 import pyopencl as cl
 
+from gazehdr.sim.kernel_params import MAX_BANDS, pack_params, params_struct
 from gazehdr.sim.layout import (
-    LMS_TO_RGB,
-    RGB_TO_LMS,
     Layout,
     NoiseFrame,
     acuity_increments,
+    adaptation_window,
     gaussian_taps,
 )
 from gazehdr.sim.params import Params
 from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
-from gazehdr.sim.reference import adaptation_window
 
 KERNEL_FILES = (
     "common.cl",
@@ -39,7 +38,6 @@ KERNEL_FILES = (
     "sec2_3_mesopic.cl",
     "sec2_4_display.cl",
 )
-MAX_BANDS = 8
 TAPS_CACHE = 32  # blur tap buffers kept per backend
 STATE_PLANES = 8  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
@@ -53,39 +51,6 @@ COMPOSE_OUTPUTS = {
     np.dtype(np.float16): ("compose_half", "v16", lambda lay: (lay.height, lay.width, 3)),
     np.dtype(np.uint32): ("compose_rgb10", "v10", lambda lay: (lay.height, lay.width)),
 }
-
-PARAMS_DTYPE = np.dtype(
-    [
-        ("gamma", "f4"), ("n", "f4"), ("a1", "f4"), ("a2", "f4"),
-        ("b1", "f4", 3), ("b2", "f4", 3),
-        ("c2", "f4"), ("j1", "f4"), ("j2", "f4"), ("m1", "f4"), ("m2", "f4"),
-        ("w_P", "f4", 3), ("w_S", "f4", 3), ("k_s", "f4", 3),
-        ("g", "f4"), ("A_min", "f4"), ("alpha_eps", "f4"), ("Y_min", "f4"),
-        ("ln_K_m", "f4"), ("n_minus_m", "f4"),
-        ("H", "f4", 9), ("rgb2lms", "f4", 9), ("lms2rgb", "f4", 9),
-        ("rho_i", "f4", MAX_BANDS), ("bands", "i4"),
-    ]
-)  # fmt: skip
-
-
-def pack_params(p: Params) -> np.ndarray:
-    """The kernels' `params_t` block (see kernels/common.cl), field for field."""
-    if p.bands > MAX_BANDS:
-        raise ValueError(f"the OpenCL backend supports at most {MAX_BANDS} acuity bands")
-    m = p.n * p.plateau_m_over_n
-    rec = np.zeros(1, PARAMS_DTYPE)
-    for name in ("gamma", "n", "a1", "a2", "c2", "j1", "j2", "m1", "m2", "g", "A_min"):
-        rec[name] = getattr(p, name)
-    for name in ("b1", "b2", "w_P", "w_S", "k_s", "alpha_eps", "Y_min"):
-        rec[name] = getattr(p, name)
-    rec["ln_K_m"] = m * math.log(p.plateau_K)
-    rec["n_minus_m"] = p.n - m
-    rec["H"] = np.asarray(p.H).ravel()
-    rec["rgb2lms"] = RGB_TO_LMS.ravel()
-    rec["lms2rgb"] = LMS_TO_RGB.ravel()
-    rec["rho_i"][0, : p.bands] = p.rho_i()
-    rec["bands"] = p.bands
-    return rec
 
 
 def pick_device() -> cl.Device:
@@ -114,18 +79,15 @@ def _context() -> cl.Context:
 def build_program(files: tuple[str, ...]) -> cl.Program:
     """`kernels/` files built as one program, once per process: building takes seconds on
     PoCL. A baseline model builds common.cl plus its own file, so the default pipeline does
-    not pay for models it does not run."""
+    not pay for models it does not run. The parameter block `params_t` comes first, generated
+    from `Params` (kernel_params.py)."""
     ctx = _context()
     pkg = resources.files("gazehdr.sim") / "kernels"
-    source = "\n".join((pkg / name).read_text() for name in files)
+    source = "\n".join([params_struct(), *((pkg / name).read_text() for name in files)])
     options = ["-cl-fast-relaxed-math"]
     if "Portable Computing Language" in ctx.devices[0].platform.name:
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
     return cl.Program(ctx, source).build(options=options)
-
-
-def _context_and_program() -> tuple[cl.Context, cl.Program]:
-    return _context(), build_program(KERNEL_FILES)
 
 
 def _round_up(n: int, m: int) -> int:
@@ -133,17 +95,17 @@ def _round_up(n: int, m: int) -> int:
 
 
 class OpenCLBackend:
-    """Device buffers for every map of `Layout`; stage methods match ReferenceBackend's."""
+    """Device buffers for every map of `Layout`; stage methods match ReferenceBackend's. What a
+    baseline stage may use is declared by `models.OpenCLStageBackend`."""
 
     name = "opencl"
 
     def __init__(self, layout: Layout, params: Params) -> None:
         self.lay, self.p = layout, params
-        self.ctx, self.prg = _context_and_program()
+        self.ctx = _context()
         self.queue = cl.CommandQueue(self.ctx)
         self.device_name = self.ctx.devices[0].name.strip()
-        # Own kernel objects per backend: kernel arguments are state, simulators must not share it.
-        self.k = {n: cl.Kernel(self.prg, n) for n in self.prg.kernel_names.split(";")}
+        self.k = self.kernels(KERNEL_FILES)
         lay = layout
         full, low, grid = lay.width * lay.height, lay.low_w * lay.low_h, lay.grid_w * lay.grid_h
         self.shapes = {
@@ -182,8 +144,8 @@ class OpenCLBackend:
         self.P = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(params))
         self._taps: dict[float, tuple[cl.Buffer, int]] = {}
         self._noise_buf: cl.Buffer | None = None
-        self._acuity_taps = [self._taps_for(s) for s in acuity_increments(params, lay.ppd)]
-        self._rho_taps = self._taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
+        self._acuity_taps = [self.taps_for(s) for s in acuity_increments(params, lay.ppd)]
+        self._rho_taps = self.taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
 
     # --- host access (tests, adaptation readout) ----------------------------------------------
 
@@ -214,9 +176,15 @@ class OpenCLBackend:
     def A(self) -> float:
         return float(self.get("A")[0])
 
-    # --- helpers --------------------------------------------------------------------------------
+    # --- for stages (models.OpenCLStageBackend) -----------------------------------------------
 
-    def _taps_for(self, sigma: float) -> tuple[cl.Buffer, int]:
+    def kernels(self, files: tuple[str, ...]) -> dict[str, cl.Kernel]:
+        """Own kernel objects of the program of `files`: kernel arguments are state, so no two
+        simulators (or stages) may share one."""
+        prg = build_program(files)
+        return {n: cl.Kernel(prg, n) for n in prg.kernel_names.split(";")}
+
+    def taps_for(self, sigma: float) -> tuple[cl.Buffer, int]:
         """Taps on the device, cached by sigma. A live session's dt, and so its per-frame blur
         sigma, varies from frame to frame: the cache keeps the newest TAPS_CACHE only (a buffer
         still used by queued kernels lives until they finish)."""
@@ -230,7 +198,10 @@ class OpenCLBackend:
             self._taps[key] = (buf, len(taps) // 2)
         return self._taps[key]
 
-    def _blur(self, src, dst, tmp, taps, w: int, h: int, channels: int, level: int = -1):
+    def blur(
+        self, src: cl.Buffer, dst: cl.Buffer, tmp: cl.Buffer, taps: tuple[cl.Buffer, int],
+        w: int, h: int, channels: int, level: int = -1,
+    ) -> None:  # fmt: skip
         """Separable blur src -> dst through tmp; level >= 0 also fills G (acuity bank)."""
         tbuf, r = taps
         size = (-(-w // VEC), h, channels)
@@ -238,6 +209,33 @@ class OpenCLBackend:
         self.k["blur_h"](self.queue, size, None, src, tmp, tbuf, *dims)
         extra = (self.buf["d"], self.buf["G"], np.int32(level))
         self.k["blur_v"](self.queue, size, None, tmp, dst, tbuf, *dims, *extra)
+
+    def rows8(self) -> tuple[int, int]:
+        """Global size of the kernels that make 8 neighbouring pixels of a row per work-item."""
+        return (-(-self.lay.width // VEC), self.lay.height)
+
+    def rho_full(self) -> cl.Buffer:
+        """rho at every screen pixel, remade from "rho" when that changed."""
+        lay, b = self.lay, self.buf
+        if self._rho_full_stale:
+            self.k["rho_upsample"](
+                self.queue, self.rows8(), None, b["rho"], b["rho_full"],
+                np.int32(lay.low_w), np.int32(lay.low_h), np.int32(lay.cell),
+                np.int32(lay.width), np.int32(lay.height),
+            )  # fmt: skip
+            self._rho_full_stale = False
+        return b["rho_full"]
+
+    def grid_args(self, gaze) -> tuple[np.int32 | np.float32, ...]:
+        """Retina-grid arguments of the kernels: low-res and grid sizes, cell, gaze."""
+        lay = self.lay
+        return (
+            np.int32(lay.low_w), np.int32(lay.low_h), np.int32(lay.cell),
+            np.int32(lay.grid_w), np.int32(lay.grid_h),
+            np.float32(gaze[0]), np.float32(gaze[1]),
+        )  # fmt: skip
+
+    # --- internals ------------------------------------------------------------------------------
 
     def _acuity_bank_setup(self) -> dict | None:
         """Taps and work sizes of the tiled bank (kernel acuity_bank), or None where the
@@ -270,28 +268,6 @@ class OpenCLBackend:
             "tile": (np.int32(tx), np.int32(ty)),
         }
 
-    def _rows8(self) -> tuple[int, int]:
-        """Global size of the kernels that make 8 neighbouring pixels of a row per work-item."""
-        return (-(-self.lay.width // VEC), self.lay.height)
-
-    def _ensure_rho_full(self) -> None:
-        if self._rho_full_stale:
-            lay, b = self.lay, self.buf
-            self.k["rho_upsample"](
-                self.queue, self._rows8(), None, b["rho"], b["rho_full"],
-                np.int32(lay.low_w), np.int32(lay.low_h), np.int32(lay.cell),
-                np.int32(lay.width), np.int32(lay.height),
-            )  # fmt: skip
-            self._rho_full_stale = False
-
-    def _grid_args(self, gaze):
-        lay = self.lay
-        return (
-            np.int32(lay.low_w), np.int32(lay.low_h), np.int32(lay.cell),
-            np.int32(lay.grid_w), np.int32(lay.grid_h),
-            np.float32(gaze[0]), np.float32(gaze[1]),
-        )  # fmt: skip
-
     # --- stages ---------------------------------------------------------------------------------
 
     def set_scene(self, planar: np.ndarray) -> None:
@@ -310,13 +286,13 @@ class OpenCLBackend:
             self.queue, b["low_yp"], b["down"], src_offset=3 * low * 4, byte_count=low * 4
         )
         blurred = b["low_blur"]
-        self._blur(b["low_yp"], blurred, b["low_tmp"], self._rho_taps, lay.low_w, lay.low_h, 1)
+        self.blur(b["low_yp"], blurred, b["low_tmp"], self._rho_taps, lay.low_w, lay.low_h, 1)
         self.k["rho_map"](
             self.queue, (_round_up(low, ROW_GROUP),), None, self.P, blurred, b["rho"],
             np.int32(low),
         )  # fmt: skip
         self._rho_full_stale = True
-        self._ensure_rho_full()
+        self.rho_full()
 
     def adapt(self, gaze, dt: float, reset: bool) -> None:
         lay, b = self.lay, self.buf
@@ -332,7 +308,7 @@ class OpenCLBackend:
     def retina(self, gaze, dt: float, reset: bool) -> None:
         lay, b, p = self.lay, self.buf, self.p
         grid = (-(-lay.grid_w // VEC), lay.grid_h)
-        args = self._grid_args(gaze)
+        args = self.grid_args(gaze)
         sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
         blurred = not reset and sigma > 0
         target = b["grid_a"] if blurred else b["state"]
@@ -345,7 +321,7 @@ class OpenCLBackend:
         # or a compose at another gaze (_full_maps).
         window = self._screen_window(gaze)
         if blurred:
-            tbuf, r = self._taps_for(sigma)
+            tbuf, r = self.taps_for(sigma)
             self.k["retina_blur_maps"](
                 self.queue, grid, None, self.P, b["down"], b["grid_a"], b["state"], b["maps"],
                 b["A"], tbuf, np.int32(r), *args, *(np.int32(v) for v in window),
@@ -372,7 +348,7 @@ class OpenCLBackend:
         j0, i0, j1, i1 = window
         self.k["afterimage_maps"](
             self.queue, (-(-(j1 - j0 + 1) // VEC), i1 - i0 + 1), None, self.P, b["down"],
-            b["state"], b["maps"], b["A"], *self._grid_args(gaze), np.int32(j0), np.int32(i0),
+            b["state"], b["maps"], b["A"], *self.grid_args(gaze), np.int32(j0), np.int32(i0),
         )  # fmt: skip
         full = window == (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
         self._maps_partial = None if full else tuple(gaze)
@@ -386,11 +362,11 @@ class OpenCLBackend:
     def acuity(self, noise: NoiseFrame) -> None:
         lay, b = self.lay, self.buf
         self._upload_noise(noise)
-        self._ensure_rho_full()
+        rho_full = self.rho_full()
         if self._bank is None:
             cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
         self.k["acuity_levels"](
-            self.queue, self._rows8(), None, self.P, b["rho_full"], self._noise_buf,
+            self.queue, self.rows8(), None, self.P, rho_full, self._noise_buf,
             np.float32(noise.spacing), np.int32(noise.key0.shape[1]),
             np.int32(lay.width), np.int32(lay.height), b["d"], b["d_max"],
             np.int32(self._bank is None),
@@ -411,7 +387,7 @@ class OpenCLBackend:
         src, dst = b["scene"], b["lvl_a"]
         for level in range(int(d_max[0])):
             taps = self._acuity_taps[level]
-            self._blur(src, dst, b["lvl_tmp"], taps, lay.width, lay.height, 3, level)
+            self.blur(src, dst, b["lvl_tmp"], taps, lay.width, lay.height, 3, level)
             src, dst = dst, (b["lvl_b"] if dst is b["lvl_a"] else b["lvl_a"])
 
     def _upload_noise(self, noise: NoiseFrame) -> None:
@@ -434,7 +410,7 @@ class OpenCLBackend:
         if kind not in COMPOSE_OUTPUTS:
             raise ValueError(f"out_dtype must be float32, float16 or uint32, got {out_dtype!r}")
         kernel, buf_name, shape = COMPOSE_OUTPUTS[kind]
-        self._ensure_rho_full()
+        rho_full = self.rho_full()
         if self._maps_partial is not None and self._maps_partial != tuple(gaze):
             self._full_maps()
         # The foveal fall-off exp(-|x - gaze|^2 / 2 sigma^2) = f(x) f(y): W + H factors.
@@ -445,8 +421,8 @@ class OpenCLBackend:
         fovea = np.exp(-(xs * xs) / (2.0 * sig * sig)).astype(np.float32)
         cl.enqueue_copy(self.queue, b["fovea"], fovea)
         self.k[kernel](
-            self.queue, self._rows8(), None,
-            self.P, b["G"], b["rho_full"], b["maps"], b["A"],
+            self.queue, self.rows8(), None,
+            self.P, b["G"], rho_full, b["maps"], b["A"],
             np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
             np.int32(lay.grid_w), np.int32(lay.grid_h),
             np.float32(gaze[0]), np.float32(gaze[1]), np.float32(eyes), b["fovea"], b[buf_name],

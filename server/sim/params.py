@@ -1,7 +1,8 @@
 """Every number the model uses, in one typed place.
 
 The defaults are the paper's Appendix A (Jacobs et al. 2015), under the paper's symbol names.
-Values the paper does not give are marked *ours* in their comment, with the reason.
+Values the paper does not give are marked *ours* in their comment, with the reason. The kernels
+read theirs from `params_t`, which kernel_params.py generates from these fields.
 """
 
 from __future__ import annotations

@@ -22,6 +22,8 @@ from gazehdr.sim.layout import (
     Layout,
     NoiseFrame,
     acuity_increments,
+    adaptation_window,
+    bilinear,
     gaussian_taps,
 )
 from gazehdr.sim.params import Params
@@ -50,24 +52,6 @@ def blur_axis(img: np.ndarray, taps: np.ndarray, axis: int) -> np.ndarray:
 def blur2d(img: np.ndarray, sigma: float) -> np.ndarray:
     taps = gaussian_taps(sigma)
     return blur_axis(blur_axis(img, taps, -1), taps, -2)
-
-
-def bilinear(img: np.ndarray, xs: np.ndarray, ys: np.ndarray, border=None) -> np.ndarray:
-    """Sample planar `img` at continuous coordinates; outside taps clamp, or take `border`."""
-    c, h, w = img.shape
-    u, v = xs - 0.5, ys - 0.5
-    x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-    fx, fy = u - x0, v - y0
-    out = np.zeros((c, *xs.shape), np.float64)
-    for dy, wy in ((0, 1 - fy), (1, fy)):
-        for dx, wx in ((0, 1 - fx), (1, fx)):
-            xi, yi = x0 + dx, y0 + dy
-            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-            val = img[:, np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)]
-            if border is not None:
-                val = np.where(inside, val, np.asarray(border, np.float64)[:, None, None])
-            out += wx * wy * val
-    return out
 
 
 def tone(I: np.ndarray, A: float, p: Params) -> np.ndarray:
@@ -128,18 +112,6 @@ def local_rho(down: np.ndarray, lay: Layout, p: Params) -> np.ndarray:
     """rho of Eq. 13 from the locally averaged photopic luminance (sigma = rho_sigma_deg)."""
     yp = blur2d(down[3:4], lay.px(p.rho_sigma_deg) / lay.cell)[0]
     return rho_of(np.log10(np.maximum(yp, p.Y_min)), p)
-
-
-def adaptation_window(gaze, lay: Layout, p: Params):
-    """Integer low-res window and centre of the Gaussian patch of A_T (gaze clamped to screen)."""
-    cx = min(max(gaze[0], 0.0), lay.width)
-    cy = min(max(gaze[1], 0.0), lay.height)
-    sig = lay.px(p.adaptation_sigma_deg)
-    x0 = max(0, math.floor((cx - 3 * sig) / lay.cell))
-    x1 = min(lay.low_w - 1, math.floor((cx + 3 * sig) / lay.cell))
-    y0 = max(0, math.floor((cy - 3 * sig) / lay.cell))
-    y1 = min(lay.low_h - 1, math.floor((cy + 3 * sig) / lay.cell))
-    return cx, cy, sig, x0, x1, y0, y1
 
 
 def adapt(A: float, down, rho, gaze, dt: float, reset: bool, lay: Layout, p: Params) -> float:

@@ -15,13 +15,13 @@ from gazehdr.sim.layout import (
     OUTPUTS,
     Layout,
     NoiseField,
+    bilinear,
     encode_output,
     fit_to_frame,
     sanitize_radiance,
 )
 from gazehdr.sim.models import Models, make_stages
 from gazehdr.sim.params import Params
-from gazehdr.sim.reference import bilinear
 
 BACKENDS = ("opencl", "reference")
 _DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}

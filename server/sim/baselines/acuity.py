@@ -24,9 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from gazehdr.sim.layout import Layout
+from gazehdr.sim.layout import Layout, NoiseFrame, bilinear
+from gazehdr.sim.models import Gaze, ReferenceStageBackend
 from gazehdr.sim.params import Params
-from gazehdr.sim.reference import bilinear, blur2d, screen_coords
+from gazehdr.sim.reference import blur2d, screen_coords
 
 # Ferwerda et al. 1996, fit to Shaler's data: R(L) = 17.25 atan(1.4 log10 L + 0.35) + 25.72 cpd.
 FERWERDA = (17.25, 1.4, 0.35, 25.72)
@@ -63,7 +64,7 @@ def log10_L_of_rho(rho: Any, p: Params) -> Any:
     return p.m2 + np.asarray(rho, np.float64) * (p.m1 - p.m2)
 
 
-def gaze_sigma_px(rho: np.ndarray, gaze: tuple[float, float], lay: Layout, p: Params) -> float:
+def gaze_sigma_px(rho: np.ndarray, gaze: Gaze, lay: Layout, p: Params) -> float:
     """The one sigma of the uniform models: from rho (the 0.5 deg local mean, Eq. 13) at the
     gaze, read from the low-res map as compose reads it (edges clamped)."""
     x, y = (np.array([c / lay.cell]) for c in gaze)
@@ -153,17 +154,17 @@ def thompson(
 class NoAcuityReference:
     """No acuity loss: the eye resolves everything the display shows."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: ReferenceStageBackend, seed: int) -> None:
         self.backend = backend
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         self.backend.a["G"] = self.backend.a["scene"].copy()
 
 
 class GaussianAcuityReference(NoAcuityReference):
     """Ferwerda et al. 1996: one Gaussian for the whole frame, from the luminance at the gaze."""
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
         b.a["G"] = blur2d(b.a["scene"], gaze_sigma_px(b.a["rho"], gaze, b.lay, b.p))
 
@@ -172,7 +173,7 @@ class BilateralAcuityReference(NoAcuityReference):
     """Jensen et al. 2000: sigma from each pixel's local luminance, a range kernel on log10
     luminance keeps strong edges; horizontal then vertical pass."""
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
         lay, p, rho, scene = b.lay, b.p, b.a["rho"], b.a["scene"]
         sigma = blur_sigma_px(log10_L_of_rho(rho_per_pixel(rho, lay), p), lay, p)
@@ -185,11 +186,11 @@ class BilateralAcuityReference(NoAcuityReference):
 class ThompsonAcuityReference(NoAcuityReference):
     """Thompson et al. 2002: scotopic blur with crisp edges and seeded temporal noise."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: ReferenceStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
         self.seed = int(seed)
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
         lay, p = b.lay, b.p
         sigma = gaze_sigma_px(b.a["rho"], gaze, lay, p)

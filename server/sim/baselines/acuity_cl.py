@@ -4,8 +4,6 @@ the gaze, the bilateral's radius, the noise counter) come from the same function
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pyopencl as cl
 
@@ -19,8 +17,8 @@ from gazehdr.sim.baselines.acuity import (
     noise_key,
     sigma_constants,
 )
-from gazehdr.sim.layout import gaussian_taps
-from gazehdr.sim.opencl import build_program
+from gazehdr.sim.layout import NoiseFrame, gaussian_taps
+from gazehdr.sim.models import Gaze, OpenCLStageBackend
 
 KERNEL_FILES = ("common.cl", "sec2_3_3_acuity_baselines.cl")
 
@@ -29,7 +27,7 @@ class _Taps:
     """One device buffer of Gaussian taps, rewritten when sigma changes: sigma follows the gaze
     continuously, so a buffer per sigma (the backend's cache) would grow without end."""
 
-    def __init__(self, backend: Any, sigma_max: float) -> None:
+    def __init__(self, backend: OpenCLStageBackend, sigma_max: float) -> None:
         self.queue = backend.queue
         n = len(gaussian_taps(sigma_max)) + 2  # + 2: rounding of sigma at the cap
         self.buf = cl.Buffer(backend.ctx, cl.mem_flags.READ_ONLY, 4 * n)
@@ -47,11 +45,11 @@ class _Taps:
 class NoAcuityOpenCL:
     """G is the scene."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         self.backend = backend
         self.seed = int(seed)
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
         cl.enqueue_copy(b.queue, b.buf["G"], b.buf["scene"])
 
@@ -60,13 +58,12 @@ class NoAcuityOpenCL:
     def _setup(self, full_planes: tuple[int, ...]) -> None:
         """Kernels of this file (own objects: arguments are per stage) and scratch buffers."""
         b = self.backend
-        prg = build_program(KERNEL_FILES)
-        self.k = {n: cl.Kernel(prg, n) for n in prg.kernel_names.split(";")}
+        self.k = b.kernels(KERNEL_FILES)
         full = 4 * b.lay.width * b.lay.height
         self.scratch = [cl.Buffer(b.ctx, cl.mem_flags.READ_WRITE, n * full) for n in full_planes]
         self.sigma_max_px = b.lay.px(b.p.acuity_sigma_max_deg)
 
-    def _gaze_sigma(self, gaze: tuple[float, float]) -> float:
+    def _gaze_sigma(self, gaze: Gaze) -> float:
         b = self.backend
         return gaze_sigma_px(b.get("rho").astype(np.float64), gaze, b.lay, b.p)
 
@@ -81,32 +78,32 @@ class NoAcuityOpenCL:
 class GaussianAcuityOpenCL(NoAcuityOpenCL):
     """Ferwerda et al. 1996: the backend's separable blur with the sigma at the gaze."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
         self._setup((3,))
         self.taps = _Taps(backend, self.sigma_max_px)
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
         w, h = self._size()
-        b._blur(b.buf["scene"], b.buf["G"], self.scratch[0], self.taps.at(self._gaze_sigma(gaze)),
-                w, h, 3)  # fmt: skip
+        b.blur(b.buf["scene"], b.buf["G"], self.scratch[0], self.taps.at(self._gaze_sigma(gaze)),
+               w, h, 3)  # fmt: skip
 
 
 class BilateralAcuityOpenCL(NoAcuityOpenCL):
     """Jensen et al. 2000: guide and sigma per pixel, then a horizontal and a vertical pass."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
         self._setup((3, 1, 1))  # half-filtered image, guide, sigma
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b, p = self.backend, self.backend.p
         half, guide, sigma = self.scratch
-        b._ensure_rho_full()
+        rho_full = b.rho_full()
         k, s_disp2, s_max = sigma_constants(p)
         self.k["bilateral_prep"](
-            b.queue, self._size(), None, b.P, b.buf["scene"], b.buf["rho_full"], guide, sigma,
+            b.queue, self._size(), None, b.P, b.buf["scene"], rho_full, guide, sigma,
             *self._dims(), *(np.float32(v) for v in FERWERDA),
             np.float32(k), np.float32(s_disp2), np.float32(s_max), np.float32(b.lay.ppd),
         )  # fmt: skip
@@ -115,7 +112,7 @@ class BilateralAcuityOpenCL(NoAcuityOpenCL):
         inv_r = np.float32(0.5 / p.bilateral_sigma_r**2)
         for src, dst, dx, dy in ((b.buf["scene"], half, 1, 0), (half, b.buf["G"], 0, 1)):
             self.k["bilateral_pass"](
-                b.queue, b._rows8(), None, src, dst, guide, sigma, *self._dims(),
+                b.queue, b.rows8(), None, src, dst, guide, sigma, *self._dims(),
                 np.int32(radius), np.int32(dx), np.int32(dy), inv_r, np.float32(VAR_FLOOR_PX2),
             )  # fmt: skip
 
@@ -123,23 +120,23 @@ class BilateralAcuityOpenCL(NoAcuityOpenCL):
 class ThompsonAcuityOpenCL(NoAcuityOpenCL):
     """Thompson et al. 2002: blur, luminance band between sigma and ratio x sigma, noise."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
         self._setup((3, 3, 1, 1))  # blurred, blur scratch, luminance, wide luminance
         self.taps = _Taps(backend, self.sigma_max_px)
         self.taps_wide = _Taps(backend, backend.p.thompson_dog_ratio * self.sigma_max_px)
 
-    def acuity(self, noise: Any, gaze: tuple[float, float], t: float) -> None:
+    def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b, p = self.backend, self.backend.p
         blurred, tmp, lum, wide = self.scratch
         w, h = self._size()
         sigma = self._gaze_sigma(gaze)
-        b._blur(b.buf["scene"], blurred, tmp, self.taps.at(sigma), w, h, 3)
+        b.blur(b.buf["scene"], blurred, tmp, self.taps.at(sigma), w, h, 3)
         self.k["luminance"](b.queue, (w, h), None, b.P, b.buf["scene"], lum, *self._dims())
-        b._blur(lum, wide, tmp, self.taps_wide.at(p.thompson_dog_ratio * sigma), w, h, 1)
-        b._ensure_rho_full()
+        b.blur(lum, wide, tmp, self.taps_wide.at(p.thompson_dog_ratio * sigma), w, h, 1)
+        rho_full = b.rho_full()
         self.k["thompson_combine"](
-            b.queue, (w, h), None, b.P, blurred, wide, b.buf["rho_full"], b.buf["G"],
+            b.queue, (w, h), None, b.P, blurred, wide, rho_full, b.buf["G"],
             *self._dims(), np.float32(p.thompson_dog_gain), np.float32(p.thompson_noise),
             np.uint32(noise_key(self.seed, t, p)),
         )  # fmt: skip

@@ -26,11 +26,12 @@ import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Generic
 
 import numpy as np
 
 from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_XYZ
+from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackendT
 from gazehdr.sim.params import Params
 from gazehdr.sim.reference import blur2d, retina_input
 
@@ -268,13 +269,13 @@ def gamut_fix(rgb: np.ndarray, Y: np.ndarray) -> np.ndarray:
     return c * np.where(ok, np.maximum(Y, 0.0) / np.where(ok, Yc, 1.0), 0.0)
 
 
-class MikamoModel:
+class MikamoModel(Generic[StageBackendT]):
     """Host-side part both backends share: the sequence, its L*a*b* table, the parameters,
     and the I_on statistics of the mask (prepared() runs on every scene or eyelid change)."""
 
     state_channels = STATE_CHANNELS
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: StageBackendT, seed: int) -> None:
         self.backend, self.p, self.lay = backend, backend.p, backend.lay
         check_params(self.p)
         self.sequence = load_sequence(self.p.mikamo_sequence)
@@ -295,10 +296,10 @@ class MikamoModel:
         return on
 
 
-class MikamoReference(MikamoModel):
+class MikamoReference(MikamoModel[ReferenceStageBackend]):
     """The NumPy oracle of MikamoOpenCL."""
 
-    def retina(self, gaze: tuple[float, float], dt: float, reset: bool) -> None:
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         a = self.backend.a
         lms = retina_input(a["down"], gaze, self.lay)
         a["state"] = self.step(a["state"], lms, self.on_stats(reset), dt, reset)

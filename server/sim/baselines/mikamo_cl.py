@@ -3,8 +3,6 @@ backend's separable blur as the fixed low-pass. Same steps as MikamoReference (t
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pyopencl as cl
 
@@ -15,17 +13,17 @@ from gazehdr.sim.baselines.mikamo import (
     MikamoModel,
 )
 from gazehdr.sim.layout import RGB_TO_XYZ
-from gazehdr.sim.opencl import build_program
+from gazehdr.sim.models import Gaze, OpenCLStageBackend
 
 KERNEL_FILES = ("common.cl", "mikamo2012_afterimages.cl")
 
 
-class MikamoOpenCL(MikamoModel):
+class MikamoOpenCL(MikamoModel[OpenCLStageBackend]):
     """Own kernel and buffers per instance (kernel arguments are state)."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
-        self.kernel = cl.Kernel(build_program(KERNEL_FILES), "mikamo_step")
+        self.kernel = backend.kernels(KERNEL_FILES)["mikamo_step"]
         consts = np.concatenate(
             [
                 RGB_TO_XYZ.ravel(),
@@ -50,21 +48,20 @@ class MikamoOpenCL(MikamoModel):
         self.add, self.blurred, self.tmp = (
             cl.Buffer(ctx, mf.READ_WRITE, 3 * self.plane_bytes) for _ in range(3)
         )
-        self.taps = backend._taps_for(self.lowpass_cells)
+        self.taps = backend.taps_for(self.lowpass_cells)
 
-    def retina(self, gaze: tuple[float, float], dt: float, reset: bool) -> None:
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         b, lay, p = self.backend, self.lay, self.p
         thr, y_max = self.on_stats(reset)
         self.kernel(
             b.queue, (lay.grid_w, lay.grid_h), None,
             b.P, b.buf["down"], b.buf["state"], b.buf["maps"], self.add, self.consts, self.seq,
-            np.int32(self.n_seq), *b._grid_args(gaze), np.float32(dt), np.int32(reset),
+            np.int32(self.n_seq), *b.grid_args(gaze), np.float32(dt), np.int32(reset),
             np.float32(thr), np.float32(y_max), np.float32(10.0**p.mikamo_drop_log10),
             np.float32(p.mikamo_gamma), np.float32(p.mikamo_strength),
         )  # fmt: skip
-        b._blur(self.add, self.blurred, self.tmp, self.taps, lay.grid_w, lay.grid_h, 3)
+        b.blur(self.add, self.blurred, self.tmp, self.taps, lay.grid_w, lay.grid_h, 3)
         cl.enqueue_copy(
             b.queue, b.buf["maps"], self.blurred,
             dst_offset=3 * self.plane_bytes, byte_count=3 * self.plane_bytes,
         )  # fmt: skip
-        b._maps_partial = None

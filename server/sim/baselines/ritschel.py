@@ -13,11 +13,12 @@ The OpenCL stage (ritschel_cl.py, kernels/ritschel2012_afterimages.cl) mirrors t
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Generic
 
 import numpy as np
 
 from gazehdr.sim.layout import LMS_TO_RGB, Layout
+from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackendT
 from gazehdr.sim.params import Params
 from gazehdr.sim.reference import blur2d, retina_input
 
@@ -139,13 +140,13 @@ def afterimage_maps(r: np.ndarray, L: np.ndarray, flight: float, p: Params) -> n
     return np.concatenate([np.ones_like(add), add])
 
 
-class RitschelStage:
+class RitschelStage(Generic[StageBackendT]):
     """What both backends share: three state planes (r of L, M, S) and the flight-of-colours
     clock, the time since the last reset (deterministic: only dt moves it)."""
 
     state_channels = 3
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: StageBackendT, seed: int) -> None:
         self.backend = backend
         self.clock = 0.0
 
@@ -158,10 +159,10 @@ class RitschelStage:
         return math.fmod(self.backend.p.ritschel_flight_rate * self.clock, 2.0 * math.pi)
 
 
-class RitschelReference(RitschelStage):
+class RitschelReference(RitschelStage[ReferenceStageBackend]):
     """The model on the reference backend's float64 arrays."""
 
-    def retina(self, gaze: tuple[float, float], dt: float, reset: bool) -> None:
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         a, lay, p = self.backend.a, self.backend.lay, self.backend.p
         L = effective_input(a["down"], gaze, lay, p)
         a["state"] = r_inf(L, p) if reset else kinetics(a["state"], L, dt, lay, p)

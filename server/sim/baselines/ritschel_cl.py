@@ -7,7 +7,6 @@ of Eq. 3 each followed by the diffusion blur, then the maps over the whole retin
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 import pyopencl as cl
@@ -20,18 +19,18 @@ from gazehdr.sim.baselines.ritschel import (
     saccade_sigma,
     steps,
 )
-from gazehdr.sim.opencl import VEC, build_program
+from gazehdr.sim.models import Gaze, OpenCLStageBackend
+from gazehdr.sim.opencl import VEC
 
-KERNELS = ("ritschel_input", "ritschel_kinetics", "ritschel_maps")
+KERNEL_FILES = ("common.cl", "ritschel2012_afterimages.cl")
 
 
-class RitschelOpenCL(RitschelStage):
+class RitschelOpenCL(RitschelStage[OpenCLStageBackend]):
     """The model on the OpenCL backend's device buffers; its own scratch planes on the grid."""
 
-    def __init__(self, backend: Any, seed: int) -> None:
+    def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
-        prg = build_program(("common.cl", "ritschel2012_afterimages.cl"))
-        self.k = {name: cl.Kernel(prg, name) for name in KERNELS}
+        self.k = backend.kernels(KERNEL_FILES)
         lay = backend.lay
         self.cells = lay.grid_w * lay.grid_h
         mf = cl.mem_flags
@@ -43,9 +42,9 @@ class RitschelOpenCL(RitschelStage):
         self.orgb = cl.Buffer(
             backend.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=matrices.astype(np.float32)
         )
-        self.saccade_taps = backend._taps_for(saccade_sigma(lay, backend.p))
+        self.saccade_taps = backend.taps_for(saccade_sigma(lay, backend.p))
 
-    def retina(self, gaze: tuple[float, float], dt: float, reset: bool) -> None:
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         b, lay, p, q = self.backend, self.backend.lay, self.backend.p, self.backend.queue
         raw, L, tmp = self.buf["R"], self.buf["L"], self.buf["T"]
         state = b.buf["state"]
@@ -55,7 +54,7 @@ class RitschelOpenCL(RitschelStage):
             np.int32(lay.cell), np.int32(lay.grid_w), np.int32(lay.grid_h),
             np.float32(gaze[0]), np.float32(gaze[1]), np.float32(1.0 / p.ritschel_L_ref),
         )  # fmt: skip
-        b._blur(raw, L, tmp, self.saccade_taps, lay.grid_w, lay.grid_h, 3)
+        b.blur(raw, L, tmp, self.saccade_taps, lay.grid_w, lay.grid_h, 3)
         kin = self.k["ritschel_kinetics"]
         rates = (np.float32(p.c_a), np.float32(p.c_d))
         n3 = (3 * self.cells,)
@@ -63,15 +62,14 @@ class RitschelOpenCL(RitschelStage):
             kin(q, n3, None, L, state, state, np.int32(n3[0]), np.float32(0), *rates, np.int32(1))
         else:
             h = np.float32(dt / steps(p))
-            taps = b._taps_for(diffusion_sigma(dt, lay, p))
+            taps = b.taps_for(diffusion_sigma(dt, lay, p))
             for _ in range(steps(p)):  # Listing 1: step into grid_a, blur back into state
                 kin(q, n3, None, L, state, b.buf["grid_a"], np.int32(n3[0]), h, *rates,
                     np.int32(0))  # fmt: skip
-                b._blur(b.buf["grid_a"], state, tmp, taps, lay.grid_w, lay.grid_h, 3)
+                b.blur(b.buf["grid_a"], state, tmp, taps, lay.grid_w, lay.grid_h, 3)
         flight = self.flight_angle(dt, reset)
         self.k["ritschel_maps"](
             q, (-(-self.cells // VEC),), None, b.P, self.orgb, L, state, b.buf["maps"],
             np.int32(self.cells), *rates, np.float32(p.ritschel_strength),
             np.float32(math.cos(flight)), np.float32(math.sin(flight)),
         )  # fmt: skip
-        b._maps_partial = None  # every cell's maps are made

@@ -1,4 +1,4 @@
-// Shared by every stage: the parameter block, sampling and the separable Gaussian blur.
+// Shared by every stage: helpers, sampling and the separable Gaussian blur (params_t: see below).
 // Maps are planar (channel, row, column); pixel i has its centre at coordinate i + 0.5.
 //
 // Speed on the CPU (PoCL). Two things matter:
@@ -55,23 +55,10 @@ inline float floor1(float x) {
     return t > x ? t - 1.0f : t;
 }
 
-typedef struct {
-    float gamma, n, a1, a2;
-    float b1[3];
-    float b2[3];
-    float c2, j1, j2, m1, m2;
-    float w_P[3];
-    float w_S[3];
-    float k_s[3];
-    float g, A_min, alpha_eps, Y_min;
-    float ln_K_m;     // m ln K of the plateau (ours)
-    float n_minus_m;  // n - m
-    float H[9];       // LMS bleaching -> RGB (Appendix A)
-    float rgb2lms[9];
-    float lms2rgb[9];
-    float rho_i[8];   // band thresholds, finest band first
-    int bands;
-} params_t;
+// params_t, the parameter block every kernel takes as P, is not declared here: build_program
+// puts it in front of the program, generated from Params by gazehdr/sim/kernel_params.py (its
+// fields are Params' under the same names, plus a few derived ones; print it with
+// `python -m gazehdr.sim.kernel_params`).
 
 #define LN10 2.302585093f
 #define VEC 8  // pixels per work-item in the vectorised kernels
