@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, replace
 
 from gazehdr.drivers import registry
-from gazehdr.drivers.cli_args import positive_arg, screen_size_arg
+from gazehdr.drivers.cli_args import OneLineParser, positive_arg, screen_size_arg
 from gazehdr.drivers.daemon import Daemon, UnauthorizedError
 from gazehdr.drivers.delivery import DEFAULT_BUFFER, DEFAULT_MAX_INFLIGHT, DaemonError, DaemonStats
 from gazehdr.drivers.fixations import DETECTORS
@@ -36,7 +36,7 @@ RECORD_DIR_ENV = "GAZEHDR_RECORD_DIR"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="gazehdr daemon",
         description="Stream gaze from a tracker (or a recording, or a synthetic scan path) to a "
         "gazehdr server; sessions that follow its tracker (gaze source remote:TRACKER, the name "
