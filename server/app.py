@@ -171,7 +171,7 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     @app.put("/api/recordings/{name:path}", status_code=201)
     async def upload_recording(name: str, request: Request) -> dict[str, str]:
-        """Upload a session log (JSON Lines, drivers/sessionlog.py); validated before kept."""
+        """Upload a session log (JSON Lines, drivers/sessionlog/); validated before kept."""
         cap = min(config.max_upload_bytes, MAX_RECORDING_BYTES)
         chunks = await _upload_body(name, request, cap)
         try:

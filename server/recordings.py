@@ -1,6 +1,6 @@
 """Recorded sessions a live session can replay as its gaze, kept in `DATA_DIR/recordings/`.
 
-A recording is a native session log (`drivers/sessionlog.py`); it becomes the gaze source
+A recording is a native session log (`drivers/sessionlog/`); it becomes the gaze source
 `replay:NAME` of any session, looping. The session follows the recording's fixations (detected
 with I-VT when the log has none), never the samples of a saccade.
 Uploads are checked by reading them whole before they are moved into place; the server's own

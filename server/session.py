@@ -10,7 +10,7 @@ real time. Its gaze comes through one `gazehdr.gaze.GazeInput`, read once per st
 viewer's pointer (`pointer`, which the caller writes), a tracker, or a track. The simulated eye
 and its stepping are `gazehdr.eye.Eye`'s, shared with offline rendering.
 
-A session that records keeps a journal of session-log records (drivers/sessionlog.py) for its
+A session that records keeps a journal of session-log records (drivers/sessionlog/) for its
 caller to write: the scene, parameters and models it ran with and every change to them, resets,
 and the gaze and eyes it followed, on its simulation clock. Each carries the end time of the
 first step it drove, so an offline render at any frame rate (server/render.py) meets each at

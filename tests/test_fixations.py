@@ -1,4 +1,4 @@
-"""Fixation and blink detection (drivers/fixations.py) against synthetic ground truth and rules.
+"""Fixation and blink detection (drivers/fixations/) against synthetic ground truth and rules.
 
 Scoring on `SyntheticScanPath` (seeds 0-2, 40 s each, a blink every 1-3 s so that blinks are
 plentiful, at 60/120/300 Hz, with the path's own tremor (0.008° RMS) and its tracker noise set

@@ -227,7 +227,7 @@ def test_each_record_is_flushed_before_close(tmp_path: Path) -> None:
 
 def test_fsync_every_n_records_and_on_close(tmp_path: Path, monkeypatch) -> None:
     calls = []
-    monkeypatch.setattr("gazehdr.drivers.sessionlog.os.fsync", lambda fd: calls.append(fd))
+    monkeypatch.setattr("gazehdr.drivers.sessionlog.writer.os.fsync", lambda fd: calls.append(fd))
     with SessionLogWriter(tmp_path / "s.jsonl", header(), fsync_every=2) as w:
         assert len(calls) == 1  # the header
         for s in SAMPLES:

@@ -1,0 +1,218 @@
+"""Reading a recording's `_physioevents`: fixations, blinks and messages, timed on its samples.
+
+What import assumes:
+
+- Events: a `fixation` row gives `fixation_start` at `onset` and `fixation_end` at
+  `onset + duration`; a `blink` row, or any row with `blink` = 1 (eye2bids marks the saccade
+  around an EyeLink blink so), a blink over the row's interval; other trial types (saccades)
+  are skipped; a `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}`,
+  `gazehdr model {json}`, `gazehdr reset` and `gazehdr clock {json}` messages become scene,
+  parameter, model, reset and clock records). Event ids are
+  numbered 1, 2, ... per kind in onset order. `duration` is in its sidecar `Units`, else in
+  the onset's units when `ForeignIndexColumn` is used (eye2bids), else seconds.
+- Event times: the ForeignIndexColumn's column names a sample, so it is exact only to a sample
+  period. A file that also has an `onset` with `Units` (gazehdr's own) gives the exact time
+  from it, provided every onset lies in the sample interval its timestamp names (the sample at
+  or before it, or the first sample for an earlier one); otherwise (an onset on another clock,
+  such as seconds from the start) the timestamp column is used.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from gazehdr.drivers.formats.bids.files import NA, _sample_at
+from gazehdr.drivers.formats.bids.physio import (
+    UNITS_NS,
+    _float,
+    _Recording,
+    _rows,
+    _sidecar,
+    _units,
+)
+from gazehdr.drivers.formats.common import decimal_ns
+from gazehdr.drivers.sessionlog import (
+    ClockUpdate,
+    EyeReset,
+    FormatError,
+    GazeEvent,
+    ModelChange,
+    Note,
+    ParamsChange,
+    SceneChange,
+    SessionLog,
+)
+
+_ROW = "foreign_index"  # implicit indexing: the zero-based row of the physio file
+
+
+def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None) -> None:
+    intervals: list[tuple[int, str, int | None, float, float, float | None, str | None]] = []
+    seen_messages: set[tuple[int, str]] = set()
+    for r in recordings:
+        stem = r.path.name.split(".", 1)[0]
+        ext = r.path.name[len(stem) :]
+        path = r.path.with_name(stem[: -len("physio")] + "physioevents" + ext)
+        if not path.exists():
+            continue
+        side = _sidecar(path, "physioevents", r.entities)
+        sidecar_path = path.with_name(path.name.split(".", 1)[0] + ".json")
+        columns = side.get("Columns")
+        index = side.get("ForeignIndexColumn") or side.get("OnsetSource")
+        if index:  # the spec names the events' column after it; eye2bids calls it onset
+            when = index if isinstance(columns, list) and index in columns else "onset"
+        else:  # implicit indexing: foreign_index, the zero-based physio row
+            when = _ROW if isinstance(columns, list) and _ROW in columns else "onset"
+        if not isinstance(columns, list) or when not in columns:
+            raise FormatError(
+                sidecar_path,
+                None,
+                "Columns",
+                "required, with an 'onset' or 'foreign_index' column (or the ForeignIndexColumn)",
+            )
+        if index is not None and index != "timestamp":
+            raise FormatError(
+                sidecar_path, None, "ForeignIndexColumn", f"{index!r}; supported: timestamp"
+            )
+        if index is not None and "timestamp" not in r.columns:
+            raise FormatError(
+                sidecar_path, None, "ForeignIndexColumn", "the physio file has no timestamp"
+            )
+        time_unit = r.timestamp_unit_ns if index else None
+        duration_unit = _unit_ns(side, "duration", sidecar_path) or time_unit or 10**9
+        first_row = 0 if when == _ROW else 1
+        timed = []
+        for line, row in _rows(path, columns):
+            t = _event_time(path, line, row, when, time_unit, r, first_row)
+            timed.append((line, row, t))
+        onset_units = UNITS_NS.get(_units(side, "onset"))
+        if r.times and when == index and "onset" in columns and onset_units:
+            # explicit indexing snaps to a sample; an onset with Units on the same clock (what
+            # gazehdr writes) is exact. Taken only when every onset lies in the sample interval
+            # its index names, so an onset on another clock (s from the start) is not mistaken.
+            exact = [
+                _event_time(path, line, row, "onset", onset_units, r, 1) for line, row, _ in timed
+            ]
+            if all(_sample_at(r.times, o) == t for o, (_, _, t) in zip(exact, timed, strict=True)):
+                timed = [(line, row, o) for o, (line, row, _) in zip(exact, timed, strict=True)]
+        file_eye = r.eye if r.eye in ("left", "right") else None
+        for line, row, t in timed:
+            duration = None
+            if row.get("duration", NA) not in (NA, ""):
+                try:
+                    duration = decimal_ns(row["duration"], duration_unit)
+                except ValueError:
+                    raise FormatError(
+                        path, line, "duration", f"expected a number or n/a, got {row['duration']!r}"
+                    ) from None
+            kind = row.get("trial_type", NA)
+            blink = row.get("blink", NA)
+            eye = row.get("eye", NA)
+            eye = eye if eye in ("left", "right") else file_eye
+            message = row.get("message", NA)
+            if kind == "fixation":
+                x = _float(path, line, row, "x_coordinate") if "x_coordinate" in row else None
+                y = _float(path, line, row, "y_coordinate") if "y_coordinate" in row else None
+                if x is not None and y is not None and flip is not None:
+                    y = flip - y
+                disp = _float(path, line, row, "dispersion") if "dispersion" in row else None
+                nan = math.nan
+                intervals.append(
+                    (
+                        t,
+                        "fixation",
+                        duration,
+                        nan if x is None else x,
+                        nan if y is None else y,
+                        disp,
+                        eye,
+                    )
+                )
+            elif kind == "blink" or blink == "1":
+                intervals.append((t, "blink", duration, math.nan, math.nan, None, eye))
+            if message not in (NA, "") and (t, message) not in seen_messages:
+                seen_messages.add((t, message))
+                _message(log, t, message, path, line)
+    ids = {"fixation": 0, "blink": 0}
+    for t, family, duration, x, y, disp, eye in sorted(intervals, key=lambda i: i[0]):
+        ids[family] += 1
+        log.events.append(GazeEvent(f"{family}_start", ids[family], t, eye=eye))
+        if duration is not None:
+            log.events.append(
+                GazeEvent(f"{family}_end", ids[family], t + duration, x, y, duration, disp, eye)
+            )
+    log.events.sort(key=lambda e: e.t_ns)
+    for items in (log.notes, log.scenes, log.params, log.clocks):
+        items.sort(key=lambda r: r.t_ns)
+
+
+def _unit_ns(side: dict[str, Any], column: str, sidecar_path: Path) -> int | None:
+    """ns per unit of a column's sidecar `Units`; None without one."""
+    units = _units(side, column)
+    if units is not None and units not in UNITS_NS:
+        raise FormatError(
+            sidecar_path, None, f"{column}.Units", f"{units!r}; supported: {', '.join(UNITS_NS)}"
+        )
+    return UNITS_NS[units] if units is not None else None
+
+
+def _event_time(
+    path: Path,
+    line: int,
+    row: dict[str, str],
+    column: str,
+    unit_ns: int | None,
+    r: _Recording,
+    first_row: int,
+) -> int:
+    """An event's time from `column`: a time in `unit_ns`, or without a unit a physio row."""
+    text = row[column]
+    try:
+        if unit_ns is not None:
+            return decimal_ns(text, unit_ns)
+        return _row_time(decimal_ns(text, 1) + 1 - first_row, r.times, r.fs)
+    except ValueError:
+        raise FormatError(path, line, column, f"expected a number, got {text!r}") from None
+
+
+def _row_time(row: int, sample_times: list[int], fs: float | None) -> int:
+    """A one-based row number of the physio file (beyond it: at SamplingFrequency) → its time."""
+    if 1 <= row <= len(sample_times):
+        return sample_times[row - 1]
+    if not sample_times or fs is None:
+        raise ValueError("row outside the recording")
+    anchor = 1 if row < 1 else len(sample_times)
+    return sample_times[anchor - 1] + round((row - anchor) * 1e9 / fs)
+
+
+def _message(log: SessionLog, t: int, text: str, path: Path, line: int) -> None:
+    if text.startswith("gazehdr scene "):
+        log.scenes.append(SceneChange(t, text[len("gazehdr scene ") :]))
+        return
+    if text == "gazehdr reset":
+        log.resets.append(EyeReset(t))
+        return
+    for prefix in ("gazehdr params ", "gazehdr model ", "gazehdr clock "):
+        if text.startswith(prefix):
+            try:
+                value = json.loads(text[len(prefix) :])
+            except json.JSONDecodeError as e:
+                raise FormatError(path, line, "message", f"{prefix.strip()}: {e.msg}") from None
+            if not isinstance(value, dict):
+                raise FormatError(path, line, "message", f"{prefix.strip()}: not an object")
+            if prefix == "gazehdr params ":
+                log.params.append(ParamsChange(t, value))
+            elif prefix == "gazehdr model ":
+                model, split = value.get("model"), value.get("split")
+                if not isinstance(model, str) or not isinstance(split, (str, type(None))):
+                    raise FormatError(path, line, "message", "gazehdr model: model, split names")
+                log.models.append(ModelChange(t, model, split))
+            else:
+                log.clocks.append(
+                    ClockUpdate(t, value.get("offset_ns"), value.get("offset_uncertainty_ns"))
+                )
+            return
+    log.notes.append(Note(t, text))
