@@ -30,6 +30,7 @@ import logging
 import random
 import threading
 import time
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -97,7 +98,8 @@ class _ClosedError(Exception):
 class Daemon:
     """One source, one server. `await run()`; `stop()` (on the loop) ends it cleanly.
 
-    `options` are the delivery core's (`Delivery`: buffer, batch, flush_interval, max_rate,
+    `name` is the tracker's name in the hello (default: the source's); give each station its
+    own. `options` are the delivery core's (`Delivery`: buffer, batch, flush_interval, max_rate,
     burst, max_inflight, echo_interval, clock_window); the rest are about I/O.
     """
 
@@ -115,6 +117,7 @@ class Daemon:
         drain_timeout: float = 10.0,
         welcome_timeout: float = 5.0,
         status_interval: float | None = None,
+        name: str | None = None,
         **options: Any,
     ) -> None:
         if record is not None and record_dir is not None:
@@ -122,7 +125,9 @@ class Daemon:
                 "record (one file) and record_dir (a new file per run) exclude each other"
             )
         self.source = source
-        self.info: SourceInfo = source.info
+        # `name`: what the server lists this tracker under, and sessions follow it by
+        # (remote:NAME); the source's own name where none is given.
+        self.info: SourceInfo = replace(source.info, name=name) if name else source.info
         self.url = gaze_url(server_url)
         self.token = token
         self.record_path = Path(record) if record is not None else None

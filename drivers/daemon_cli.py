@@ -75,6 +75,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write every sample and event to a new DIR/gaze-YYYYmmddTHHMMSSZ.jsonl (UTC) "
         f"each run (default: ${RECORD_DIR_ENV}, unless --record is given)",
     )
+    p.add_argument(
+        "--name",
+        metavar="NAME",
+        help="the tracker's name on the server, which sessions follow it by (gaze source "
+        "remote:NAME); give each station its own (default: the source's, e.g. 'synthetic (seed "
+        "0)' or the HID tracker's product)",
+    )
     p.add_argument("--detector", choices=sorted(DETECTORS), default="ivt", help="default: ivt")
     p.add_argument(
         "--screen",
@@ -201,6 +208,7 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
             detector=args.detector,
             buffer=args.buffer,
             status_interval=10.0,
+            name=args.name,
         )
         stats, signalled = asyncio.run(_run_until_signalled(daemon))
     except UnauthorizedError as e:

@@ -9,6 +9,7 @@ import json
 
 import pytest
 import websockets
+from conftest import sole_tracker
 from sessions import new_session, tick
 
 from gazehdr.drivers.samples import GazePoint
@@ -154,3 +155,20 @@ def test_two_stations_on_one_server_each_drive_only_their_sessions(live_server) 
             await viewer.ws.close()
 
     run(asyncio.wait_for(check(), 120))
+
+
+def test_each_station_names_its_tracker(live_server, tmp_path) -> None:
+    """`gazehdr daemon --name`: the hello, and so the server's list, carries the station's name
+    (two identical trackers would otherwise be told apart only by the order they connect in)."""
+    from gazehdr.drivers.daemon_cli import daemon_main
+    from gazehdr.drivers.sessionlog import SessionHeader, SessionLogWriter
+    from gazehdr.drivers.sources import SyntheticSource
+
+    server = live_server(token="t")
+    log = tmp_path / "in.jsonl"
+    with SessionLogWriter(log, SessionHeader(tracker={"name": "Tobii Pro Fusion"})) as writer:
+        writer.write_all(SyntheticSource(3, 250.0, duration=0.5, realtime=False, start_ns=0))
+    argv = ["--source", f"replay:{log}@max", "--server", server.ws_url, "--token", "t", "-q"]
+    assert daemon_main([*argv, "--name", "station 3", "--record", str(tmp_path / "o.jsonl")]) == 0
+    assert [t["name"] for t in server.hub.trackers.describe()] == ["station 3"]
+    assert sole_tracker(server).samples == 126
