@@ -418,11 +418,15 @@ class _GazeLink:
         self.said_hello = True
         if self.feed is not None:  # gaze came first, as an unnamed tracker: that one ends
             self.close()
+            self.feed = None
         self.feed = self._connect(msg.tracker)
         return wire.Welcome(wire.PROTOCOL)
 
     def _connect(self, name: str | None) -> TrackerFeed:
-        feed = self.hub.trackers.connect(name)
+        try:
+            feed = self.hub.trackers.connect(name)
+        except ValueError as e:  # the table of tracker names is full
+            raise wire.WireError(str(e)) from None
         self._tell_viewers(feed)
         return feed
 

@@ -27,6 +27,9 @@ REMOTE = "remote"
 REMOTE_PREFIX = "remote:"
 #: What a tracker that gave no name in its hello is called.
 UNNAMED = "unnamed tracker"
+#: Tracker names a server keeps (connected or named by a session): a viewer choosing ever new
+#: `remote:NAME`s must not grow the table without bound.
+MAX_TRACKERS = 64
 
 
 def is_tracker_source(name: str) -> bool:
@@ -163,5 +166,7 @@ class Trackers:
         return [f.describe() for f in self.feeds()]
 
     def _new(self, name: str) -> TrackerFeed:
+        if len(self._feeds) >= MAX_TRACKERS:
+            raise ValueError(f"this server knows {MAX_TRACKERS} tracker names already")
         feed = self._feeds[name] = TrackerFeed(name)
         return feed

@@ -172,3 +172,19 @@ def test_each_station_names_its_tracker(live_server, tmp_path) -> None:
     assert daemon_main([*argv, "--name", "station 3", "--record", str(tmp_path / "o.jsonl")]) == 0
     assert [t["name"] for t in server.hub.trackers.describe()] == ["station 3"]
     assert sole_tracker(server).samples == 126
+
+
+def test_the_table_of_tracker_names_is_bounded() -> None:
+    """A viewer choosing ever new `remote:NAME`s cannot grow the server's table without end."""
+    from gazehdr.gaze import MAX_TRACKERS
+
+    trackers = Trackers()
+    session = new_session(SETTINGS, trackers=trackers)
+    for i in range(MAX_TRACKERS):
+        trackers.feed(f"t{i}")
+    _, notes = tick(session, 0.0, [(Choose("gaze_source", "remote:one more"), 0.0)])
+    full = f"this server knows {MAX_TRACKERS} tracker names already"
+    assert notes == [{"type": "error", "in": "gaze_source", "message": full}]
+    assert session.gaze_source == "mouse" and len(trackers.feeds()) == MAX_TRACKERS
+    with pytest.raises(ValueError, match="tracker names already"):
+        trackers.connect("a new station")
