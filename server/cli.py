@@ -265,6 +265,15 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         help="record each session (gaze followed, scene, parameter and model changes) as a "
         "session log in DATA_DIR/recordings, replayable in the viewer and by 'gazehdr render'",
     )
+    p.add_argument(
+        "--tracker",
+        action="append",
+        default=[],
+        metavar="SOURCE",
+        help="also stream this gaze source to the server from this process, as 'gazehdr daemon' "
+        f"would, recorded to DATA_DIR/recordings (repeatable): {registry.choices(registry.STREAM)}"
+        "; sessions follow it as remote:NAME, or with --gaze remote",
+    )
 
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
@@ -291,6 +300,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         split=args.split,
         seed=args.seed,
         record=args.record,
+        trackers=tuple(args.tracker),
     )
 
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
 import secrets
 import socket
+import sys
 import threading
 import time
 from pathlib import Path
@@ -12,6 +14,8 @@ from pathlib import Path
 import uvicorn
 
 from gazehdr.app import ServerConfig, create_app
+from gazehdr.drivers import registry
+from gazehdr.drivers.daemon import run_daemon
 from gazehdr.gaze import is_tracker_source
 from gazehdr.protocol import Encoding
 from gazehdr.scenes import builtin_names
@@ -157,8 +161,37 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-def serve(**options) -> int:
+def check_tracker_spec(spec: str) -> None:
+    """A ValueError unless `spec` names a kind of source that streams (`serve --tracker`)."""
+    name = spec.partition(":")[0]
+    if not any(k.name == name for k in registry.kinds(registry.STREAM)):
+        raise ValueError(f"--tracker {spec!r}: not a stream; choose {registry.choices('stream')}")
+
+
+def start_tracker(spec: str, url: str, token: str, record_dir: Path) -> threading.Thread:
+    """Stream the source `spec` names to this server as a gaze daemon on another machine
+    would (`gazehdr.drivers.daemon`, over /ws/gaze on loopback), from a thread of its own: a
+    tracker read where the server runs reaches sessions the one way every tracker does, and
+    is recorded to `record_dir` (replayable as `replay:NAME`) like any daemon's."""
+
+    def run() -> None:
+        try:
+            source = registry.open_source(spec, wait=True)
+            stats = asyncio.run(run_daemon(source, url, token, record_dir=record_dir))
+            print(f"gazehdr: tracker {spec}: {stats.summary()}", file=sys.stderr)
+        except Exception as e:  # the server goes on without this tracker; say why
+            print(f"gazehdr: tracker {spec}: error: {e}", file=sys.stderr)
+
+    thread = threading.Thread(target=run, name=f"tracker {spec}", daemon=True)
+    thread.start()
+    return thread
+
+
+def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
+    """Run the server; `trackers` are source specs streamed to it from this process."""
     config = build_config(**options)
+    for spec in trackers:
+        check_tracker_spec(spec)
     server = uvicorn_server(create_app(config), config.host, config.port)
     sock = bind(config.host, config.port)
     port = sock.getsockname()[1]
@@ -168,5 +201,9 @@ def serve(**options) -> int:
     print(f"gazehdr: gaze daemon token: {config.token}", flush=True)
     if s.record:
         print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}", flush=True)
+    loopback = "[::1]" if ":" in config.host else "127.0.0.1"
+    for spec in trackers:
+        start_tracker(spec, f"ws://{loopback}:{port}", config.token, config.data_dir / "recordings")
+        print(f"gazehdr: tracker {spec} streams to this server (gaze source remote:NAME)")
     server.run(sockets=[sock])
     return 0

@@ -14,7 +14,7 @@ from sessions import new_session, tick
 
 from gazehdr.drivers.samples import GazePoint
 from gazehdr.gaze import PointerGaze, Trackers, TrackGaze
-from gazehdr.protocol import Choose, Eyes, Gaze, Reset
+from gazehdr.protocol import Choose, Eyes, Gaze, Reset, decode_frame
 from gazehdr.session import SessionSettings
 from tests.test_server import Client, run
 
@@ -188,3 +188,46 @@ def test_the_table_of_tracker_names_is_bounded() -> None:
     assert session.gaze_source == "mouse" and len(trackers.feeds()) == MAX_TRACKERS
     with pytest.raises(ValueError, match="tracker names already"):
         trackers.connect("a new station")
+
+
+def test_serve_streams_a_tracker_of_its_own_machine_to_its_sessions(tmp_path) -> None:
+    """`gazehdr serve --tracker SOURCE`: the source reaches sessions as a daemon's would, over
+    /ws/gaze (one gaze path), and its samples are recorded where the viewer can replay them."""
+    import os
+    import re
+    import subprocess
+    import sys
+    from urllib.request import urlopen
+
+    argv = [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36",
+            "--backend", "reference", "--gaze", "remote", "--tracker", "synthetic:4",
+            "--data-dir", str(tmp_path)]  # fmt: skip
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    server = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              env=env)  # fmt: skip
+    try:
+        assert server.stdout is not None
+        url = next(m[1] for line in server.stdout if (m := re.search(r"open (http://\S+)/ ", line)))
+
+        async def follow() -> set[tuple[float, float]]:
+            async with websockets.connect(url.replace("http", "ws") + "/ws/view") as ws:
+                seen: set[tuple[float, float]] = set()
+                while len(seen) < 3:  # the scan path moves from fixation to fixation
+                    message = await ws.recv()
+                    if isinstance(message, str):
+                        note = json.loads(message)
+                        if note["type"] == "state":
+                            assert note["gaze_source"] == "remote:synthetic (seed 4)"
+                        continue
+                    header, _ = decode_frame(message)
+                    if header.tracker:
+                        seen.add((round(header.gaze_x, 6), round(header.gaze_y, 6)))
+                return seen
+
+        assert len(run(asyncio.wait_for(follow(), 120))) == 3
+        with urlopen(url + "/api/recordings", timeout=30) as response:
+            names = json.loads(response.read())["recordings"]
+        assert any(name.startswith("gaze-") for name in names), names
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
