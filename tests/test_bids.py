@@ -31,21 +31,19 @@ from gazehdr.drivers.sessionlog import (
 
 
 def bids_copy(tmp_path: Path, edit: tuple[str, int, str] | None = None) -> Path:
-    """The BIDS fixture with its TSVs gzipped, as BIDS requires (the repo keeps them as text).
+    """A copy of the BIDS fixture (a dataset the validator accepts, test_bids_dataset.py).
 
-    `edit` = (file, line, text) replaces one line of a TSV first.
+    `edit` = (file, line, text) replaces one line of a TSV.GZ.
     """
     root = tmp_path / "bids"
     shutil.copytree(DATA / "bids", root)
     if edit:
         target, line, text = edit
-        lines = (root / target).read_text().splitlines()
+        with gzip.open(root / target, "rt") as f:
+            lines = f.read().splitlines()
         lines[line - 1] = text
-        (root / target).write_text("\n".join(lines) + "\n")
-    for tsv in root.rglob("*.tsv"):
-        with tsv.open("rb") as src, gzip.open(f"{tsv}.gz", "wb") as dst:
-            dst.write(src.read())
-        tsv.unlink()
+        with gzip.open(root / target, "wt") as f:
+            f.write("\n".join(lines) + "\n")
     return root
 
 
@@ -108,14 +106,19 @@ def test_bids_timestamp_unit_inferred_and_bottom_left(tmp_path: Path) -> None:
     assert info.value.field == "timestamp.Units"
 
 
-def test_bids_implicit_indexing_by_zero_based_foreign_index(tmp_path: Path) -> None:
-    """The specification's implicit indexing: no ForeignIndexColumn, a `foreign_index` column
-    holding the zero-based physio row, negative before the first (at SamplingFrequency)."""
+@pytest.mark.parametrize("first_column", ["onset", "foreign_index"])
+def test_bids_implicit_indexing_by_zero_based_row(tmp_path: Path, first_column: str) -> None:
+    """Implicit indexing: the zero-based physio row, negative before the first (at
+    SamplingFrequency). BIDS 1.11: `"OnsetSource": "n/a"` and the `onset` column; drafts: no
+    OnsetSource (nor ForeignIndexColumn) and a `foreign_index` column."""
     root = bids_copy(tmp_path)
     side = root / "task-freeview_physioevents.json"
     data = json.loads(side.read_text())
-    del data["OnsetSource"]
-    data["Columns"] = ["foreign_index", "duration", "trial_type", "blink", "message"]
+    if first_column == "onset":
+        data["OnsetSource"] = "n/a"
+    else:
+        del data["OnsetSource"]
+    data["Columns"] = [first_column, "duration", "trial_type", "blink", "message"]
     data["duration"] = {"Units": "ms"}
     side.write_text(json.dumps(data))
     for eye in (EYE1, EYE2):
@@ -167,15 +170,47 @@ def test_bids_explicit_indexing_third_party_files(tmp_path: Path) -> None:
         assert log.notes == [Note(times[0], "Recalibrate"), Note(times[1], "New block")], case
 
 
+def test_bids_screen_origin_and_distance_vector(tmp_path: Path) -> None:
+    """BIDS 1.11 puts the origin in the events sidecar's `StimulusPresentation.ScreenOrigin`;
+    `ScreenDistance` may be the [X, Y, Z] offset of the screen's centre from the eye."""
+    root = bids_copy(tmp_path)
+    side = root / "task-freeview_events.json"
+    data = json.loads(side.read_text())
+    data["StimulusPresentation"]["ScreenOrigin"] = ["bottom", "left"]
+    data["StimulusPresentation"]["ScreenDistance"] = [0.0, 0.3, 0.4]
+    side.write_text(json.dumps(data))
+    log = read_bids(root)
+    assert log.samples[0].left.y == pytest.approx(1024 - 267.39)
+    assert log.header.screen.viewing_distance_m == pytest.approx(0.5)
+    data["StimulusPresentation"]["ScreenOrigin"] = ["center", "center"]
+    side.write_text(json.dumps(data))
+    with pytest.raises(FormatError, match=r"\['center', 'center'\]; supported") as info:
+        read_bids(root)
+    assert (info.value.path, info.value.field) == (str(side), "StimulusPresentation.ScreenOrigin")
+
+
+def test_bids_messages_unescaped_only_where_the_sidecar_says(tmp_path: Path) -> None:
+    """gazehdr writes tabs, line breaks and backslashes as `\\t`, `\\n`, `\\\\` (the validator
+    splits rows on every tab) and says so; another tool's backslash is a backslash."""
+    root = bids_copy(tmp_path)
+    for eye in (EYE1, EYE2):
+        with gzip.open(root / f"{eye}events.tsv.gz", "wt") as f:
+            f.write("7186771\tn/a\tn/a\tn/a\tC:\\new\\tab\n")
+    assert [n.text for n in read_bids(root).notes] == ["C:\\new\\tab"]
+    side = root / "task-freeview_physioevents.json"
+    side.write_text(json.dumps({**json.loads(side.read_text()), "GazehdrEscapedText": True}))
+    assert [n.text for n in read_bids(root).notes] == ["C:\new\tab"]
+
+
 @pytest.mark.parametrize(
     ("target", "line", "text", "field", "reason"),
     [
-        (f"{EYE1}.tsv", 2, "7186801\t416.20\tabc\t4623.0", "y_coordinate", "number or n/a"),
-        (f"{EYE1}.tsv", 2, "7186801\t416.20\t269.00", None, "3 fields; the sidecar's Columns"),
-        (f"{EYE1}.tsv", 2, "soon\t416.20\t269.00\t4623.0", "timestamp", "expected a number"),
-        (f"{EYE1}.tsv", 3, "7186790\t416.20\t269.00\t4623.0", "timestamp", "goes back"),
-        (f"{EYE1}events.tsv", 3, "7186799\tlong\tfixation\t0\tn/a", "duration", "number or n/a"),
-        (f"{EYE1}events.tsv", 3, "first\t4\tfixation\t0\tn/a", "onset", "expected a number"),
+        (f"{EYE1}.tsv.gz", 2, "7186801\t416.20\tabc\t4623.0", "y_coordinate", "number or n/a"),
+        (f"{EYE1}.tsv.gz", 2, "7186801\t416.20\t269.00", None, "3 fields; the sidecar's Columns"),
+        (f"{EYE1}.tsv.gz", 2, "soon\t416.20\t269.00\t4623.0", "timestamp", "expected a number"),
+        (f"{EYE1}.tsv.gz", 3, "7186790\t416.20\t269.00\t4623.0", "timestamp", "goes back"),
+        (f"{EYE1}events.tsv.gz", 3, "7186799\tlong\tfixation\t0\tn/a", "duration", "number or n/a"),
+        (f"{EYE1}events.tsv.gz", 3, "first\t4\tfixation\t0\tn/a", "onset", "expected a number"),
     ],
 )
 def test_bids_malformed_rows_name_file_line_and_field(
@@ -184,7 +219,7 @@ def test_bids_malformed_rows_name_file_line_and_field(
     root = bids_copy(tmp_path, (target, line, text))
     with pytest.raises(FormatError, match=reason) as info:
         read_bids(root / f"{EYE1}.tsv.gz")
-    assert_names(info.value, root / f"{target}.gz", line, field)
+    assert_names(info.value, root / target, line, field)
 
 
 @pytest.mark.parametrize(
@@ -208,6 +243,22 @@ def test_bids_sidecar_errors_name_the_field(
         read_bids(root / f"{EYE1}.tsv.gz")
     assert info.value.field == field
     assert info.value.path == str(side)
+
+
+def test_bids_errors_name_the_file_that_gave_the_key_or_should_have(tmp_path: Path) -> None:
+    """An inherited key's error names the dataset-level file; a missing one, the recording's own
+    sidecar (where to add it)."""
+    root = bids_copy(tmp_path)
+    side = root / "task-freeview_physio.json"
+    side.write_text(json.dumps({**json.loads(side.read_text()), "SamplingFrequency": -5}))
+    with pytest.raises(FormatError, match="expected a positive number") as info:
+        read_bids(root)
+    assert (info.value.path, info.value.field) == (str(side), "SamplingFrequency")
+    root = bids_copy(tmp_path / "2")
+    (root / "task-freeview_physioevents.json").unlink()
+    with pytest.raises(FormatError, match="required, with an 'onset' column") as info:
+        read_bids(root)
+    assert (info.value.path, info.value.field) == (str(root / f"{EYE1}events.json"), "Columns")
 
 
 def native_log() -> SessionLog:
@@ -275,17 +326,23 @@ def comparable(log: SessionLog) -> dict:
 
 def test_native_bids_native_round_trip(tmp_path: Path) -> None:
     log = native_log()
-    written = write_bids(log, tmp_path / "out", prefix="sub-07_ses-1_task-hdr")
-    names = sorted(p.name for p in written)
-    assert names == sorted(
-        f"sub-07_ses-1_task-hdr_recording-{eye}_{kind}{ext}"
-        for eye in ("eye1", "eye2", "eye3")
-        for kind in ("physio", "physioevents")
-        for ext in (".tsv.gz", ".json")
-    )
-    side = json.loads(
-        (tmp_path / "out/sub-07_ses-1_task-hdr_recording-eye1_physio.json").read_text()
-    )
+    root = tmp_path / "out"
+    written = write_bids(log, root, sub="07", ses="1", task="hdr")
+    run = "sub-07/ses-1/beh/sub-07_ses-1_task-hdr"
+    assert sorted(p.relative_to(root).as_posix() for p in written) == sorted([
+        "dataset_description.json",
+        "README.md",
+        "participants.tsv",
+        f"{run}_events.tsv",
+        f"{run}_events.json",
+        *(
+            f"{run}_recording-{eye}_{kind}{ext}"
+            for eye in ("eye1", "eye2", "eye3")
+            for kind in ("physio", "physioevents")
+            for ext in (".tsv.gz", ".json")
+        ),
+    ])  # fmt: skip
+    side = json.loads((root / f"{run}_recording-eye1_physio.json").read_text())
     assert side["RecordedEye"] == "left" and side["Columns"][:3] == [
         "timestamp",
         "x_coordinate",
@@ -293,11 +350,11 @@ def test_native_bids_native_round_trip(tmp_path: Path) -> None:
     ]
     assert side["SamplingFrequency"] == pytest.approx(240, rel=1e-6)
     assert side["Manufacturer"] == "Acme"
-    with gzip.open(tmp_path / "out/sub-07_ses-1_task-hdr_recording-eye3_physio.tsv.gz", "rt") as f:
+    with gzip.open(root / f"{run}_recording-eye3_physio.tsv.gz", "rt") as f:
         first = f.readline().rstrip("\n").split("\t")
     assert first == ["1234567890123", "800.0", "400.0"]  # header-less, cyclopean, ns
 
-    back = read_bids(tmp_path / "out/sub-07_ses-1_task-hdr_recording-eye2_physio.tsv.gz")
+    back = read_bids(root / f"{run}_recording-eye2_physio.tsv.gz")
     assert comparable(back) == comparable(log)
     # fixations and blinks come back as start/end pairs; updates and start positions do not
     assert events(back) == [
@@ -317,28 +374,35 @@ def gz_rows(path: Path) -> list[list[str]]:
         return list(csv.reader(f, delimiter="\t"))
 
 
-def test_bids_export_explicit_indexing_is_conformant(tmp_path: Path) -> None:
-    """The specification's MUST: every physioevents `timestamp` (the ForeignIndexColumn) is in
-    the physio file's `timestamp` column; it is the sample at or before the exact `onset`, the
-    first sample for an earlier event."""
+def test_bids_export_onsets_on_the_timestamp_clock_durations_in_seconds(tmp_path: Path) -> None:
+    """BIDS 1.11 "Physiology events": the REQUIRED `OnsetSource` names the physio column whose
+    values `onset` shares, so each onset is the event's exact time in the timestamp's clock and
+    unit (ns), before the first sample or after the last as well; `duration` is in seconds
+    (the schema's `columns.duration`), exact to the ns."""
     log = native_log()
     log.add(Note(log.samples[-1].t_ns + 10**9, "after the last sample"))
-    written = write_bids(log, tmp_path)
-    cases = set()
+    written = write_bids(log, tmp_path / "ds")
     for physio in (p for p in written if p.name.endswith("_physio.tsv.gz")):
         events = physio.with_name(physio.name.replace("_physio.", "_physioevents."))
         side = json.loads(events.with_name(events.name.replace(".tsv.gz", ".json")).read_text())
-        assert side["ForeignIndexColumn"] == "timestamp"
-        assert side["Columns"][0] == "onset" and "timestamp" in side["Columns"]
-        stamps = [int(row[0]) for row in gz_rows(physio)]  # physio Columns[0] is timestamp
-        rows = [dict(zip(side["Columns"], row, strict=True)) for row in gz_rows(events)]
-        for row in rows:
-            onset, stamp = int(row["onset"]), int(row["timestamp"])
-            assert stamp in stamps
-            earlier = [s for s in stamps if s <= onset]
-            assert stamp == (max(earlier) if earlier else stamps[0])
-            cases.add("before" if not earlier else "on" if onset in stamps else "between")
-    assert cases == {"before", "on", "between"}
+        physio_side = json.loads(
+            physio.with_name(physio.name.replace(".tsv.gz", ".json")).read_text()
+        )
+        assert side["OnsetSource"] == "timestamp" and "ForeignIndexColumn" not in side
+        assert side["onset"]["Units"] == physio_side["timestamp"]["Units"] == "ns"
+        assert side["duration"]["Units"] == "s"
+        assert side["Columns"][0] == "onset" and "timestamp" not in side["Columns"]
+    eye3 = next(p for p in written if p.name.endswith("eye3_physioevents.tsv.gz"))
+    side = json.loads(eye3.with_name(eye3.name.replace(".tsv.gz", ".json")).read_text())
+    rows = [dict(zip(side["Columns"], row, strict=True)) for row in gz_rows(eye3)]
+    first, last = log.samples[0].t_ns, log.samples[-1].t_ns
+    onsets = [int(r["onset"]) for r in rows]
+    assert onsets == sorted(onsets) and min(onsets) < first and max(onsets) > last
+    assert [(int(r["onset"]), r["duration"]) for r in rows if r["trial_type"] != "n/a"] == [
+        (log.events[0].t_ns, "0.016666668"),  # the fixation: 16 666 668 ns
+        (log.events[3].t_ns, "0.008333334"),  # the blink
+        (log.events[7].t_ns, "n/a"),  # a fixation still going when the log ends
+    ]
 
 
 def test_bids_export_refuses_a_log_without_samples(tmp_path: Path) -> None:
@@ -354,19 +418,21 @@ def test_round_trip_without_per_eye_data_and_reproducible_gzip(tmp_path: Path) -
     log.samples = [GazeSample(s.t_ns, s.x, s.y, s.valid) for s in log.samples]
     log.events = [e for e in log.events if e.eye is None]
     first = write_bids(log, tmp_path / "a")
-    assert [p.name for p in first][:2] == [
+    recordings = [p for p in first if "_recording-" in p.name]
+    assert [p.name for p in recordings][:2] == [
         "sub-01_task-gazehdr_recording-eye1_physio.tsv.gz",
         "sub-01_task-gazehdr_recording-eye1_physio.json",
     ]
-    assert len(first) == 4
-    back = read_bids(first[0])
+    assert len(recordings) == 4
+    back = read_bids(recordings[0])
     assert comparable(back) == comparable(log)
     second = write_bids(log, tmp_path / "b")
     assert [p.read_bytes() for p in first] == [p.read_bytes() for p in second]
     with pytest.raises(FileExistsError):
         write_bids(log, tmp_path / "a")
     write_bids(log, tmp_path / "a", overwrite=True)
-    with pytest.raises(ValueError, match="recording entity"):
-        write_bids(log, tmp_path / "c", prefix="sub-01_recording-x")
-    with pytest.raises(ValueError, match="BIDS entities"):
-        write_bids(log, tmp_path / "c", prefix="subject one")
+    with pytest.raises(ValueError, match="--run 'x': a BIDS run is digits"):
+        write_bids(log, tmp_path / "c", run="x")
+    with pytest.raises(ValueError, match="--sub 'subject one': a BIDS sub is letters and digits"):
+        write_bids(log, tmp_path / "c", sub="subject one")
+    assert not (tmp_path / "c").exists()

@@ -430,10 +430,19 @@ def test_import_and_export_command_lines(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit):
         import_main([str(DATA / "gaze_positions.csv"), "--out", str(pupil), "--screen", "big"])
 
-    assert (
-        export_main([str(out), "--out", str(tmp_path / "bids"), "--prefix", "sub-02_task-x"]) == 0
-    )
+    bids = tmp_path / "bids"
+    assert export_main([str(out), "--out", str(bids), "--sub", "02", "--task", "x"]) == 0
     printed = capsys.readouterr().out
-    assert "wrote 12 files" in printed
-    back = import_recording(tmp_path / "bids" / "sub-02_task-x_recording-eye3_physio.tsv.gz")
+    assert "wrote 17 files to the dataset" in printed  # 3 of the dataset, 2 events, 12 per eye
+    assert "  sub-02/beh/sub-02_task-x_events.tsv\n" in printed
+    back = import_recording(bids / "sub-02" / "beh" / "sub-02_task-x_recording-eye3_physio.tsv.gz")
     assert len(back.samples) == len(read_session_log(out).samples)
+    assert import_main([str(bids), "--sub", "02", "--out", str(tmp_path / "b.jsonl")]) == 0
+    assert read_session_log(tmp_path / "b.jsonl").samples == back.samples
+    # the old --prefix (files in --out itself) says what to use instead
+    with pytest.raises(SystemExit):
+        export_main([str(out), "--out", str(bids), "--prefix", "sub-02_ses-3_task-x"])
+    assert "use --sub 02 --ses 3 --task x" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # picking a run is for BIDS datasets only
+        import_main([str(DATA / "eyelink_mono.asc"), "--run", "1", "--out", str(pupil)])
+    assert "--run picks a run of a BIDS dataset" in capsys.readouterr().err
