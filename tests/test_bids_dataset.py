@@ -206,7 +206,7 @@ def test_import_picks_the_run_from_a_root_a_subject_or_a_session_folder(tmp_path
     assert str(info.value) == (
         f"{root}: 3 eye-tracking runs; pick one with --sub --run:\n"
         "  sub-01 ses-1 task-hdr run-1  (sub-01/ses-1/beh/, 3 recordings)\n"
-        "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recordings)\n"
+        "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recording)\n"
         "  sub-02 ses-1 task-hdr run-1  (sub-02/ses-1/beh/, 3 recordings)"
     )
     both, one = comparable(native_log()), comparable(cyclopean_log())
@@ -254,7 +254,7 @@ def test_import_command_line_lists_the_runs(tmp_path: Path, capsys) -> None:
     assert gazehdr_main(["import", str(root), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"gazehdr: error: {root}: 3 eye-tracking runs; pick one with --sub --run")
-    assert "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recordings)\n" in err
+    assert "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recording)\n" in err
     assert gazehdr_main(["import", str(root), "--sub", "01", "--run", "2", "--out", str(out)]) == 0
     assert "sub-01" not in capsys.readouterr().err
 

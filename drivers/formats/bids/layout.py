@@ -110,7 +110,8 @@ def _run_in_folder(folder: Path, select: Mapping[str, str]) -> list[Path]:
         lines = []
         for (parent, key), files in items.items():
             where = parent.relative_to(folder).as_posix()
-            lines.append(f"  {_describe(dict(key))}  ({where}/, {len(files)} recordings)")
+            n = len(files)
+            lines.append(f"  {_describe(dict(key))}  ({where}/, {n} recording{'s' * (n > 1)})")
         return "\n".join(lines)
 
     if not chosen:
