@@ -243,7 +243,7 @@ def test_import_skips_other_physio_of_a_run(tmp_path: Path) -> None:
     other.mkdir(parents=True)
     shutil.move(f"{cardiac}.tsv.gz", other)
     shutil.move(f"{cardiac}.json", other)
-    with pytest.raises(FormatError, match=r"1 physio files, none eye-tracking"):
+    with pytest.raises(FormatError, match=r"1 physio file, none eye-tracking"):
         read_bids(tmp_path / "pulse")
 
 

@@ -100,7 +100,8 @@ def _run_in_folder(folder: Path, select: Mapping[str, str]) -> list[Path]:
         if _is_eyetrack(f):
             runs.setdefault((f.parent, tuple(_run_key(f.name).items())), []).append(f)
     if not runs:
-        found = f"{seen} physio files, none eye-tracking" if seen else "no *_physio.tsv.gz file"
+        found = f"{seen} physio file{'s' * (seen > 1)}, none eye-tracking"
+        found = found if seen else "no *_physio.tsv.gz file"
         raise FormatError(folder, None, None, f"{found} (searched every folder below it)")
     chosen = {k: v for k, v in runs.items() if _selected(dict(k[1]), select)}
     if len(chosen) == 1:
@@ -212,7 +213,7 @@ def refuse_existing_run(folder: Path, entities: Mapping[str, str]) -> None:
         return
     task = {k: v for k, v in entities.items() if k != "run"}
     taken = [1]
-    for f in existing[0].parent.iterdir():
+    for f in folder.iterdir():
         key = _run_key(f.name)
         run = key.pop("run", "1")  # a run without an index is the first
         if key == task and run.isdigit():
