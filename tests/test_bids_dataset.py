@@ -4,7 +4,8 @@ folder or one file, including an excerpt of a real dataset (bids-examples'
 `eyetracking_eeg_ds007338`, see tests/data/formats/SOURCES.md).
 
 The validator is `bids-validator-deno` (the `test` extra) with the schema it bundles (BIDS
-1.11.1), run with the proxy pointed at a closed local port: it must not need the network.
+1.11.1; it fetches one only when given `--schema` or `BIDS_SCHEMA`, src/setup/loadSchema.ts),
+run with the proxy pointed at a closed local port: it must not need the network.
 """
 
 from __future__ import annotations
@@ -42,11 +43,9 @@ def validate(root: Path) -> dict:
     """The validator's report on `root`; fails the test on any error, lists the warnings."""
     exe = shutil.which("bids-validator-deno", path=str(Path(sys.executable).parent))
     assert exe, "bids-validator-deno is missing: pip install -e '.[test]'"
-    offline = {
-        **os.environ,
-        "HTTP_PROXY": "http://127.0.0.1:9",
-        "HTTPS_PROXY": "http://127.0.0.1:9",
-    }
+    # the bundled schema (BIDS_SCHEMA or --schema would fetch one), and no way out if it tried
+    offline = {k: v for k, v in os.environ.items() if k != "BIDS_SCHEMA"}
+    offline |= {"HTTP_PROXY": "http://127.0.0.1:9", "HTTPS_PROXY": "http://127.0.0.1:9"}
     done = subprocess.run(
         [exe, "--format", "json", str(root)],
         capture_output=True,
