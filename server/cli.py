@@ -447,13 +447,13 @@ COMMANDS: dict[str, Command] = {
         passthrough=True,
     ),
     "import": Command(
-        "convert a recording (BIDS physio, EyeLink .asc, Pupil gaze_positions.csv, Tobii .tsv) "
-        "into a session log (arguments pass through; see 'gazehdr import --help')",
+        "convert a recording (a BIDS dataset's run, EyeLink .asc, Pupil gaze_positions.csv, "
+        "Tobii .tsv) into a session log (arguments pass through; see 'gazehdr import --help')",
         _import,
         passthrough=True,
     ),
     "export": Command(
-        "write a session log as BIDS eye-tracking physio (see 'gazehdr export --help')",
+        "write a session log as a run of a BIDS eye-tracking dataset (see 'gazehdr export --help')",
         _export,
         passthrough=True,
     ),

@@ -3,7 +3,8 @@
 Importers (each module's docstring says which documentation it follows, and what it assumes):
 
 - `bids`: BIDS eye-tracking physio, `*_recording-<eye>_physio.tsv.gz` + JSON sidecars and
-  `*_physioevents.tsv.gz`; also the exporter (`write_bids`).
+  `*_physioevents.tsv.gz`, from a dataset, a folder in one, or a file; also the exporter
+  (`write_bids`), a run of a dataset that the official validator accepts.
 - `eyelink`: SR Research EyeLink ASC files (EDF2ASC output).
 - `pupil`: Pupil Player's `gaze_positions.csv`.
 - `tobii`: the Tobii TSV written by PyGaze's `libtobii` and by `psychopy_tobii_controller`.
@@ -23,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr.drivers.cli_args import OneLineParser, positive_arg, screen_size_arg
+from gazehdr.drivers.formats.bids.layout import SELECTABLE
 from gazehdr.drivers.formats.common import geometry_with
 from gazehdr.drivers.sessionlog import FormatError, SessionLog, write_session_log
 
@@ -62,8 +64,9 @@ def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> Ses
     """Read a recording in any supported format into a `SessionLog`.
 
     `options` go to the importer: `geometry` (a `ScreenGeometry` for what the file does not
-    record) for all; `min_confidence` (pupil); `units` (tobii, psychopy_tobii_controller files);
-    `missing` (eyelink, the `edf2asc -miss` string).
+    record) for all; `select` (bids: {"sub": .., "ses": .., "task": .., "acq": .., "run": ..},
+    which run of a dataset); `min_confidence` (pupil); `units` (tobii, psychopy_tobii_controller
+    files); `missing` (eyelink, the `edf2asc -miss` string).
     """
     if fmt == "auto":
         fmt = detect_format(path)
@@ -87,12 +90,17 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         description="Convert an eye-tracking recording into a gazehdr session log (JSON Lines).",
         epilog="examples:\n"
         "  gazehdr import s01.asc --out s01.jsonl\n"
-        "  gazehdr import sub-01/beh/sub-01_task-x_recording-eye1_physio.tsv.gz --out s01.jsonl\n"
+        "  gazehdr import bids/ --sub 01 --run 2 --out s01.jsonl\n"
+        "  gazehdr import bids/sub-01 --task x --out s01.jsonl\n"
         "  gazehdr import exports/000/gaze_positions.csv --screen 1280x720 --out s01.jsonl\n"
         "  gazehdr import test.tsv --units height --out s01.jsonl",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", help="the recording (a BIDS physio file or directory, .asc, .csv, .tsv)")
+    p.add_argument(
+        "file",
+        help="the recording: a BIDS dataset, a folder in one (sub-*, ses-*) or a physio file; "
+        ".asc, .csv, .tsv",
+    )
     p.add_argument("--out", required=True, help="the session log to write (.jsonl)")
     p.add_argument("--format", default="auto", choices=["auto", *IMPORTERS])
     p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
@@ -112,8 +120,16 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         default=0.6,
         help="Pupil gaze below this confidence is invalid (default 0.6, Pupil Player's own)",
     )
+    runs = p.add_argument_group(
+        "BIDS", "which run of a dataset, where it holds several (the error lists them)"
+    )
+    for key in SELECTABLE:
+        runs.add_argument(f"--{key}", metavar="LABEL", help=f"the {key}-<label> entity")
     args = p.parse_args(argv)
     fmt = detect_format(args.file) if args.format == "auto" else args.format
+    select = {k: getattr(args, k) for k in SELECTABLE if getattr(args, k) is not None}
+    if select and fmt != "bids":
+        p.error(f"--{next(iter(select))} picks a run of a BIDS dataset; {args.file} is {fmt}")
     geometry = None
     if args.screen or args.diagonal or args.distance:
         width, height = args.screen or (None, None)
@@ -125,6 +141,8 @@ def import_main(argv: Sequence[str] | None = None) -> int:
             distance_m=args.distance,
         )
     options: dict[str, Any] = {"geometry": geometry}
+    if fmt == "bids":
+        options["select"] = select
     if fmt == "pupil":
         options["min_confidence"] = args.min_confidence
     if fmt == "tobii":
@@ -141,36 +159,62 @@ def import_main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def _prefix_error(prefix: str) -> str:
+    """What to use instead of the old `--prefix sub-01_task-hdr` (files in --out itself)."""
+    entities = dict(p.split("-", 1) for p in prefix.split("_") if "-" in p)
+    flags = " ".join(
+        f"--{k} {v}" for k, v in entities.items() if k in ("sub", "ses", "task", "run")
+    )
+    return (
+        "--prefix is replaced by entity flags, and --out now names the dataset's root (the "
+        "files go to sub-<sub>/[ses-<ses>/]beh/ in it): use " + (flags or "--sub 01 --task NAME")
+    )
+
+
 def export_main(argv: Sequence[str] | None = None) -> int:
-    """`gazehdr export LOG.jsonl --out DIR`: a native session log → BIDS physio files."""
+    """`gazehdr export LOG.jsonl --out DATASET --sub 01 --task hdr`: a native session log → a run
+    of a BIDS dataset (made if new)."""
     p = OneLineParser(
         prog="gazehdr export",
-        description="Write a gazehdr session log as BIDS eye-tracking physio files "
-        "(*_recording-eye<N>_physio.tsv.gz + .json, *_physioevents.tsv.gz + .json).",
-        epilog="example:\n"
-        "  gazehdr export s01.jsonl --out bids/sub-01/beh --prefix sub-01_task-hdr",
+        description="Write a gazehdr session log as a run of a BIDS eye-tracking dataset "
+        "(made if --out is new or empty; other runs are left as they are): "
+        "sub-<sub>/[ses-<ses>/]beh/ with the run's _events.tsv and, per eye, "
+        "_recording-eye<N>_physio.tsv.gz and _physioevents.tsv.gz, with their sidecars.",
+        epilog="examples:\n"
+        "  gazehdr export s01.jsonl --out bids --sub 01 --task hdr\n"
+        "  gazehdr export s02.jsonl --out bids --sub 01 --ses 2 --task hdr --run 1",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("log", help="a gazehdr session log (.jsonl)")
-    p.add_argument("--out", required=True, help="directory for the files (created if missing)")
+    p.add_argument("--out", required=True, help="the BIDS dataset's root folder")
     p.add_argument("--format", default="bids", choices=["bids"])
-    p.add_argument(
-        "--prefix",
-        default="sub-01_task-gazehdr",
-        help="BIDS entities before _recording-... (default sub-01_task-gazehdr)",
-    )
-    p.add_argument("--overwrite", action="store_true", help="replace files that exist")
+    p.add_argument("--sub", default="01", help="subject label (default 01)")
+    p.add_argument("--ses", help="session label (default: none)")
+    p.add_argument("--task", default="gazehdr", help="task label (default gazehdr)")
+    p.add_argument("--run", help="run index (default: none); needed to add a second run")
+    p.add_argument("--prefix", help=argparse.SUPPRESS)
+    p.add_argument("--overwrite", action="store_true", help="replace this run if it exists")
     args = p.parse_args(argv)
+    if args.prefix is not None:
+        p.error(_prefix_error(args.prefix))
     from gazehdr.drivers.formats.bids import write_bids
     from gazehdr.drivers.sessionlog import read_session_log
 
     log = read_session_log(args.log)
     if log.truncated:
         print(f"{args.log}: cut short at line {log.truncated_line}; exporting what was whole")
-    written = write_bids(log, args.out, prefix=args.prefix, overwrite=args.overwrite)
-    print(f"{args.log}: wrote {len(written)} files to {args.out}")
+    written = write_bids(
+        log,
+        args.out,
+        sub=args.sub,
+        ses=args.ses,
+        task=args.task,
+        run=args.run,
+        overwrite=args.overwrite,
+    )
+    print(f"{args.log}: wrote {len(written)} files to the dataset {args.out}")
     for path in written:
-        print(f"  {path.name}")
+        print(f"  {path.relative_to(args.out).as_posix()}")
     return 0
 
 

@@ -1,5 +1,5 @@
-"""Reading BIDS files: sidecars merged down from the dataset root, header-less TSV(.gz) rows, and
-one `_physio` recording's samples.
+"""Reading BIDS files: sidecars merged down from the dataset root (the inheritance principle),
+header-less TSV.GZ rows, and one `_physio` recording's samples.
 
 What import assumes:
 
@@ -22,7 +22,7 @@ from decimal import Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any
 
-from gazehdr.drivers.formats.bids.files import NA, _split_name
+from gazehdr.drivers.formats.bids.files import NA, _split_name, file_stem
 from gazehdr.drivers.samples import EyeSample
 from gazehdr.drivers.sessionlog import FormatError
 
@@ -39,8 +39,27 @@ def _load_json(path: Path) -> dict[str, Any]:
     return data
 
 
-def _sidecar(data_file: Path, suffix: str, entities: dict[str, str]) -> dict[str, Any]:
-    """The sidecar of `data_file`, merged down from the dataset root (inheritance principle)."""
+class Sidecar(dict):  # type: ignore[type-arg]
+    """A sidecar merged from several files, which knows the file each key came from, so that
+    an error names the file to fix; a key no file has is the data file's own sidecar's."""
+
+    def __init__(self, own: Path) -> None:
+        super().__init__()
+        self.own = own
+        self.sources: dict[str, Path] = {}
+
+    def where(self, key: str) -> Path:
+        """The file that gave `key` (`timestamp.Units`: the one that gave `timestamp`)."""
+        return self.sources.get(key.split(".", 1)[0], self.own)
+
+    def error(self, key: str, reason: str) -> FormatError:
+        return FormatError(self.where(key), None, key, reason)
+
+
+def _sidecar(data_file: Path, suffix: str, entities: dict[str, str]) -> Sidecar:
+    """The `suffix` sidecar that applies to `data_file`, merged down from the dataset root
+    (BIDS "The Inheritance Principle": the file with more of the entities wins)."""
+    own = {k: v for k, v in entities.items() if suffix != "events" or k != "recording"}
     dirs = []
     d = data_file.parent
     for _ in range(5):
@@ -48,7 +67,7 @@ def _sidecar(data_file: Path, suffix: str, entities: dict[str, str]) -> dict[str
         if (d / "dataset_description.json").exists() or d.parent == d:
             break
         d = d.parent
-    merged: dict[str, Any] = {}
+    merged = Sidecar(data_file.with_name(file_stem(own, suffix) + ".json"))
     for directory in reversed(dirs):
         found = []
         for candidate in directory.glob(f"*_{suffix}.json"):
@@ -56,7 +75,9 @@ def _sidecar(data_file: Path, suffix: str, entities: dict[str, str]) -> dict[str
             if sfx == suffix and all(entities.get(k) == v for k, v in ents.items()):
                 found.append((len(ents), candidate))
         for _, candidate in sorted(found):
-            merged.update(_load_json(candidate))
+            data = _load_json(candidate)
+            merged.update(data)
+            merged.sources.update(dict.fromkeys(data, candidate))
     return merged
 
 
@@ -65,16 +86,11 @@ def _units(sidecar: dict[str, Any], column: str) -> str | None:
     return spec.get("Units") if isinstance(spec, dict) else None
 
 
-def _open_tsv(path: Path) -> io.TextIOBase:
-    if path.name.endswith(".gz"):
-        return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8", newline="")
-    return path.open(encoding="utf-8", newline="")
-
-
 def _rows(path: Path, columns: list[str]) -> Iterator[tuple[int, dict[str, str]]]:
-    """(line, {column: text}) for each row of a header-less TSV(.gz) file."""
+    """(line, {column: text}) for each row of a header-less TSV.GZ file (a UTF-8 byte order
+    mark, as some converters write, is skipped)."""
     try:
-        with _open_tsv(path) as f:
+        with io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8-sig", newline="") as f:
             reader = csv.reader(f, delimiter="\t")
             for row in reader:
                 if not row or not any(v.strip() for v in row):
@@ -116,54 +132,36 @@ class _Recording:
         side = self.sidecar
         columns = side.get("Columns")
         if not isinstance(columns, list) or not all(isinstance(c, str) for c in columns):
-            raise FormatError(
-                self._json, None, "Columns", "required: the list of the TSV's column names"
-            )
+            raise side.error("Columns", "required: the list of the TSV's column names")
         for needed in ("x_coordinate", "y_coordinate"):
             if needed not in columns:
-                raise FormatError(
-                    self._json, None, "Columns", f"no '{needed}' column: not eye-tracking data"
-                )
+                raise side.error("Columns", f"no '{needed}' column: not eye-tracking data")
         self.columns = columns
         physio_type = side.get("PhysioType", "eyetrack")
         if physio_type != "eyetrack":
-            raise FormatError(
-                self._json, None, "PhysioType", f"{physio_type!r}; expected 'eyetrack'"
-            )
+            raise side.error("PhysioType", f"{physio_type!r}; expected 'eyetrack'")
         eye = side.get("RecordedEye", "cyclopean")
         if not isinstance(eye, str) or eye.lower() not in ("left", "right", "cyclopean"):
-            raise FormatError(
-                self._json, None, "RecordedEye", f"expected left, right or cyclopean, got {eye!r}"
-            )
+            raise side.error("RecordedEye", f"expected left, right or cyclopean, got {eye!r}")
         self.eye = eye.lower()
         system = side.get("SampleCoordinateSystem", "gaze-on-screen")
         if system != "gaze-on-screen":
-            raise FormatError(
-                self._json, None, "SampleCoordinateSystem", f"{system!r}; expected gaze-on-screen"
-            )
+            raise side.error("SampleCoordinateSystem", f"{system!r}; expected gaze-on-screen")
         units = side.get("SampleCoordinateUnits") or _units(side, "x_coordinate")
         if str(units).lower() not in ("pixel", "pixels", "px"):
-            raise FormatError(
-                self._json,
-                None,
+            raise side.error(
                 "SampleCoordinateUnits",
                 f"{units!r}; gazehdr imports screen pixels ('pixel')",
             )
         self.fs = side.get("SamplingFrequency")
         if self.fs is not None and self.fs != NA:
             if not isinstance(self.fs, (int, float)) or not self.fs > 0:
-                raise FormatError(
-                    self._json,
-                    None,
+                raise side.error(
                     "SamplingFrequency",
                     f"expected a positive number, got {self.fs!r}",
                 )
         else:
             self.fs = None
-
-    @property
-    def _json(self) -> Path:
-        return self.path.with_name(self.path.name.split(".", 1)[0] + ".json")
 
     def read(self, flip_height: int | None) -> list[tuple[int, EyeSample]]:
         """(t_ns, position) per row; a lost position is NaN. Keeps the row times in `times`."""
@@ -189,15 +187,13 @@ class _Recording:
     def _times(self, rows: list[tuple[int, dict[str, str]]]) -> list[int]:
         if "timestamp" not in self.columns:
             if self.fs is None:
-                raise FormatError(
-                    self._json,
-                    None,
+                raise self.sidecar.error(
                     "SamplingFrequency",
                     "needed to time the rows of a file without a timestamp column",
                 )
             start = self.sidecar.get("StartTime", 0)
             if not isinstance(start, (int, float)):
-                raise FormatError(self._json, None, "StartTime", f"expected seconds, got {start!r}")
+                raise self.sidecar.error("StartTime", f"expected seconds, got {start!r}")
             return [round((start + i / self.fs) * 1e9) for i in range(len(rows))]
         raw: list[Decimal] = []
         for line, row in rows:
@@ -221,9 +217,7 @@ class _Recording:
         units = _units(self.sidecar, "timestamp")
         if units is not None:
             if units not in UNITS_NS:
-                raise FormatError(
-                    self._json,
-                    None,
+                raise self.sidecar.error(
                     "timestamp.Units",
                     f"{units!r}; supported: {', '.join(UNITS_NS)}",
                 )
@@ -234,44 +228,7 @@ class _Recording:
             for scale in (10**9, 10**6, 10**3, 1):
                 if abs(statistics.median(steps) * scale - period_ns) <= 0.25 * period_ns:
                     return scale
-        raise FormatError(
-            self._json,
-            None,
+        raise self.sidecar.error(
             "timestamp.Units",
             "missing, and the sample spacing fits none of s, ms, us, ns at SamplingFrequency",
         )
-
-
-def _physio_files(path: Path) -> list[Path]:
-    """All recordings of the set `path` belongs to (same entities but `recording`)."""
-    if path.is_dir():
-        files = sorted(path.glob("*_physio.tsv.gz")) or sorted(path.glob("*_physio.tsv"))
-        groups = {
-            tuple(sorted((k, v) for k, v in _split_name(f.name)[0].items() if k != "recording"))
-            for f in files
-        }
-        if len(groups) != 1:
-            raise FormatError(
-                path,
-                None,
-                None,
-                f"{len(files)} physio files in {len(groups)} sets; name one of them",
-            )
-        return files
-    name = path.name
-    if name.endswith("_physio.json"):
-        gz = path.with_name(name[: -len(".json")] + ".tsv.gz")
-        path = gz if gz.exists() else path.with_name(name[: -len(".json")] + ".tsv")
-    if not path.exists():
-        raise FileNotFoundError(2, "No such file", str(path))
-    entities, suffix = _split_name(path.name)
-    if suffix != "physio":
-        raise FormatError(path, None, None, "not a BIDS *_physio.tsv.gz file")
-    key = {k: v for k, v in entities.items() if k != "recording"}
-    extension = ".tsv.gz" if path.name.endswith(".tsv.gz") else ".tsv"
-    files = []
-    for f in sorted(path.parent.glob(f"*_physio{extension}")):
-        ents, _ = _split_name(f.name)
-        if {k: v for k, v in ents.items() if k != "recording"} == key:
-            files.append(f)
-    return files

@@ -1,32 +1,39 @@
 """Reading a recording's `_physioevents`: fixations, blinks and messages, timed on its samples.
 
-What import assumes:
+What import assumes (BIDS 1.11.1 "Physiology events"; the drafts before it, and eye2bids):
 
+- Event times: `"OnsetSource": "timestamp"`: `onset` is on the physio timestamp's clock, in
+  its unit. `"OnsetSource": "n/a"`: `onset` is the zero-based physio row, negative before the
+  first (at SamplingFrequency). Drafts: `ForeignIndexColumn` naming `timestamp`, the events'
+  column of that name (or `onset`, eye2bids) holding a physio timestamp, or without it a
+  `foreign_index` column (zero-based row), or lacking one `onset` as the one-based row. Where
+  the timestamp column names a sample, a file that also has an `onset` with `Units` (gazehdr's
+  exports before BIDS 1.11) gives the exact time from it, provided every onset lies in the
+  sample interval its timestamp names (the sample at or before it, or the first sample for an
+  earlier one); otherwise (an onset on another clock, such as seconds from the start) the
+  timestamp column is used.
 - Events: a `fixation` row gives `fixation_start` at `onset` and `fixation_end` at
   `onset + duration`; a `blink` row, or any row with `blink` = 1 (eye2bids marks the saccade
   around an EyeLink blink so), a blink over the row's interval; other trial types (saccades)
   are skipped; a `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}`,
   `gazehdr model {json}`, `gazehdr reset` and `gazehdr clock {json}` messages become scene,
-  parameter, model, reset and clock records). Event ids are
-  numbered 1, 2, ... per kind in onset order. `duration` is in its sidecar `Units`, else in
-  the onset's units when `ForeignIndexColumn` is used (eye2bids), else seconds.
-- Event times: the ForeignIndexColumn's column names a sample, so it is exact only to a sample
-  period. A file that also has an `onset` with `Units` (gazehdr's own) gives the exact time
-  from it, provided every onset lies in the sample interval its timestamp names (the sample at
-  or before it, or the first sample for an earlier one); otherwise (an onset on another clock,
-  such as seconds from the start) the timestamp column is used.
+  parameter, model, reset and clock records; escapes undone where the sidecar says
+  `GazehdrEscapedText`). Event ids are numbered 1, 2, ... per kind in onset order. `duration`
+  is in its sidecar `Units`, else in the onset's units when OnsetSource names the timestamp
+  (as the specification's example and eye2bids write it), else seconds.
 """
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 from pathlib import Path
-from typing import Any
 
-from gazehdr.drivers.formats.bids.files import NA, _sample_at
+from gazehdr.drivers.formats.bids.files import ESCAPED_TEXT, NA, unescape_text
 from gazehdr.drivers.formats.bids.physio import (
     UNITS_NS,
+    Sidecar,
     _float,
     _Recording,
     _rows,
@@ -46,7 +53,12 @@ from gazehdr.drivers.sessionlog import (
     SessionLog,
 )
 
-_ROW = "foreign_index"  # implicit indexing: the zero-based row of the physio file
+_ROW = "foreign_index"  # drafts' implicit indexing: the zero-based row of the physio file
+
+
+def _sample_at(times: list[int], t: int) -> int:
+    """The time of the sample at or before `t` (the first sample's for an earlier `t`)."""
+    return times[max(bisect.bisect_right(times, t) - 1, 0)]
 
 
 def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None) -> None:
@@ -59,31 +71,31 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
         if not path.exists():
             continue
         side = _sidecar(path, "physioevents", r.entities)
-        sidecar_path = path.with_name(path.name.split(".", 1)[0] + ".json")
         columns = side.get("Columns")
-        index = side.get("ForeignIndexColumn") or side.get("OnsetSource")
-        if index:  # the spec names the events' column after it; eye2bids calls it onset
+        # which column times a row, and how (see the module docstring)
+        key = "ForeignIndexColumn" if "ForeignIndexColumn" in side else "OnsetSource"
+        index = side.get(key)
+        first_row = 0
+        if index == NA:  # BIDS 1.11: onset is the zero-based physio row
+            index, when = None, "onset"
+        elif index:  # the spec names the events' column after it; eye2bids calls it onset
             when = index if isinstance(columns, list) and index in columns else "onset"
-        else:  # implicit indexing: foreign_index, the zero-based physio row
+        else:  # drafts' implicit indexing: foreign_index, the zero-based physio row
             when = _ROW if isinstance(columns, list) and _ROW in columns else "onset"
+            first_row = 0 if when == _ROW else 1
         if not isinstance(columns, list) or when not in columns:
-            raise FormatError(
-                sidecar_path,
-                None,
+            raise side.error(
                 "Columns",
-                "required, with an 'onset' or 'foreign_index' column (or the ForeignIndexColumn)",
+                "required, with an 'onset' column (or the drafts' foreign_index or "
+                "ForeignIndexColumn)",
             )
         if index is not None and index != "timestamp":
-            raise FormatError(
-                sidecar_path, None, "ForeignIndexColumn", f"{index!r}; supported: timestamp"
-            )
+            raise side.error(key, f"{index!r}; supported: timestamp, n/a")
         if index is not None and "timestamp" not in r.columns:
-            raise FormatError(
-                sidecar_path, None, "ForeignIndexColumn", "the physio file has no timestamp"
-            )
+            raise side.error(key, "the physio file has no timestamp column")
         time_unit = r.timestamp_unit_ns if index else None
-        duration_unit = _unit_ns(side, "duration", sidecar_path) or time_unit or 10**9
-        first_row = 0 if when == _ROW else 1
+        duration_unit = _unit_ns(side, "duration") or time_unit or 10**9
+        escaped = side.get(ESCAPED_TEXT) is True
         timed = []
         for line, row in _rows(path, columns):
             t = _event_time(path, line, row, when, time_unit, r, first_row)
@@ -113,6 +125,7 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
             eye = row.get("eye", NA)
             eye = eye if eye in ("left", "right") else file_eye
             message = row.get("message", NA)
+            message = unescape_text(message) if escaped else message
             if kind == "fixation":
                 x = _float(path, line, row, "x_coordinate") if "x_coordinate" in row else None
                 y = _float(path, line, row, "y_coordinate") if "y_coordinate" in row else None
@@ -149,13 +162,11 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
         items.sort(key=lambda r: r.t_ns)
 
 
-def _unit_ns(side: dict[str, Any], column: str, sidecar_path: Path) -> int | None:
+def _unit_ns(side: Sidecar, column: str) -> int | None:
     """ns per unit of a column's sidecar `Units`; None without one."""
     units = _units(side, column)
     if units is not None and units not in UNITS_NS:
-        raise FormatError(
-            sidecar_path, None, f"{column}.Units", f"{units!r}; supported: {', '.join(UNITS_NS)}"
-        )
+        raise side.error(f"{column}.Units", f"{units!r}; supported: {', '.join(UNITS_NS)}")
     return UNITS_NS[units] if units is not None else None
 
 

@@ -1,20 +1,32 @@
-"""Writing a native session log as BIDS eye-tracking physio files.
+"""Export (`write_bids`): a native session log as one run of a BIDS eye-tracking dataset that the
+official validator (`bids-validator-deno`) accepts with no error.
 
-Export (`write_bids`): `recording-eye1` holds the gaze (`RecordedEye` cyclopean) when the log
-has no per-eye data; otherwise `eye1` left, `eye2` right, `eye3` cyclopean. Timestamps are the
-log's integer ns (`Units` "ns"), positions pixels top-left, pupil mm; each recording's
-physioevents hold its eye's fixations and blinks (one row each: onset, timestamp, duration, mean
-position, dispersion), and the cyclopean one also the events of no particular eye and the notes,
-scenes, parameter and model changes, resets and clock updates as messages. The physioevents use
-explicit indexing (`"ForeignIndexColumn": "timestamp"`): `timestamp` is the physio timestamp of
-the sample at or before the event (the first sample's for an earlier event), so every value is
-in the physio file as the specification requires; `onset` (ns) is the exact event time on the
-same clock, an extra column. A log without samples is refused (ValueError): there would be no
-timestamp to index by, nor a row for implicit indexing. The native header rides along in the
-sidecars as `GazehdrHeader`, so native → BIDS → native gives back the same samples, fixations
-(start and end times, mean position, dispersion; not the start position nor `fixation_update`,
-which BIDS rows do not hold), blinks, notes, scenes, parameters, models, resets and header. gzip
-output is reproducible (no name or time in the gzip header).
+The run goes to `<root>/sub-<sub>/[ses-<ses>/]beh/` (BIDS 1.11.1 `rules/files/raw/task.yaml`:
+physio in the `beh` datatype), named `sub-<sub>[_ses-<ses>]_task-<task>[_run-<run>]_...`:
+
+- `_events.tsv` + `.json`: the session's scene, model and parameter changes, resets, clock
+  updates and notes (`trial_type` says which, `message` holds the name, JSON or text), `onset`
+  in seconds from the first gaze sample (the physio files' `StartTime` 0), `duration` n/a. The
+  sidecar's `StimulusPresentation` gives `ScreenDistance`, `ScreenOrigin` ["top", "left"],
+  `ScreenResolution` and `ScreenSize` (m, from the diagonal and the pixel aspect) from the log's
+  screen geometry: REQUIRED for gaze-on-screen data ("Eye-tracking", `checks/eyetrack.yaml`).
+- `_recording-eye<N>_physio.tsv.gz` + `.json`, one recording per eye ("it is REQUIRED that
+  recordings corresponding to each eye ... are split"): `eye1` holds the gaze (`RecordedEye`
+  cyclopean) when the log has no per-eye data; otherwise `eye1` left, `eye2` right, `eye3`
+  cyclopean. Columns `timestamp` (the log's integer ns, `Units` "ns"), `x_coordinate`,
+  `y_coordinate` (pixels, top-left), `pupil_size` (diameter, mm) when an eye has one.
+- `_recording-eye<N>_physioevents.tsv.gz` + `.json`: that eye's fixations and blinks (one row
+  each: onset, duration, mean position, dispersion); the cyclopean recording's also hold the
+  events of no particular eye and, as messages, what `_events.tsv` holds (`gazehdr scene NAME`,
+  `gazehdr params {json}`, ..., notes as they are). `"OnsetSource": "timestamp"`: `onset` is on
+  the physio timestamp's clock, in its unit (ns), so it is exact; `duration` is in seconds
+  (`columns.duration`), written exactly (nine decimals at most).
+
+The native header rides along in the physio sidecars as `GazehdrHeader`, so native → BIDS →
+native gives back the same samples, fixations (start and end times, mean position,
+dispersion; not the start position nor `fixation_update`, which BIDS rows do not hold),
+blinks, notes, scenes, parameters, models, resets and header. gzip output is reproducible (no
+name or time in the gzip header, which is also what the validator's privacy checks want).
 """
 
 from __future__ import annotations
@@ -25,19 +37,31 @@ import io
 import itertools
 import json
 import math
-import re
 import statistics
+from decimal import Decimal
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
-from gazehdr.drivers.formats.bids.files import NA, _sample_at, _split_name
+from gazehdr.drivers.formats.bids.files import (
+    ESCAPED_TEXT,
+    INDEX,
+    LABEL,
+    NA,
+    escape_text,
+    file_stem,
+)
+from gazehdr.drivers.formats.bids.layout import (
+    prepare_dataset,
+    refuse_existing_run,
+    run_files,
+    write_json,
+)
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog import GazeEvent, SessionLog
 
-_ENTITY = re.compile(r"[a-zA-Z0-9]+-[a-zA-Z0-9]+")
 _EVENT_COLUMNS = [
     "onset",
-    "timestamp",
     "duration",
     "trial_type",
     "blink",
@@ -47,6 +71,15 @@ _EVENT_COLUMNS = [
     "dispersion",
     "eye",
 ]
+_MESSAGE_KINDS = {
+    "scene": "The scene shown from here on (its name).",
+    "params": "Model parameters set (JSON).",
+    "model": "The model, and the split-screen model, from here on (JSON).",
+    "reset": "The simulated eye's state reset.",
+    "clock": "A new estimate of the offset to the server clock, ns (JSON).",
+    "note": "A note (free text).",
+}
+_ESCAPES_NOTE = " Tab, line breaks and backslash are written as \\t, \\n, \\r and \\\\."
 
 
 def _number_text(value: float | int | None) -> str:
@@ -55,24 +88,60 @@ def _number_text(value: float | int | None) -> str:
     return str(int(value)) if isinstance(value, int) else repr(float(value))
 
 
-def _gzip_tsv(path: Path, rows: list[list[str]]) -> None:
+def _seconds(ns: int | None) -> str:
+    """Integer ns as exact decimal seconds: 16666668 → `0.016666668`."""
+    return NA if ns is None else format(Decimal(ns).scaleb(-9).normalize(), "f")
+
+
+def _tsv(rows: list[list[str]]) -> bytes:
     text = io.StringIO()
     csv.writer(text, delimiter="\t", lineterminator="\n").writerows(rows)
+    return text.getvalue().encode("utf-8")
+
+
+def _write_gzip_tsv(path: Path, rows: list[list[str]]) -> None:
     with (
         open(path, "wb") as raw,
         gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as f,
     ):
-        f.write(text.getvalue().encode("utf-8"))
+        f.write(_tsv(rows))
 
 
-def _write_json(path: Path, data: dict[str, Any]) -> None:
-    path.write_text(json.dumps(data, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+def _messages(log: SessionLog) -> list[tuple[int, str, str]]:
+    """(t_ns, kind, payload) of everything but gaze: notes, scenes, settings, resets, clocks."""
+    found = [(n.t_ns, "note", n.text) for n in log.notes]
+    found += [(s.t_ns, "scene", s.name) for s in log.scenes]
+    found += [
+        (p.t_ns, "params", json.dumps(p.values, sort_keys=True, separators=(",", ":")))
+        for p in log.params
+    ]
+    found += [
+        (m.t_ns, "model", json.dumps({"model": m.model, "split": m.split})) for m in log.models
+    ]
+    found += [(r.t_ns, "reset", "") for r in log.resets]
+    found += [
+        (
+            c.t_ns,
+            "clock",
+            json.dumps(
+                {"offset_ns": c.offset_ns, "offset_uncertainty_ns": c.offset_uncertainty_ns},
+                separators=(",", ":"),
+            ),
+        )
+        for c in log.clocks
+    ]
+    return sorted(found, key=lambda m: m[0])  # stable: at one time, in the order above
 
 
-def _event_rows(
-    log: SessionLog, eye: str, own_eyes: set[str], stamps: list[int]
-) -> list[list[str]]:
-    """This recording's physioevents rows, sorted by onset; `stamps`: the physio timestamps."""
+def _message_text(kind: str, payload: str) -> str:
+    """The physioevents `message` the importer reads back (`physioevents._message`)."""
+    if kind == "note":
+        return payload
+    return f"gazehdr {kind}" + (f" {payload}" if payload else "")
+
+
+def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]]:
+    """This recording's physioevents rows, sorted by onset (ns, on the timestamp's clock)."""
     mine = [e for e in log.events if (e.eye if e.eye in own_eyes else "cyclopean") == eye]
     rows: list[tuple[int, int, list[str]]] = []
     starts: dict[tuple[str, int, str | None], GazeEvent] = {}
@@ -94,42 +163,18 @@ def _event_rows(
         family = start.kind.partition("_")[0]
         rows.append((start.t_ns, len(rows), _event_row(None, family, start)))
     if eye == "cyclopean":
-        messages: list[tuple[int, str]] = [(n.t_ns, n.text) for n in log.notes]
-        messages += [(s.t_ns, f"gazehdr scene {s.name}") for s in log.scenes]
-        messages += [
-            (
-                p.t_ns,
-                "gazehdr params " + json.dumps(p.values, sort_keys=True, separators=(",", ":")),
-            )
-            for p in log.params
-        ]
-        messages += [
-            (m.t_ns, "gazehdr model " + json.dumps({"model": m.model, "split": m.split}))
-            for m in log.models
-        ]
-        messages += [(r.t_ns, "gazehdr reset") for r in log.resets]
-        messages += [
-            (
-                c.t_ns,
-                "gazehdr clock "
-                + json.dumps(
-                    {"offset_ns": c.offset_ns, "offset_uncertainty_ns": c.offset_uncertainty_ns},
-                    separators=(",", ":"),
-                ),
-            )
-            for c in log.clocks
-        ]
-        for t, text in messages:
+        for t, kind, payload in _messages(log):
+            text = escape_text(_message_text(kind, payload))
             rows.append((t, len(rows), [NA, NA, NA, text, NA, NA, NA, NA]))
     rows.sort(key=lambda r: (r[0], r[1]))
-    return [[str(t), str(_sample_at(stamps, t)), *rest] for t, _, rest in rows]
+    return [[str(t), *rest] for t, _, rest in rows]
 
 
 def _event_row(duration: int | None, family: str, e: GazeEvent) -> list[str]:
-    """The columns after onset and timestamp."""
+    """The columns after onset."""
     fixation = family == "fixation"
     return [
-        _number_text(duration),
+        _seconds(duration),
         family,
         "0" if fixation else "1",
         NA,
@@ -140,24 +185,58 @@ def _event_row(duration: int | None, family: str, e: GazeEvent) -> list[str]:
     ]
 
 
+def _entities(sub: str, ses: str | None, task: str, run: str | None) -> dict[str, str]:
+    """The run's entities, each checked: labels alphanumeric, the run an index."""
+    entities = {"sub": sub, "ses": ses, "task": task, "run": run}
+    for key, value in entities.items():
+        pattern = INDEX if key == "run" else LABEL
+        if value is not None and not pattern.fullmatch(value):
+            what = "digits" if key == "run" else "letters and digits only"
+            raise ValueError(f"--{key} {value!r}: a BIDS {key} is {what}")
+    return {k: v for k, v in entities.items() if v is not None}
+
+
 def write_bids(
     log: SessionLog,
-    out_dir: str | Path,
+    root: str | Path,
     *,
-    prefix: str = "sub-01_task-gazehdr",
+    sub: str = "01",
+    task: str = "gazehdr",
+    ses: str | None = None,
+    run: str | None = None,
     overwrite: bool = False,
 ) -> list[Path]:
-    """Write `log` as BIDS eye-tracking physio files in `out_dir`; returns the files written."""
-    if not prefix or not all(_ENTITY.fullmatch(p) for p in prefix.split("_")):
-        raise ValueError(f"prefix {prefix!r}: expected BIDS entities such as sub-01_task-name")
-    if "recording" in _split_name(prefix + "_x")[0]:
-        raise ValueError("prefix must not hold the recording entity: it is added per eye")
-    if not log.samples:
+    """Write `log` as a run of the BIDS dataset at `root` (made if new); returns the files
+    written. An existing run is refused (FileExistsError) unless `overwrite`; other runs and
+    subjects are left as they are."""
+    entities = _entities(sub, ses, task, run)
+    if len({s.t_ns for s in log.samples}) < 2:
+        what = f"samples at one time only ({len(log.samples)})" if log.samples else "no samples"
         raise ValueError(
-            "the log has no samples: a BIDS physio file needs some, and the physioevents "
-            "are indexed by their timestamps"
+            f"the log has {what}: a BIDS physio file needs samples at two times at least, for "
+            "its SamplingFrequency (REQUIRED)"
         )
-    out = Path(out_dir)
+    root = Path(root)
+    folder = root / f"sub-{sub}" / (f"ses-{ses}" if ses else "") / "beh"
+    if not overwrite:
+        refuse_existing_run(folder, entities)
+    generated_by = {"Name": "gazehdr", "Version": version("gazehdr")}
+    written = prepare_dataset(root, sub, generated_by)
+    for old in run_files(folder, entities):  # a run exported before may have had other eyes
+        old.unlink()
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def target(suffix: str, ext: str, recording: str | None = None) -> Path:
+        path = folder / (file_stem({**entities, "recording": recording}, suffix) + ext)
+        written.append(path)
+        return path
+
+    t0 = min(s.t_ns for s in log.samples)
+    events = [["onset", "duration", "trial_type", "message"]]
+    events += [[_seconds(t - t0), NA, k, escape_text(p) or NA] for t, k, p in _messages(log)]
+    target("events", ".tsv").write_bytes(_tsv(events))
+    write_json(target("events", ".json"), _events_sidecar(log, task))
+
     per_eye = any(s.left is not None or s.right is not None for s in log.samples)
     labels = (
         [("eye1", "left"), ("eye2", "right"), ("eye3", "cyclopean")]
@@ -165,32 +244,8 @@ def write_bids(
         else [("eye1", "cyclopean")]
     )
     own_eyes = {"left", "right"} if per_eye else set()
-    targets = [
-        out / f"{prefix}_recording-{label}_{kind}{ext}"
-        for label, _ in labels
-        for kind in ("physio", "physioevents")
-        for ext in (".tsv.gz", ".json")
-    ]
-    existing = [t for t in targets if t.exists()]
-    if existing and not overwrite:
-        raise FileExistsError(17, "exists (pass --overwrite to replace)", str(existing[0]))
-    out.mkdir(parents=True, exist_ok=True)
-
-    times = [s.t_ns for s in log.samples]
-    stamps = sorted(times)
-    steps = [b - a for a, b in itertools.pairwise(times) if b > a]
-    fs: float | str = round(1e9 / statistics.median(steps), 6) if steps else NA
-    screen = log.header.screen
-    hyp = math.hypot(screen.screen_width_px, screen.screen_height_px)
-    stimulus = {
-        "ScreenResolution": [screen.screen_width_px, screen.screen_height_px],
-        "ScreenSize": [
-            screen.screen_diagonal_m * screen.screen_width_px / hyp,
-            screen.screen_diagonal_m * screen.screen_height_px / hyp,
-        ],
-        "ScreenDistance": screen.viewing_distance_m,
-    }
-    tracker = log.header.tracker
+    steps = [b - a for a, b in itertools.pairwise(s.t_ns for s in log.samples) if b > a]
+    fs = round(1e9 / statistics.median(steps), 6)
     for label, eye in labels:
 
         def position(s: GazeSample, eye: str = eye) -> tuple[float, float, float | None]:
@@ -201,83 +256,107 @@ def write_bids(
 
         values = [position(s) for s in log.samples]
         pupil = any(p is not None and math.isfinite(p) for _, _, p in values)
-        columns = ["timestamp", "x_coordinate", "y_coordinate"] + (["pupil_size"] if pupil else [])
         rows = []
         for s, (x, y, p) in zip(log.samples, values, strict=True):
             row = [str(s.t_ns), _number_text(x), _number_text(y)]
             rows.append([*row, _number_text(p)] if pupil else row)
-        base = out / f"{prefix}_recording-{label}_physio"
-        _gzip_tsv(base.with_name(base.name + ".tsv.gz"), rows)
-        sidecar: dict[str, Any] = {
-            "PhysioType": "eyetrack",
-            "Columns": columns,
-            "SamplingFrequency": fs,
-            "StartTime": 0,
-            "RecordedEye": eye,
-            "SampleCoordinateSystem": "gaze-on-screen",
-            "SampleCoordinateUnits": "pixel",
-            "EnvironmentCoordinates": "top-left",
-            "timestamp": {
-                "Description": "Time of the sample on the recording's clock "
-                f"({log.header.clock.source}).",
-                "Units": "ns",
-            },
-            "x_coordinate": {
-                "Description": "Gaze position, screen x, origin top-left.",
-                "Units": "pixel",
-            },
-            "y_coordinate": {
-                "Description": "Gaze position, screen y, origin top-left.",
-                "Units": "pixel",
-            },
-            "StimulusPresentation": stimulus,
-            "GazehdrHeader": log.header.to_json(),
-        }
-        if pupil:
-            sidecar["pupil_size"] = {"Description": "Pupil diameter.", "Units": "mm"}
-        for key, name in (("manufacturer", "Manufacturer"), ("model", "ManufacturersModelName")):
-            if isinstance(tracker.get(key), str):
-                sidecar[name] = tracker[key]
-        _write_json(base.with_name(base.name + ".json"), sidecar)
+        _write_gzip_tsv(target("physio", ".tsv.gz", label), rows)
+        sidecar = _physio_sidecar(log, task, fs, eye, pupil)
+        write_json(target("physio", ".json", label), sidecar)
+        _write_gzip_tsv(target("physioevents", ".tsv.gz", label), _event_rows(log, eye, own_eyes))
+        write_json(target("physioevents", ".json", label), _physioevents_sidecar(task))
+    return written
 
-        events_base = out / f"{prefix}_recording-{label}_physioevents"
-        _gzip_tsv(
-            events_base.with_name(events_base.name + ".tsv.gz"),
-            _event_rows(log, eye, own_eyes, stamps),
-        )
-        _write_json(
-            events_base.with_name(events_base.name + ".json"),
-            {
-                "Columns": _EVENT_COLUMNS,
-                "Description": "Fixations, blinks and messages recorded with gazehdr.",
-                "ForeignIndexColumn": "timestamp",
-                "onset": {
-                    "Description": "Exact time of the event (a fixation's or blink's start), "
-                    "on the clock of the physio timestamp.",
-                    "Units": "ns",
-                },
-                "timestamp": {
-                    "Description": "The physio timestamp of the sample at or before the onset "
-                    "(the first sample's for an earlier event): the ForeignIndexColumn.",
-                    "Units": "ns",
-                },
-                "duration": {"Description": "Duration of the fixation or blink.", "Units": "ns"},
-                "trial_type": {
-                    "Description": "Event type.",
-                    "Levels": {"fixation": "A fixation.", "blink": "A blink."},
-                },
-                "blink": {
-                    "Description": "Eye state.",
-                    "Levels": {"0": "Open.", "1": "Closed."},
-                },
-                "message": {"Description": "Notes; scene and parameter changes ('gazehdr ...')."},
-                "x_coordinate": {"Description": "Mean fixation position x.", "Units": "pixel"},
-                "y_coordinate": {"Description": "Mean fixation position y.", "Units": "pixel"},
-                "dispersion": {
-                    "Description": "Fixation dispersion, (max x - min x) + (max y - min y).",
-                    "Units": "deg",
-                },
-                "eye": {"Description": "The eye an event came from, when another recording's."},
-            },
-        )
-    return targets
+
+def _events_sidecar(log: SessionLog, task: str) -> dict[str, Any]:
+    screen = log.header.screen
+    hyp = math.hypot(screen.screen_width_px, screen.screen_height_px)
+    return {
+        "TaskName": task,
+        "StimulusPresentation": {
+            "ScreenDistance": screen.viewing_distance_m,
+            "ScreenOrigin": ["top", "left"],
+            "ScreenResolution": [screen.screen_width_px, screen.screen_height_px],
+            "ScreenSize": [
+                screen.screen_diagonal_m * screen.screen_width_px / hyp,
+                screen.screen_diagonal_m * screen.screen_height_px / hyp,
+            ],
+        },
+        "onset": {
+            "Description": "Time of the change, from the first gaze sample of the run's "
+            "physio files (their StartTime 0).",
+            "Units": "s",
+        },
+        "duration": {"Description": "n/a: a change holds until the next.", "Units": "s"},
+        "trial_type": {"Description": "What changed.", "Levels": _MESSAGE_KINDS},
+        "message": {"Description": "The scene name, the JSON or the note." + _ESCAPES_NOTE},
+        ESCAPED_TEXT: True,
+    }
+
+
+def _physio_sidecar(log: SessionLog, task: str, fs: float, eye: str, pupil: bool) -> dict[str, Any]:
+    side: dict[str, Any] = {
+        "TaskName": task,
+        "PhysioType": "eyetrack",
+        "Columns": ["timestamp", "x_coordinate", "y_coordinate"] + (["pupil_size"] * pupil),
+        "SamplingFrequency": fs,
+        "StartTime": 0,
+        "RecordedEye": eye,
+        "SampleCoordinateSystem": "gaze-on-screen",
+        "timestamp": {
+            "Description": "Time of the sample on the recording's clock "
+            f"({log.header.clock.source}).",
+            "Units": "ns",
+        },
+        "x_coordinate": {
+            "Description": "Gaze position, screen x, origin top-left.",
+            "Units": "pixel",
+        },
+        "y_coordinate": {
+            "Description": "Gaze position, screen y, origin top-left.",
+            "Units": "pixel",
+        },
+    }
+    if pupil:
+        side["pupil_size"] = {"Description": "Pupil diameter.", "Units": "mm"}
+    tracker = log.header.tracker
+    for key, name in (("manufacturer", "Manufacturer"), ("model", "ManufacturersModelName")):
+        if isinstance(tracker.get(key), str):
+            side[name] = tracker[key]
+    side["GazehdrHeader"] = log.header.to_json()
+    return side
+
+
+def _physioevents_sidecar(task: str) -> dict[str, Any]:
+    return {
+        "TaskName": task,
+        "Columns": _EVENT_COLUMNS,
+        "Description": "Fixations, blinks and messages recorded with gazehdr.",
+        "OnsetSource": "timestamp",
+        "onset": {
+            "Description": "Time of the event (a fixation's or blink's start), exact, on the "
+            "clock of the physio timestamp (the OnsetSource).",
+            "Units": "ns",
+        },
+        "duration": {"Description": "Duration of the fixation or blink.", "Units": "s"},
+        "trial_type": {
+            "Description": "Event type.",
+            "Levels": {"fixation": "A fixation.", "blink": "A blink."},
+        },
+        "blink": {"Description": "Eye state.", "Levels": {"0": "Open.", "1": "Closed."}},
+        "message": {
+            "Description": "Notes; scene, model and parameter changes, resets and clock updates "
+            "('gazehdr ...')." + _ESCAPES_NOTE
+        },
+        "x_coordinate": {"Description": "Mean fixation position x.", "Units": "pixel"},
+        "y_coordinate": {"Description": "Mean fixation position y.", "Units": "pixel"},
+        "dispersion": {
+            "Description": "Fixation dispersion, (max x - min x) + (max y - min y).",
+            "Units": "deg",
+        },
+        "eye": {
+            "Description": "The eye an event came from, when another recording's.",
+            "Levels": {"left": "The left eye.", "right": "The right eye."},
+        },
+        ESCAPED_TEXT: True,
+    }

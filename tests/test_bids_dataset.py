@@ -1,0 +1,295 @@
+"""BIDS datasets as the official validator sees them: gazehdr's export (a new dataset, runs
+added to one), the test fixtures, and import from a dataset's root, a subject or session
+folder or one file, including an excerpt of a real dataset (bids-examples'
+`eyetracking_eeg_ds007338`, see tests/data/formats/SOURCES.md).
+
+The validator is `bids-validator-deno` (the `test` extra) with the schema it bundles (BIDS
+1.11.1; it fetches one only when given `--schema` or `BIDS_SCHEMA`, src/setup/loadSchema.ts),
+run with the proxy pointed at a closed local port: it must not need the network.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import warnings
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from test_bids import comparable, native_log
+from test_formats import DATA, events
+
+from gazehdr.cli import main as gazehdr_main
+from gazehdr.drivers.formats import export_main
+from gazehdr.drivers.formats.bids import read_bids, write_bids
+from gazehdr.drivers.samples import GazeSample
+from gazehdr.drivers.sessionlog import FormatError, SessionLog, write_session_log
+
+REAL = DATA / "bids-eegeyenet"
+RUN = "sub-01/ses-1/beh/sub-01_ses-1_task-hdr"
+
+
+class ValidatorWarning(UserWarning):
+    """What the validator warns of, shown in pytest's warnings summary."""
+
+
+def validate(root: Path) -> dict:
+    """The validator's report on `root`; fails the test on any error, lists the warnings."""
+    exe = shutil.which("bids-validator-deno", path=str(Path(sys.executable).parent))
+    assert exe, "bids-validator-deno is missing: pip install -e '.[test]'"
+    # the bundled schema (BIDS_SCHEMA or --schema would fetch one), and no way out if it tried
+    offline = {k: v for k, v in os.environ.items() if k != "BIDS_SCHEMA"}
+    offline |= {"HTTP_PROXY": "http://127.0.0.1:9", "HTTPS_PROXY": "http://127.0.0.1:9"}
+    done = subprocess.run(
+        [exe, "--format", "json", str(root)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=offline,
+        cwd=root,
+        check=False,
+    )
+    try:
+        report = json.loads(done.stdout)
+    except json.JSONDecodeError:
+        pytest.fail(f"the validator crashed on {root} (status {done.returncode}):\n{done.stderr}")
+    issues = report["issues"]["issues"]
+    errors = [
+        f"{i['code']} {i.get('subCode') or ''} {i.get('location', '')}: {i.get('issueMessage', '')}"
+        for i in issues
+        if i["severity"] == "error"
+    ]
+    assert not errors, "\n".join(errors)
+    counted = Counter(
+        (i["code"], i.get("subCode") or "") for i in issues if i["severity"] == "warning"
+    )
+    if counted:
+        listing = ", ".join(f"{c} {s}".strip() + f" ×{n}" for (c, s), n in sorted(counted.items()))
+        warnings.warn(ValidatorWarning(f"{root.name}: {listing}"), stacklevel=2)
+    return report
+
+
+def cyclopean_log() -> SessionLog:
+    """`native_log` without per-eye data: one recording."""
+    log = native_log()
+    log.samples = [GazeSample(s.t_ns, s.x, s.y, s.valid) for s in log.samples]
+    log.events = [e for e in log.events if e.eye is None]
+    return log
+
+
+def three_runs(tmp_path: Path) -> Path:
+    """sub-01 ses-1 run-1 (both eyes) and run-2 (cyclopean), sub-02 ses-1 run-1: through the
+    command line, as a researcher would."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    both = write_session_log(logs / "both.jsonl", native_log())
+    one = write_session_log(logs / "one.jsonl", cyclopean_log())
+    root = tmp_path / "bids"
+    for log, sub, run in ((both, "01", "1"), (one, "01", "2"), (both, "02", "1")):
+        flags = ["--sub", sub, "--ses", "1", "--task", "hdr", "--run", run]
+        assert export_main([str(log), "--out", str(root), *flags]) == 0
+    return root
+
+
+# --- the validator ----------------------------------------------------------------------------
+
+
+def test_an_exported_dataset_passes_the_official_validator(tmp_path: Path) -> None:
+    """Subjects, a session, runs, both eyes and one, notes with tabs and line breaks, events
+    before the first sample: no error (SPEC §4)."""
+    root = three_runs(tmp_path)
+    summary = validate(root)["summary"]
+    assert sorted(summary["subjects"]) == ["01", "02"]
+    assert (summary["sessions"], summary["tasks"]) == (["1"], ["hdr"])
+    assert summary["dataTypes"] == ["beh"] and summary["schemaVersion"]
+
+
+@pytest.mark.parametrize("name", ["bids", "bids-eegeyenet"])
+def test_the_fixture_datasets_pass_the_official_validator(name: str) -> None:
+    validate(DATA / name)
+
+
+# --- export into a dataset --------------------------------------------------------------------
+
+
+def test_the_events_sidecar_carries_the_screen_and_events_the_changes(tmp_path: Path) -> None:
+    """BIDS "Eye-tracking": gaze-on-screen recordings REQUIRE `StimulusPresentation`'s
+    ScreenDistance, ScreenOrigin, ScreenResolution and ScreenSize in the events sidecar."""
+    log = native_log()  # 0.55 m diagonal, 1920x1080, 0.65 m away
+    write_bids(log, tmp_path, sub="01", ses="1", task="hdr")
+    side = json.loads((tmp_path / f"{RUN}_events.json").read_text())
+    stim = side["StimulusPresentation"]
+    assert stim["ScreenResolution"] == [1920, 1080] and stim["ScreenOrigin"] == ["top", "left"]
+    assert stim["ScreenDistance"] == 0.65
+    assert math.hypot(*stim["ScreenSize"]) == pytest.approx(0.55)
+    assert stim["ScreenSize"][0] / stim["ScreenSize"][1] == pytest.approx(1920 / 1080)
+    rows = (tmp_path / f"{RUN}_events.tsv").read_text().splitlines()
+    assert rows[0] == "onset\tduration\ttrial_type\tmessage"
+    assert rows[1] == "-0.000001\tn/a\tscene\tchecker-night"  # before the first sample
+    assert rows[4] == '0.000000001\tn/a\tnote\t"said ""now""\\tand\\nwaited"'
+    assert rows[7] == "0.000000003\tn/a\treset\tn/a"
+
+
+def test_adding_runs_keeps_the_others_and_refuses_to_overwrite(tmp_path: Path) -> None:
+    root = tmp_path / "bids"
+    write_bids(native_log(), root, sub="01", ses="1", task="hdr", run="1")
+    before = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    write_bids(cyclopean_log(), root, sub="01", ses="1", task="hdr", run="2")
+    assert {p: p.read_bytes() for p in before} == before  # run 1 and the dataset's files
+    with pytest.raises(FileExistsError) as info:
+        write_bids(cyclopean_log(), root, sub="01", ses="1", task="hdr", run="01")
+    message = str(info.value)  # run 01 is run 1: the run index, not the text
+    assert "pass --overwrite to replace it, or --run 3 to add another" in message
+    assert f"{RUN}_run-1_events.json" in message.replace(os.sep, "/")
+    assert {p: p.read_bytes() for p in before} == before
+    # replacing run 1 with a log of one recording leaves no stale eye2/eye3 behind
+    write_bids(cyclopean_log(), root, sub="01", ses="1", task="hdr", run="1", overwrite=True)
+    assert sorted(p.name for p in root.glob(f"{RUN}_run-1_*")) == [
+        f"sub-01_ses-1_task-hdr_run-1_{n}"
+        for n in (
+            "events.json",
+            "events.tsv",
+            "recording-eye1_physio.json",
+            "recording-eye1_physio.tsv.gz",
+            "recording-eye1_physioevents.json",
+            "recording-eye1_physioevents.tsv.gz",
+        )
+    ]
+    assert comparable(read_bids(root, select={"run": "1"})) == comparable(cyclopean_log())
+    assert (root / "participants.tsv").read_text() == "participant_id\nsub-01\n"
+
+
+def test_a_new_subject_joins_participants_tsv(tmp_path: Path) -> None:
+    """An existing dataset's participants.tsv gets a row (n/a in its other columns): the
+    validator errors on a subject missing from it."""
+    root = tmp_path / "bids"
+    write_bids(native_log(), root, sub="01", task="hdr")
+    (root / "participants.tsv").write_text("participant_id\tage\nsub-01\t30")  # no final newline
+    write_bids(native_log(), root, sub="02", task="hdr")
+    write_bids(native_log(), root, sub="02", task="hdr", run="2")
+    assert (root / "participants.tsv").read_text() == (
+        "participant_id\tage\nsub-01\t30\nsub-02\tn/a\n"
+    )
+    (root / "participants.tsv").write_text("subject\tage\n")
+    with pytest.raises(FormatError, match="no participant_id column") as info:
+        write_bids(native_log(), root, sub="03", task="hdr")
+    assert info.value.path == str(root / "participants.tsv")
+
+
+def test_out_must_be_a_dataset_root(tmp_path: Path) -> None:
+    root = tmp_path / "bids"
+    write_bids(native_log(), root, sub="01", task="hdr")
+    with pytest.raises(ValueError, match="not a BIDS dataset") as info:
+        write_bids(native_log(), root / "sub-01", sub="01", task="other")
+    assert f"its dataset root is {root}" in str(info.value)
+    (root / "dataset_description.json").write_text('{"Name": "no version"}')
+    with pytest.raises(FormatError, match="required: not a BIDS dataset") as info:
+        write_bids(native_log(), root, sub="01", task="other")
+    assert info.value.field == "BIDSVersion"
+    assert not (root / "sub-01" / "beh" / "sub-01_task-other_events.tsv").exists()
+
+
+# --- import from a dataset --------------------------------------------------------------------
+
+
+def test_import_picks_the_run_from_a_root_a_subject_or_a_session_folder(tmp_path: Path) -> None:
+    root = three_runs(tmp_path)
+    with pytest.raises(ValueError) as info:
+        read_bids(root)
+    assert str(info.value) == (
+        f"{root}: 3 eye-tracking runs; pick one with --sub --run:\n"
+        "  sub-01 ses-1 task-hdr run-1  (sub-01/ses-1/beh/, 3 recordings)\n"
+        "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recording)\n"
+        "  sub-02 ses-1 task-hdr run-1  (sub-02/ses-1/beh/, 3 recordings)"
+    )
+    both, one = comparable(native_log()), comparable(cyclopean_log())
+    assert comparable(read_bids(root, select={"sub": "01", "run": "2"})) == one
+    assert comparable(read_bids(root / "sub-02")) == both
+    assert comparable(read_bids(root / "sub-01" / "ses-1", select={"run": "01"})) == both
+    with pytest.raises(ValueError, match="2 eye-tracking runs; pick one with --run:"):
+        read_bids(root / "sub-01" / "ses-1" / "beh")
+    with pytest.raises(ValueError, match=r"no eye-tracking run has run-3; it holds:\n  sub-01"):
+        read_bids(root, select={"run": "3"})
+    physio = root / f"{RUN}_run-2_recording-eye1_physio.tsv.gz"
+    assert comparable(read_bids(physio, select={"sub": "01"})) == one
+    with pytest.raises(ValueError, match="is not the one asked for"):
+        read_bids(physio, select={"run": "1"})
+    # a copy under derivatives/ is not raw data: still three runs
+    shutil.copytree(root / "sub-02", root / "derivatives" / "x" / "sub-03")
+    with pytest.raises(ValueError, match="3 eye-tracking runs"):
+        read_bids(root)
+
+
+def test_import_skips_other_physio_of_a_run(tmp_path: Path) -> None:
+    """A run may also record a pulse: `recording-cardiac` is no eye, nor is a folder of it."""
+    root = three_runs(tmp_path)
+    folder = root / "sub-02" / "ses-1" / "beh"
+    cardiac = folder / "sub-02_ses-1_task-hdr_run-1_recording-cardiac_physio"
+    with gzip.open(f"{cardiac}.tsv.gz", "wt") as f:
+        f.write("0.5\n0.7\n")
+    sidecar = {"PhysioType": "generic", "Columns": ["cardiac"], "SamplingFrequency": 100}
+    Path(f"{cardiac}.json").write_text(json.dumps({**sidecar, "StartTime": 0}))
+    assert comparable(read_bids(root / "sub-02")) == comparable(native_log())
+    eye1 = folder / "sub-02_ses-1_task-hdr_run-1_recording-eye1_physio.tsv.gz"
+    assert comparable(read_bids(eye1)) == comparable(native_log())
+    other = tmp_path / "pulse" / "sub-01" / "beh"
+    other.mkdir(parents=True)
+    shutil.move(f"{cardiac}.tsv.gz", other)
+    shutil.move(f"{cardiac}.json", other)
+    with pytest.raises(FormatError, match=r"1 physio file, none eye-tracking"):
+        read_bids(tmp_path / "pulse")
+
+
+def test_import_command_line_lists_the_runs(tmp_path: Path, capsys) -> None:
+    root = three_runs(tmp_path)
+    capsys.readouterr()
+    out = tmp_path / "s.jsonl"
+    assert gazehdr_main(["import", str(root), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gazehdr: error: {root}: 3 eye-tracking runs; pick one with --sub --run")
+    assert "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recording)\n" in err
+    assert gazehdr_main(["import", str(root), "--sub", "01", "--run", "2", "--out", str(out)]) == 0
+    assert "sub-01" not in capsys.readouterr().err
+
+
+# --- a real dataset ---------------------------------------------------------------------------
+
+
+def test_import_a_real_dataset_eegeyenet_excerpt() -> None:
+    """bids-examples' `eyetracking_eeg_ds007338` (EEGEyeNet, converted with MNE-BIDS): one eye
+    at 10 Hz in seconds, in an `eeg` folder of a session, files starting with a UTF-8 byte
+    order mark, `OnsetSource` timestamp with onsets and durations in seconds, the screen in a
+    run-level `_events.json`; saccades are skipped."""
+    folder = REAL / "sub-EP10" / "ses-01" / "eeg"
+    with gzip.open(folder / "sub-EP10_ses-01_task-dots_run-01_recording-eye1_physio.tsv.gz") as f:
+        assert f.read(3) == b"\xef\xbb\xbf"
+    log = read_bids(REAL)
+    assert len(log.samples) == 51 and [s.t_ns for s in log.samples[:3]] == [0, 10**8, 2 * 10**8]
+    first = log.samples[0]
+    assert (first.x, first.y, first.valid) == (85.0929074158796, 81.88974669393238, True)
+    assert first.left is not None and first.left.x == first.x and first.right is None
+    assert log.samples[-1].t_ns == 5 * 10**9
+    ms = 1_000_000
+    assert events(log) == [
+        ("blink_start", 1, 200 * ms, None, None, None, "left"),
+        ("blink_end", 1, 230 * ms, None, None, 30 * ms, "left"),
+        ("fixation_start", 1, 300 * ms, None, None, None, "left"),
+        ("fixation_end", 1, 2088 * ms, None, None, 1788 * ms, "left"),
+        ("fixation_start", 2, 2100 * ms, None, None, None, "left"),
+        ("fixation_end", 2, 3602 * ms, None, None, 1502 * ms, "left"),
+        ("fixation_start", 3, 3700 * ms, None, None, None, "left"),
+        ("fixation_end", 3, 5110 * ms, None, None, 1410 * ms, "left"),
+    ]
+    screen = log.header.screen
+    assert (screen.screen_width_px, screen.screen_height_px) == (800, 600)
+    assert screen.screen_diagonal_m == pytest.approx(math.hypot(0.29, 0.18))
+    assert screen.viewing_distance_m == 0.68
+    assert log.header.tracker["eyes"] == ["left"]
+    from_session = read_bids(REAL / "sub-EP10" / "ses-01")
+    assert (from_session.samples, from_session.events) == (log.samples, log.events)
