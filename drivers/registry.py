@@ -137,6 +137,16 @@ KINDS: tuple[SourceKind, ...] = (
         ),
         title="HID",
     ),
+    SourceKind(
+        "pupil",
+        stream=Opening(
+            "pupil[:HOST[:PORT][/SURFACE]]",
+            "Pupil Capture's gaze on the surface SURFACE (default screen), through Pupil Remote "
+            "at HOST:PORT (default 127.0.0.1:50020)",
+            f"{_D}.pupil.source:open_pupil",
+        ),
+        title="Pupil",
+    ),
 )
 
 
