@@ -150,11 +150,13 @@ def _port(sock: Any) -> int:
 
 @dataclass(frozen=True)
 class Fixation:
-    """Gaze held at surface-normalised (x, y) (origin bottom-left) for `duration_s`."""
+    """Gaze held at surface-normalised (x, y) (origin bottom-left) for `duration_s`, at
+    `confidence` (below 0.6 Pupil's detector has lost the pupil: a blink)."""
 
     x: float
     y: float
     duration_s: float
+    confidence: float = 0.95
 
 
 def play(
@@ -164,7 +166,6 @@ def play(
     surface: str = "screen",
     rate_hz: float = 200.0,
     frame_hz: float = 30.0,
-    confidence: float = 0.95,
 ) -> list[dict[str, Any]]:
     """Publish gaze held at each fixation in turn, in real time, as Capture does: gaze datums at
     `rate_hz` stamped when they were taken, sent in one surface message per world frame
@@ -176,7 +177,7 @@ def play(
     for fixation in fixations:
         end = t + fixation.duration_s
         while t < end:
-            pending.append(gaze_datum(fixation.x, fixation.y, start + t, confidence))
+            pending.append(gaze_datum(fixation.x, fixation.y, start + t, fixation.confidence))
             t += 1.0 / rate_hz
             if t >= next_frame:
                 _sleep_until(capture, start + t)

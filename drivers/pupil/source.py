@@ -393,13 +393,18 @@ class PupilGazeSource:
 def open_pupil(request: StreamRequest) -> PupilGazeSource:
     """The `pupil[:HOST[:PORT][/SURFACE]]` stream of `gazehdr.drivers.registry`: Pupil Remote
     at HOST:PORT (127.0.0.1:50020), the gaze on the surface SURFACE (`screen`); the screen's
-    geometry from `geometry` and `screen`. With `wait`, waits for Capture to answer; else
+    geometry from `geometry` and `screen`; `sleep` and `clock` for the back-off and the clock
+    syncs. With `wait`, waits for Capture to answer; else
     SourceUnavailableError when it does not (the registry reports a missing pyzmq or msgpack,
     an ImportError)."""
     address = parse_address(request.arg)
     options = dict(request.options)
     options.setdefault("geometry", request.screen_geometry())
     options.setdefault("open_now", not request.wait)
+    if request.sleep is not None:
+        options.setdefault("sleep", request.sleep)
+    if request.clock is not None:
+        options.setdefault("clock_ns", request.clock)
     try:
         source = PupilGazeSource(address, **options)
         if request.wait:
