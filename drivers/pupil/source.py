@@ -30,6 +30,7 @@ except ModuleNotFoundError as e:  # pragma: no cover - depends on the installati
         "the Pupil Capture source needs pyzmq and msgpack: install gazehdr[pupil]", name=e.name
     ) from None
 
+from gazehdr.drivers.backoff import retry
 from gazehdr.drivers.formats.pupil import MIN_CONFIDENCE
 from gazehdr.drivers.pupil.clock import PupilClock, SampleTimes, describe
 from gazehdr.drivers.pupil.protocol import (
@@ -230,7 +231,7 @@ class PupilGazeSource:
 
     # connection
 
-    def connect(self) -> None:
+    def connect(self) -> _Connection:
         """Connect once: Capture's version, its SUB port, the clock, the subscription
         (OSError when Pupil Remote does not answer, or answers what Capture would not)."""
         conn = _Connection(self._ctx, self.address, self.timeout_s)
@@ -247,29 +248,28 @@ class PupilGazeSource:
             raise OSError(str(e)) from None
         self.capture_version = version.decode("utf-8", "replace")[:80]
         self._heard_ns, self._quiet_warned = self._clock_ns(), False
+        return conn
 
     def wait_for_capture(self) -> None:
         """Connect, waiting with back-off until Capture answers (a line per attempt); OSError
         after `give_up_after_s`. How `gazehdr daemon --source pupil:…` starts."""
-        if not self._reconnect():
+        if self._reconnect() is None:
             raise OSError("the Pupil source was closed while waiting for Pupil Capture")
 
-    def _reconnect(self) -> bool:
-        """Connect, waiting with back-off; False when the source was closed meanwhile."""
-        delay = self.backoff_initial_s
-        start = self._clock_ns()
-        while not self._closed:
-            try:
-                self.connect()
-                return True
-            except OSError as e:
-                waited = (self._clock_ns() - start) / 1e9
-                if self.give_up_after_s is not None and waited >= self.give_up_after_s:
-                    raise OSError(f"no Pupil Capture for {waited:.1f} s: {e}") from e
-                log.info("Pupil Capture not available (%s); retrying in %.2f s", e, delay)
-                self._sleep(delay)
-                delay = min(delay * 2.0, self.backoff_max_s)
-        return False
+    def _reconnect(self) -> _Connection | None:
+        """Connect, waiting with back-off; None when the source was closed meanwhile."""
+        return retry(
+            self.connect,
+            name="Pupil Capture",
+            missing="Pupil Capture",
+            closed=lambda: self._closed,
+            log=log,
+            initial_s=self.backoff_initial_s,
+            max_s=self.backoff_max_s,
+            give_up_after_s=self.give_up_after_s,
+            sleep=self._sleep,
+            clock=lambda: self._clock_ns() / 1e9,
+        )
 
     def _drop(self) -> None:
         if self._conn is not None:
@@ -295,6 +295,12 @@ class PupilGazeSource:
         self._next_sync_ns = self._clock_ns() + self.sync_interval_ns
         return self._note()
 
+    def _note(self) -> Note:
+        """The current estimate, for the session log."""
+        best = self.clock.best
+        assert best is not None
+        return Note(self._clock_ns(), f"pupil clock: {describe(best)}")
+
     # the stream
 
     def records(self) -> Iterator[GazeSample | Note]:
@@ -315,9 +321,10 @@ class PupilGazeSource:
         announced: _Connection | None = None  # the connection whose clock the log has
         while not self._closed:
             if self._conn is None:
-                if not self._reconnect():
+                if self._reconnect() is None:
                     return
-                log.info("Pupil Capture reconnected: %s", self.address)
+                if self.reconnects:
+                    log.info("Pupil Capture reconnected: %s", self.address)
             conn = self._conn
             assert conn is not None
             if conn is not announced:
@@ -337,14 +344,10 @@ class PupilGazeSource:
                     e,
                     self.samples_yielded,
                 )
-                for frames in conn.receive(0):  # what arrived before it went is kept
-                    yield from self._message(frames, self._clock_ns(), resync=False)
+                while waiting := conn.receive(0):  # what arrived before it went is kept
+                    for frames in waiting:
+                        yield from self._message(frames, self._clock_ns(), resync=False)
                 self._drop()
-
-    def _note(self) -> Note:
-        best = self.clock.best
-        assert best is not None
-        return Note(self._clock_ns(), f"pupil clock: {describe(best)}")
 
     def _message(
         self, frames: list[bytes], arrived_ns: int, *, resync: bool = True
