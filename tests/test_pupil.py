@@ -226,7 +226,8 @@ def test_each_malformed_thing_is_named(capture: Any, caplog: Any) -> None:
     assert [r.getMessage() for r in caplog.records if r.name.startswith(LOGGER)] == [
         "Pupil Capture sent a malformed message: surfaces.screen: the payload is not msgpack "
         + _unpack_error(NOT_MSGPACK),
-        "Pupil Capture sent a malformed message: 1 frames; a message is [topic, msgpack payload]",
+        "Pupil Capture sent a malformed message: 1 frames; a message is [topic, msgpack payload, "
+        "...]",
         "Pupil Capture sent a malformed message: surfaces.screen: 'gaze_on_surfaces' is missing, "
         "not a list",
         "Pupil Capture sent a malformed datum: surfaces.screen: gaze_on_surfaces[0]: "

@@ -121,6 +121,8 @@ def test_a_surface_message_as_capture_sends_it() -> None:
     )
     empty = decode(frames(surface_message("screen", [], 100.0)), "screen")
     assert empty == SurfaceMessage(())
+    raw_data = decode([*frames(surface_message("screen", gaze[:1], 1.0)), b"\x00raw"], "screen")
+    assert raw_data == SurfaceMessage((GazeOnSurface(100.010, 0.5, 0.5, 0.95),))
 
 
 def test_another_surface_whose_name_begins_with_ours_is_not_ours() -> None:
@@ -156,8 +158,8 @@ def _packed(payload: Any, topic: bytes = b"surfaces.screen") -> list[bytes]:
 @pytest.mark.parametrize(
     ("message", "error"),
     [
-        ([b"surfaces.screen"], "1 frames; a message is [topic, msgpack payload]"),
-        ([*frames(_payload()), b"extra"], "3 frames"),
+        ([b"surfaces.screen"], "1 frames; a message is [topic, msgpack payload, ...]"),
+        ([], "0 frames"),
         ([b"\xffsurfaces", b""], "the topic frame b'\\xffsurfaces' is not UTF-8"),
         (frames(_payload(topic="gaze.3d.01.")), "topic 'gaze.3d.01.', not 'surfaces.screen'"),
         ([b"surfaces.screen", b"\xc1"], "surfaces.screen: the payload is not msgpack"),

@@ -10,9 +10,11 @@ Written from Pupil's own sources (pupil-labs/pupil at v3.6-14-g7a3cd9e; paths un
   (`shared_modules/network_api/controller/pupil_remote_controller.py:268-269, 298-299`); `v`
   with the version (`:300-301`); "Unknown command." otherwise (`:303`). The backbone's ports are
   chosen by the OS at each start (`main.py:235-250`), so they are asked for at every connect.
-- Every backbone message is two frames: the topic as UTF-8, then the payload as
-  `msgpack.packb(payload, use_bin_type=True)`, a map that holds its `topic` too
-  (`shared_modules/zmq_tools.py:164-172`, `Msg_Streamer.send`).
+- Every backbone message is at least two frames: the topic as UTF-8, then the payload as
+  `msgpack.packb(payload, use_bin_type=True)`, a map that holds its `topic` too; any further
+  frames carry raw data, as video frames do, which surface messages have none of
+  (`shared_modules/zmq_tools.py:164-181`, `Msg_Streamer.send`; pupil-docs
+  `core/developer/network-api`, "IPC Backbone Message Format").
 - The surface tracker publishes one message per detected surface and world frame, topic
   `surfaces.NAME`, with `name`, four homographies, `gaze_on_surfaces`, `fixations_on_surfaces`
   and the frame's `timestamp` (`shared_modules/surface_tracker/surface_tracker.py:486-496`,
@@ -204,9 +206,9 @@ def decode(frames: Sequence[bytes], surface: str) -> SurfaceMessage | None:
     """One backbone message, as received, for the surface named `surface`: its gaze, or None
     for another surface whose name begins with this one's. MessageError names what is wrong
     with the message as a whole; a bad datum is left out and said in `problems`."""
-    if len(frames) != 2:
-        raise MessageError(f"{len(frames)} frames; a message is [topic, msgpack payload]")
-    raw_topic, payload = frames
+    if len(frames) < 2:
+        raise MessageError(f"{len(frames)} frames; a message is [topic, msgpack payload, ...]")
+    raw_topic, payload = frames[:2]  # frames after these are raw data (`__raw_data__`)
     try:
         topic = bytes(raw_topic).decode("utf-8")
     except UnicodeDecodeError:
