@@ -202,9 +202,9 @@ def open_source(
     recordings that do not record their screen, and replaces what a HID tracker reports.
     `screen` overrides single `ScreenGeometry` fields (see `gazehdr.drivers.sources`). `wait`
     (hid, pupil): when no tracker is plugged in (no Pupil Capture answers), wait for one with
-    back-off, a message per attempt, instead of failing. Other `options` go to the source. Raises `ValueError` for a spec it does
-    not know or a geometry that is not one, and `SourceUnavailableError` for a source that
-    cannot run here.
+    back-off, a message per attempt, instead of failing. Other `options` go to the source.
+    Raises `ValueError` for a spec it does not know or a geometry that is not one, and
+    `SourceUnavailableError` for a source that cannot run here.
     """
     name, _, arg = spec.partition(":")
     kind = next((k for k in KINDS if k.name == name), None)
