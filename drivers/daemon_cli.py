@@ -53,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--source",
         default="synthetic",
         help=f"{registry.describe(registry.STREAM)} (default: synthetic). hid waits for a "
-        "tracker to be plugged in",
+        "tracker to be plugged in, pupil for Pupil Capture to answer",
     )
     p.add_argument(
         "--server",
@@ -175,6 +175,7 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
     loggers = (
         log,
         logging.getLogger("gazehdr.drivers.hid"),
+        logging.getLogger("gazehdr.drivers.pupil"),
     )  # the tracker's waits and unplugs, too
     before = [(logger.level, logger.propagate) for logger in loggers]
     for logger in loggers:

@@ -137,6 +137,16 @@ KINDS: tuple[SourceKind, ...] = (
         ),
         title="HID",
     ),
+    SourceKind(
+        "pupil",
+        stream=Opening(
+            "pupil[:HOST[:PORT][/SURFACE]]",
+            "Pupil Capture's gaze on the surface SURFACE (default screen), through Pupil Remote "
+            "at HOST:PORT (default 127.0.0.1:50020)",
+            f"{_D}.pupil.source:open_pupil",
+        ),
+        title="Pupil",
+    ),
 )
 
 
@@ -191,10 +201,10 @@ def open_source(
     `rate_hz` and `realtime` apply to the synthetic source; `geometry` to it and to imported
     recordings that do not record their screen, and replaces what a HID tracker reports.
     `screen` overrides single `ScreenGeometry` fields (see `gazehdr.drivers.sources`). `wait`
-    (hid): when no tracker is plugged in, wait for one with back-off, a message per attempt,
-    instead of failing. Other `options` go to the source. Raises `ValueError` for a spec it does
-    not know or a geometry that is not one, and `SourceUnavailableError` for a source that
-    cannot run here.
+    (hid, pupil): when no tracker is plugged in (no Pupil Capture answers), wait for one with
+    back-off, a message per attempt, instead of failing. Other `options` go to the source.
+    Raises `ValueError` for a spec it does not know or a geometry that is not one, and
+    `SourceUnavailableError` for a source that cannot run here.
     """
     name, _, arg = spec.partition(":")
     kind = next((k for k in KINDS if k.name == name), None)

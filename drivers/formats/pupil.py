@@ -34,6 +34,22 @@ MIN_CONFIDENCE = 0.6
 _REQUIRED = ("confidence", "norm_pos_x", "norm_pos_y")
 
 
+def gaze_sample(
+    t_ns: int,
+    nx: float,
+    ny: float,
+    confidence: float,
+    screen: ScreenGeometry,
+    min_confidence: float = MIN_CONFIDENCE,
+) -> GazeSample:
+    """A Pupil gaze datum as a sample on `screen`: its normalised position (origin bottom-left,
+    unit the image's or surface's size; values outside [0, 1] kept) flipped to pixels from the
+    top left; invalid below `min_confidence`, or where the position is not finite."""
+    if confidence >= min_confidence and math.isfinite(nx) and math.isfinite(ny):
+        return GazeSample(t_ns, nx * screen.screen_width_px, (1.0 - ny) * screen.screen_height_px)
+    return GazeSample(t_ns, math.nan, math.nan, False)
+
+
 def read_pupil_gaze_csv(
     path: Path,
     *,
@@ -45,7 +61,6 @@ def read_pupil_gaze_csv(
     if not 0 <= min_confidence <= 1:
         raise ValueError(f"min_confidence must lie in [0, 1], got {min_confidence}")
     screen = geometry or ScreenGeometry()
-    width, height = screen.screen_width_px, screen.screen_height_px
     samples: list[GazeSample] = []
     with path.open(newline="", encoding="utf-8-sig") as f:
         rows = csv.reader(f)
@@ -92,10 +107,7 @@ def read_pupil_gaze_csv(
             if not 0 <= confidence <= 1:
                 raise FormatError(path, line, "confidence", f"must lie in [0, 1], got {confidence}")
             nx, ny = number("norm_pos_x"), number("norm_pos_y")
-            if confidence >= min_confidence:
-                samples.append(GazeSample(t, nx * width, (1.0 - ny) * height))
-            else:
-                samples.append(GazeSample(t, math.nan, math.nan, False))
+            samples.append(gaze_sample(t, nx, ny, confidence, screen, min_confidence))
     if not samples:
         raise FormatError(path, None, None, "no gaze rows")
     header_ = SessionHeader(

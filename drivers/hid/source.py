@@ -30,6 +30,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
+from gazehdr.drivers.backoff import retry
 from gazehdr.drivers.hid.clock import ReportClock
 from gazehdr.drivers.hid.descriptor import DecodedReport, Descriptor, DescriptorError, ReportError
 from gazehdr.drivers.hid.tracker import (
@@ -272,20 +273,18 @@ class HidGazeSource:
 
     def _reconnect(self) -> HidTracker | None:
         """Open the tracker, waiting with back-off; None when the source was closed meanwhile."""
-        delay = self.backoff_initial_s
-        start = self._clock()
-        while True:
-            if self._closed:
-                return None
-            try:
-                return self.connect()
-            except OSError as e:
-                waited = self._clock() - start
-                if self.give_up_after_s is not None and waited >= self.give_up_after_s:
-                    raise OSError(f"no HID eye tracker for {waited:.1f} s: {e}") from e
-                log.info("HID tracker not available (%s); retrying in %.2f s", e, delay)
-                self._sleep(delay)
-                delay = min(delay * 2.0, self.backoff_max_s)
+        return retry(
+            self.connect,
+            name="HID tracker",
+            missing="HID eye tracker",
+            closed=lambda: self._closed,
+            log=log,
+            initial_s=self.backoff_initial_s,
+            max_s=self.backoff_max_s,
+            give_up_after_s=self.give_up_after_s,
+            sleep=self._sleep,
+            clock=self._clock,
+        )
 
     def _drop(self) -> None:
         if self.tracker is not None:
