@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -10,29 +11,42 @@ from typing import Any
 import pytest
 
 from gazehdr.app import ServerConfig
-from gazehdr.serve import BackgroundServer
+from gazehdr.serve import BackgroundServer, bind
 from gazehdr.session import SessionSettings
 
 SESSION_FIELDS = {f.name for f in dataclasses.fields(SessionSettings)}
 
 
 @pytest.fixture
+def listener() -> Iterator[socket.socket]:
+    """A listening socket on a free loopback port, held for the whole test. Servers started on
+    it (`live_server(sock=listener)`, or a process handed its descriptor) one after another are
+    found where the last one was, and no other program can take the port in between. While no
+    server runs, connections wait in its backlog rather than being refused."""
+    sock = bind("127.0.0.1", 0)
+    yield sock
+    sock.close()
+
+
+@pytest.fixture
 def live_server(tmp_path: Path) -> Iterator[Callable[..., BackgroundServer]]:
     """Factory: `live_server(scene="flash", size=(320, 180), token="t", ...)`.
 
-    Keywords are `SessionSettings` fields (plus `size`) or `ServerConfig` fields. Defaults
-    suit a 2-core CI machine: 160×96 frames at 20 fps, session ends when its viewer leaves.
+    Keywords are `SessionSettings` fields (plus `size`) or `ServerConfig` fields, and `sock`: a
+    listening socket to serve on (`listener`) instead of a free port. Defaults suit a 2-core CI
+    machine: 160×96 frames at 20 fps, session ends when its viewer leaves.
     """
     started: list[BackgroundServer] = []
 
     def start(**overrides: Any) -> BackgroundServer:
         width, height = overrides.pop("size", (160, 96))
+        sock = overrides.pop("sock", None)
         session = {"width": width, "height": height, "fps": 20.0}
         server: dict[str, Any] = {"data_dir": tmp_path / "data", "session_grace_s": 0.0}
         for key, value in overrides.items():
             (session if key in SESSION_FIELDS else server)[key] = value
         config = ServerConfig(session=SessionSettings(**session), **server)
-        live = BackgroundServer(config)
+        live = BackgroundServer(config, sock)
         started.append(live)
         return live
 
