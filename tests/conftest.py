@@ -1,8 +1,10 @@
-"""Shared fixtures: a real uvicorn server on loopback, started per test with the given settings."""
+"""Shared fixtures: a real uvicorn server on loopback, started per test with the given settings;
+and the suite's skip policy: under CI (CI set) a skipped test fails the run."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -53,3 +55,28 @@ def live_server(tmp_path: Path) -> Iterator[Callable[..., BackgroundServer]]:
     yield start
     for live in started:
         live.stop()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """Under CI a skip is a failure, with its reason: CI has everything every test needs (the
+    browser, the OpenCL device, the tools), so a test that skips there has stopped testing."""
+    outcome = yield
+    report: pytest.TestReport = outcome.get_result()
+    if os.environ.get("CI") and report.skipped and not hasattr(report, "wasxfail"):
+        _fail_the_skip(report)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector) -> Iterator[None]:
+    """The same for a whole module skipped at collection (`importorskip`, `allow_module_level`)."""
+    outcome = yield
+    report: pytest.CollectReport = outcome.get_result()
+    if os.environ.get("CI") and report.skipped:
+        _fail_the_skip(report)
+
+
+def _fail_the_skip(report: pytest.TestReport | pytest.CollectReport) -> None:
+    reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+    report.outcome = "failed"
+    report.longrepr = f"skipped under CI, which must run every test: {reason}"
