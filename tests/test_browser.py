@@ -19,7 +19,6 @@ import os
 import socket
 import struct
 import threading
-import time
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,6 +26,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+
+from tests.waiting import wait_until
 
 CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -650,11 +651,13 @@ def _check_dither(out: np.ndarray, v: np.ndarray, correlations: bool = True) -> 
 class Proxy:
     """A TCP forwarder in front of the server: `drop()` cuts every connection as a network
     failure or a dying server would, `refusing` closes new ones at once (a server that is
-    down), and `backend` can point at another server (a restart on the same address)."""
+    down; `refused` counts them), and `backend` can point at another server (a restart on the
+    same address)."""
 
     def __init__(self, backend_port: int) -> None:
         self.backend = backend_port
         self.refusing = False
+        self.refused = 0
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.port = self.listener.getsockname()[1]
         self.url = f"http://127.0.0.1:{self.port}"
@@ -669,6 +672,7 @@ class Proxy:
             except OSError:
                 return
             if self.refusing:
+                self.refused += 1
                 client.close()
                 continue
             try:
@@ -752,7 +756,7 @@ def test_viewer_reconnects(live_server, open_viewer) -> None:
         assert "reconnecting" in text
         second = live_server()
         proxy.backend = second.port
-        time.sleep(1.0)  # at least one refused attempt
+        wait_until(lambda: proxy.refused > 0, "a reconnect attempt the proxy refused")
         proxy.refusing = False
         fresh, received = joined(3)
         assert fresh != session
