@@ -20,7 +20,7 @@ import websockets
 from websockets.exceptions import ConnectionClosed
 
 from gazehdr import app
-from gazehdr.live import MAX_IDLE_S, WINDOW
+from gazehdr.live import MAX_IDLE_S
 from gazehdr.metrics import Counter
 from gazehdr.protocol import FrameHeader, decode_frame
 from gazehdr.scenes.exr import write_exr
@@ -342,6 +342,14 @@ def test_slow_viewer_neither_queues_nor_slows_another(live_server) -> None:
         # it did not get was replaced in its own mailbox and counted in the next one it got.
         for a, b in itertools.pairwise(headers):
             assert b.frame - a.frame - 1 == b.dropped - a.dropped >= 0, (a, b)
+        # While the stalled viewer was stuck the session did not wait for it: it stepped as
+        # soon as the other one could take a frame, sooner than the MAX_IDLE_S it waits when
+        # nobody can.
+        stuck_span = headers[-stuck:]
+        steps = [
+            b.time - a.time for a, b in itertools.pairwise(stuck_span) if b.frame == a.frame + 1
+        ]
+        assert min(steps, default=math.inf) < MAX_IDLE_S, steps
         # Once the stalled viewer reads again, it gets the newest frame, not a backlog: the
         # frame after those already on their way is no older than the other viewer's last,
         # and says how many it missed.
@@ -587,6 +595,7 @@ def test_a_recorded_session_replays_as_gaze(live_server, tmp_path) -> None:
 
 def test_a_viewer_that_acks_gets_at_most_two_frames_in_flight(live_server) -> None:
     server = live_server(fps=20.0)
+    in_flight = 2  # docs/protocol.md: once a viewer acks, at most 2 frames are in flight
 
     async def check() -> None:
         client = await Client.open(server)
@@ -602,11 +611,11 @@ def test_a_viewer_that_acks_gets_at_most_two_frames_in_flight(live_server) -> No
         # session goes on.
         for header in got[1:]:
             await client.send(type="ack", frame=header.frame)
-        window = [(await client.frame())[0] for _ in range(WINDOW)]
+        window = [(await client.frame())[0] for _ in range(in_flight)]
         last = window[-1]
         # The session makes three more frames (MAX_IDLE_S apart, as nobody can take them).
         await until(lambda: live.session.frame > last.frame + 3, "the session to go on")
-        assert viewer.sent == len(got) + WINDOW, [h.frame for h in (*got, *window)]
+        assert viewer.sent == len(got) + in_flight, [h.frame for h in (*got, *window)]
         for header in window:
             await client.send(type="ack", frame=header.frame)
         resumed, _ = await client.frame()
