@@ -496,7 +496,8 @@ uvicorn_server(create_app(config), "127.0.0.1", 0, log_level="warning").run(sock
 
 class KillableServer:
     """`KILLABLE_SERVER` in a subprocess on `listener` (the test keeps it open), up once it
-    answers there. Connections made before that wait in the listener's backlog."""
+    answers there. Connections made before that wait in the listener's backlog, so a request
+    that times out (asked again) or a process that dies are what tell it did not start."""
 
     def __init__(self, script: Path, listener: socket.socket, name: str) -> None:
         self.seen = script.parent / f"{name}.txt"
@@ -508,12 +509,17 @@ class KillableServer:
             stderr=subprocess.PIPE,
             pass_fds=[fd],
         )
-        port = listener.getsockname()[1]
-        try:
-            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/health", timeout=60).close()
-        except OSError:
-            self.proc.kill()
-            raise AssertionError(f"server did not start: {self.proc.stderr.read()!r}") from None
+        health = f"http://127.0.0.1:{listener.getsockname()[1]}/api/health"
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                urllib.request.urlopen(health, timeout=1).close()
+                return
+            except OSError:
+                if self.proc.poll() is not None or time.monotonic() > deadline:
+                    self.proc.kill()
+                    err = self.proc.stderr.read()
+                    raise AssertionError(f"server did not start: {err!r}") from None
 
     def hang(self) -> None:
         self.proc.send_signal(signal.SIGSTOP)  # reads nothing, answers nothing, closes nothing
