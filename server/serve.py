@@ -119,20 +119,28 @@ def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicor
 
 
 class BackgroundServer:
-    """`create_app(config)` on 127.0.0.1 and a free port, in a thread: for tests and benchmarks."""
+    """`create_app(config)` on 127.0.0.1, in a thread: for tests and benchmarks.
 
-    def __init__(self, config: ServerConfig) -> None:
+    It listens on a free port the system picks, or on `sock`: a listening socket that the
+    caller keeps open (the server gets a duplicate, closed when it stops), so that servers
+    started on it one after another are found at one address, which nobody can take between.
+    """
+
+    def __init__(self, config: ServerConfig, sock: socket.socket | None = None) -> None:
         self.config = config
         self.app = create_app(config)
-        self.server = uvicorn_server(self.app, "127.0.0.1", 0, log_level="warning")
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
+        listener = bind("127.0.0.1", 0) if sock is None else sock.dup()
+        self.port = listener.getsockname()[1]
+        self.server = uvicorn_server(self.app, "127.0.0.1", self.port, log_level="warning")
+        self.thread = threading.Thread(
+            target=self.server.run, kwargs={"sockets": [listener]}, daemon=True
+        )
         self.thread.start()
         deadline = time.monotonic() + 30
         while not self.server.started:
             if not self.thread.is_alive() or time.monotonic() > deadline:
                 raise RuntimeError("uvicorn did not start")
             time.sleep(0.01)
-        self.port = self.server.servers[0].sockets[0].getsockname()[1]
         self.url = f"http://127.0.0.1:{self.port}"
         self.ws_url = f"ws://127.0.0.1:{self.port}"
         self.token = config.token

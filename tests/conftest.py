@@ -1,8 +1,11 @@
-"""Shared fixtures: a real uvicorn server on loopback, started per test with the given settings."""
+"""Shared fixtures: a real uvicorn server on loopback, started per test with the given settings;
+and the suite's skip policy: under CI (CI set) a skipped test fails the run."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import socket
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -11,29 +14,42 @@ import pytest
 
 from gazehdr.app import ServerConfig
 from gazehdr.gaze import TrackerFeed
-from gazehdr.serve import BackgroundServer
+from gazehdr.serve import BackgroundServer, bind
 from gazehdr.session import SessionSettings
 
 SESSION_FIELDS = {f.name for f in dataclasses.fields(SessionSettings)}
 
 
 @pytest.fixture
+def listener() -> Iterator[socket.socket]:
+    """A listening socket on a free loopback port, held for the whole test. Servers started on
+    it (`live_server(sock=listener)`, or a process handed its descriptor) one after another are
+    found where the last one was, and no other program can take the port in between. While no
+    server runs, connections wait in its backlog rather than being refused."""
+    sock = bind("127.0.0.1", 0)
+    yield sock
+    sock.close()
+
+
+@pytest.fixture
 def live_server(tmp_path: Path) -> Iterator[Callable[..., BackgroundServer]]:
     """Factory: `live_server(scene="flash", size=(320, 180), token="t", ...)`.
 
-    Keywords are `SessionSettings` fields (plus `size`) or `ServerConfig` fields. Defaults
-    suit a 2-core CI machine: 160×96 frames at 20 fps, session ends when its viewer leaves.
+    Keywords are `SessionSettings` fields (plus `size`) or `ServerConfig` fields, and `sock`: a
+    listening socket to serve on (`listener`) instead of a free port. Defaults suit a 2-core CI
+    machine: 160×96 frames at 20 fps, session ends when its viewer leaves.
     """
     started: list[BackgroundServer] = []
 
     def start(**overrides: Any) -> BackgroundServer:
         width, height = overrides.pop("size", (160, 96))
+        sock = overrides.pop("sock", None)
         session = {"width": width, "height": height, "fps": 20.0}
         server: dict[str, Any] = {"data_dir": tmp_path / "data", "session_grace_s": 0.0}
         for key, value in overrides.items():
             (session if key in SESSION_FIELDS else server)[key] = value
         config = ServerConfig(session=SessionSettings(**session), **server)
-        live = BackgroundServer(config)
+        live = BackgroundServer(config, sock)
         started.append(live)
         return live
 
@@ -51,3 +67,28 @@ def sole_tracker(server: BackgroundServer) -> TrackerFeed:
 def samples_received(server: BackgroundServer) -> int:
     """Samples `server` received from its daemons so far (0 before any has connected)."""
     return sum(feed.samples for feed in server.hub.trackers.feeds())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    """Under CI a skip is a failure, with its reason: CI has everything every test needs (the
+    browser, the OpenCL device, the tools), so a test that skips there has stopped testing."""
+    outcome = yield
+    report: pytest.TestReport = outcome.get_result()
+    if os.environ.get("CI") and report.skipped and not hasattr(report, "wasxfail"):
+        _fail_the_skip(report)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector) -> Iterator[None]:
+    """The same for a whole module skipped at collection (`importorskip`, `allow_module_level`)."""
+    outcome = yield
+    report: pytest.CollectReport = outcome.get_result()
+    if os.environ.get("CI") and report.skipped:
+        _fail_the_skip(report)
+
+
+def _fail_the_skip(report: pytest.TestReport | pytest.CollectReport) -> None:
+    reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+    report.outcome = "failed"
+    report.longrepr = f"skipped under CI, which must run every test: {reason}"

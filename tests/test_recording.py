@@ -44,7 +44,8 @@ from gazehdr.render import recorded_changes, render
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.scenes.procedural import Flash
 from gazehdr.session import Session, SessionSettings
-from tests.test_server import TIMEOUT, Client, http, run
+from tests.test_server import Client, http, run
+from tests.waiting import wait_until
 
 W, H, FPS = 64, 36, 30
 SETTINGS = SessionSettings(
@@ -276,9 +277,7 @@ def test_serve_records_each_session_where_viewers_can_replay_it(live_server) -> 
         await client.ws.close()
 
     run(record())
-    deadline = time.monotonic() + TIMEOUT
-    while server.hub.sessions and time.monotonic() < deadline:  # it ends as its viewer left
-        time.sleep(0.02)
+    wait_until(lambda: not server.hub.sessions, "the session to end as its viewer left")
     (path,) = folder.glob("session-*.jsonl")
     log = read_session_log(path)
     assert log.header.tracker["name"] == "gazehdr serve"
