@@ -213,15 +213,23 @@ def test_eyelink_gaze_coords_offset_and_prescaler(tmp_path: Path) -> None:
 def test_eyelink_malformed_lines_name_line_and_field(
     tmp_path: Path, line: int, text: str, field: str | None, reason: str | None
 ) -> None:
+    """`strict=True` refuses the file at the line; by default the line becomes a note that says
+    the same, and the rest of the file is read (the second block's samples, at least)."""
     path = corrupt(tmp_path, "eyelink_mono.asc", line, text)
     if reason is None:  # a line starting with a digit but not a number is a sample: error
         with pytest.raises(FormatError) as info:
-            read_eyelink_asc(path)
+            read_eyelink_asc(path, strict=True)
         assert_names(info.value, path, line, "time")
-        return
-    with pytest.raises(FormatError, match=reason) as info:
-        read_eyelink_asc(path)
-    assert_names(info.value, path, line, field)
+    else:
+        with pytest.raises(FormatError, match=reason) as info:
+            read_eyelink_asc(path, strict=True)
+        assert_names(info.value, path, line, field)
+    err = info.value
+    log = read_eyelink_asc(path)
+    unread = [n.text for n in log.notes if " not read: " in n.text]
+    assert unread == [f"line {line} not read: field '{err.field}': {err.reason}: {text}"]
+    assert log.header.tracker["unread_lines"] >= 1
+    assert log.samples[-1].t_ns == 2154703 * 1_000_000  # the second block's END
 
 
 def test_eyelink_sample_before_samples_line_and_no_screen(tmp_path: Path) -> None:
