@@ -17,7 +17,7 @@ Box = tuple[float, float, float, float]
 #: make every later conversion to degrees meaningless.
 MAX_SCREEN_PX = 65_536
 
-_OFFSET = re.compile(r"(-?\d{1,9})\s+(\S.*)")
+_OFFSET = re.compile(r"(-?\d{1,9})\s+(\S.*)", re.ASCII)
 # Experiment Builder writes `DISPLAY_COORDS 0 0 1279 1023`; some other writers put an `=`.
 _COORDS = re.compile(r"\b(DISPLAY_COORDS|GAZE_COORDS)\s*=?\s*(\S+)\s+(\S+)\s+(\S+)\s+(\S+)")
 _TRACKING = re.compile(r"^(?:RECCFG|!MODE\s+RECORD)\s+(CR|P)\b")

@@ -23,7 +23,9 @@ from gazehdr.drivers.sessionlog import (
 
 _MS = 1_000_000
 _HALF_MS = _MS // 2  # the second sample of a 2000 Hz time stamp (manual §4.9.2)
-_TIME = re.compile(r"\d{1,12}(?:\.\d{1,6})?")  # ms on the tracker clock; `-ftime` adds a fraction
+_TIME = re.compile(
+    r"\d{1,12}(?:\.\d{1,6})?", re.ASCII
+)  # ms on the tracker clock; `-ftime` adds a fraction
 _EYE = {"L": "left", "R": "right"}
 _MONO = ("xp", "yp", "ps")
 _BINO = ("xpl", "ypl", "psl", "xpr", "ypr", "psr")
