@@ -84,7 +84,7 @@ def read_eyelink_asc(
     `missing` is `edf2asc -miss`'s string, `strict` refuses a file at its first line not
     understood (by default such lines become notes)."""
     parser = AscParser(Path(path), missing, strict)
-    with open(path, encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8-sig", errors="replace") as f:  # an editor's BOM dropped
         for number, line in enumerate(f, 1):
             parser.line(number, line)
     return parser.finish(geometry)

@@ -23,9 +23,9 @@ from gazehdr.drivers.sessionlog import (
 
 _MS = 1_000_000
 _HALF_MS = _MS // 2  # the second sample of a 2000 Hz time stamp (manual §4.9.2)
-_TIME = re.compile(
-    r"\d{1,12}(?:\.\d{1,6})?", re.ASCII
-)  # ms on the tracker clock; `-ftime` adds a fraction
+# A time stamp or duration: ms on the tracker clock, with `-ftime` a fraction. Bounded, so that
+# a garbled field cannot make a number of a billion digits.
+_TIME = re.compile(r"\d{1,12}(?:\.\d{1,6})?", re.ASCII)
 _EYE = {"L": "left", "R": "right"}
 _MONO = ("xp", "yp", "ps")
 _BINO = ("xpl", "ypl", "psl", "xpr", "ypr", "psr")
@@ -127,12 +127,6 @@ class AscParser:
         p = (x / self.prescaler - left, y / self.prescaler - top)
         return p if math.isfinite(p[0]) and math.isfinite(p[1]) else None
 
-    def note(self, text: str, t: int | None) -> None:
-        if t is None:
-            self.early.append(text)
-        else:
-            self.notes.append(Note(t, text))
-
     # --- lines --------------------------------------------------------------------------------
 
     def line(self, number: int, raw: str) -> None:
@@ -172,7 +166,11 @@ class AscParser:
         if is_sample and self.refusal is None:
             self.refusal = err
         field = f"field '{err.field}': " if err.field else ""
-        self.note(f"line {number} not read: {field}{err.reason}: {text}", self.now)
+        note = f"line {number} not read: {field}{err.reason}: {text}"
+        if self.now is None:
+            self.early.append(note)
+        else:
+            self.notes.append(Note(self.now, note))
 
     def preamble(self, text: str) -> None:
         key, sep, value = text.partition(":")
@@ -186,7 +184,7 @@ class AscParser:
     def eyes_of(self, number: int, tokens: list[str]) -> tuple[str, ...]:
         if len(tokens) < 3:
             raise self.error(number, "eyes", f"{tokens[0]} needs a data type and the eyes")
-        eyes = tuple(_EYE[t[0]] for t in tokens[2:] if t in ("LEFT", "RIGHT"))
+        eyes = tuple(eye for eye in ("left", "right") if eye.upper() in tokens[2:])
         if not eyes:
             raise self.error(number, "eyes", f"{tokens[0]} line names neither LEFT nor RIGHT")
         return eyes
@@ -289,6 +287,7 @@ class AscParser:
         eyes = self.sample_eyes(number, tokens)
         if eyes is None:  # the block's samples cannot be placed; its SAMPLES line said why
             self.refusal = self.refusal or self.spec_error
+            self.unread_lines += 1
             return
         binocular = len(eyes) == 2
         names = _BINO if binocular else _MONO
