@@ -9,7 +9,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from gazehdr.drivers.formats.common import decimal_ns, finite_float, geometry_with, mean_of_eyes
+from gazehdr.drivers.formats.common import (
+    decimal_ns,
+    finite_float,
+    geometry_with,
+    is_number,
+    mean_of_eyes,
+)
 from gazehdr.drivers.formats.eyelink import messages
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import (
@@ -269,7 +275,7 @@ class AscParser:
             raise self.spec_error
         count = 0
         for token in tokens[1:]:
-            if token != self.missing and not _is_number(token):
+            if token != self.missing and not is_number(token):
                 break
             count += 1
         if count not in (3, 6):
@@ -450,11 +456,3 @@ class AscParser:
         if self.unread_lines:
             out["unread_lines"] = self.unread_lines
         return out
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
