@@ -254,15 +254,15 @@ def _asc(tmp_path: Path, body: str, name: str = "x.asc") -> Path:
 
 def test_eyelink_velocity_resolution_and_blocks_that_differ(tmp_path: Path) -> None:
     """Manual §4.9.2, §4.9.4: `-vel` and `-res` add columns after the pupil (not read; VPRESCALER
-    scales them); each START clears the data specification, so one block may be monocular at
-    500 Hz and the next binocular at 1000 Hz, and the header says so."""
+    scales them), the CR flags come last; each START clears the data specification, so one
+    block may be monocular at 500 Hz and the next binocular at 1000 Hz, and the header says so."""
     path = _asc(
         tmp_path,
         "MSG|100 DISPLAY_COORDS 0 0 799 599\n"
         "START|100 |LEFT|SAMPLES|EVENTS\nPRESCALER|1\nVPRESCALER|10\nPUPIL|DIAMETER\n"
         "SAMPLES|GAZE|LEFT|VEL|RES|RATE| 500.00|TRACKING|CR|FILTER|2\n"
         "100|  10.0|  20.0|   4.1|  -512|   33|  22.1|  22.3|...\n"
-        "102|  11.0|  21.0|   4.1|     .|    .|  22.1|  22.3|...\n"
+        "102|  11.0|  21.0|   4.1|     .|    .|  22.1|  22.3|I..\n"
         "END|103 |SAMPLES|EVENTS|RES|  22.10|  22.30\n"
         "START|200 |LEFT|RIGHT|SAMPLES|EVENTS\n"
         "SAMPLES|GAZE|LEFT|RIGHT|VEL|RATE|1000.00|TRACKING|CR|FILTER|2\n"
@@ -273,7 +273,7 @@ def test_eyelink_velocity_resolution_and_blocks_that_differ(tmp_path: Path) -> N
     ms = 1_000_000
     assert xyv(log) == [
         (100 * ms, 10.0, 20.0, True),
-        (102 * ms, 11.0, 21.0, True),  # a missing velocity is not a missing position
+        (102 * ms, 11.0, 21.0, True),  # interpolated ('I..'), no velocity: still placed
         (103 * ms, None, None, False),
         (200 * ms, 40.0, 50.0, True),  # the mean of (30, 40) and (50, 60)
         (201 * ms, None, None, False),

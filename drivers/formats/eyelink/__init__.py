@@ -29,12 +29,12 @@ what EyeLink's own messages say.
   <xpl> <ypl> <psl> <xpr> <ypr> <psr> ...`; what may follow is not read: velocity (`VEL`, `edf2asc
   -vel`), resolution (`RES`, `-res`), the `INPUT` port, the corneal-reflection flags (`...` or
   `.....`: interpolated, CR missing, CR recovery; a flagged sample keeps its position), and the
-  remote mode's target x, y, distance and 13 status flags (`HTARGET`, §4.9.2; EDF2ASC declares
-  it in binocular files without writing the columns). Each `START` clears the specification, so
-  blocks may differ in eyes and rate; the header has the eyes seen, `rate_hz` (the first block's)
-  and `rates_hz` when blocks differ. A sample-only file (`edf2asc -s`, §4.9.1) has no
-  specification: 3 values are one eye, 6 both, GAZE as EDF2ASC's default. A missing value is
-  `.` (or the string given to `edf2asc -miss`, our `missing`).
+  remote mode's target x, y, distance and 13 status flags (`HTARGET`, §4.9.2; the binocular
+  remote files from SR Research that cili ships declare it without the columns). Each `START`
+  clears the specification, so blocks may differ in eyes and rate; the header has the eyes seen,
+  `rate_hz` (the first block's) and `rates_hz` when blocks differ. A sample-only file (`edf2asc
+  -s`, §4.9.1) has no specification: 3 values are one eye, 6 both, GAZE as EDF2ASC's default. A
+  missing value is `.` (or the string given to `edf2asc -miss`, our `missing`).
 - Times are milliseconds on the tracker clock, with a fraction under `-ftime`: kept exactly, as
   integer ns. Without `-ftime` a 2000 Hz file has two rows per time stamp, "the second row
   refers to the sample collected at 0.5 ms after the reported time stamp" (§4.9.2): it gets that
