@@ -416,7 +416,7 @@ class AscParser:
             raise self.refusal or self.error(
                 None,
                 "samples",
-                "no sample lines: the file holds events only (edf2asc -e?); "
+                "no sample lines: events only (edf2asc -e?), or not an ASC file; "
                 "convert the EDF with samples",
             )
         box = self.coords.get("GAZE_COORDS") or self.coords.get("DISPLAY_COORDS")
