@@ -201,15 +201,23 @@ def test_eyelink_gaze_coords_offset_and_prescaler(tmp_path: Path) -> None:
 def test_eyelink_malformed_lines_name_line_and_field(
     tmp_path: Path, line: int, text: str, field: str | None, reason: str | None
 ) -> None:
+    """`strict=True` refuses the file at the line; by default the line becomes a note that says
+    the same, and the rest of the file is read (the second block's samples, at least)."""
     path = corrupt(tmp_path, "eyelink_mono.asc", line, text)
     if reason is None:  # a line starting with a digit but not a number is a sample: error
         with pytest.raises(FormatError) as info:
-            read_eyelink_asc(path)
+            read_eyelink_asc(path, strict=True)
         assert_names(info.value, path, line, "time")
-        return
-    with pytest.raises(FormatError, match=reason) as info:
-        read_eyelink_asc(path)
-    assert_names(info.value, path, line, field)
+    else:
+        with pytest.raises(FormatError, match=reason) as info:
+            read_eyelink_asc(path, strict=True)
+        assert_names(info.value, path, line, field)
+    err = info.value
+    log = read_eyelink_asc(path)
+    unread = [n.text for n in log.notes if " not read: " in n.text]
+    assert unread == [f"line {line} not read: field '{err.field}': {err.reason}: {text}"]
+    assert log.header.tracker["unread_lines"] >= 1
+    assert log.samples[-1].t_ns == 2154703 * 1_000_000  # the second block's END
 
 
 def test_eyelink_sample_before_samples_line_and_no_screen(tmp_path: Path) -> None:
@@ -224,6 +232,129 @@ def test_eyelink_sample_before_samples_line_and_no_screen(tmp_path: Path) -> Non
     assert_names(info.value, path, None, "DISPLAY_COORDS")
     log = read_eyelink_asc(path, geometry=ScreenGeometry(0.5, 800, 600, 0.7))
     assert log.header.screen == ScreenGeometry(0.5, 800, 600, 0.7)
+
+
+def _asc(tmp_path: Path, body: str, name: str = "x.asc") -> Path:
+    path = tmp_path / name
+    path.write_text(body.replace("|", "\t"), encoding="utf-8")
+    return path
+
+
+def test_eyelink_velocity_resolution_and_blocks_that_differ(tmp_path: Path) -> None:
+    """Manual §4.9.2, §4.9.4: `-vel` and `-res` add columns after the pupil (not read; VPRESCALER
+    scales them), the CR flags come last; each START clears the data specification, so one
+    block may be monocular at 500 Hz and the next binocular at 1000 Hz, and the header says so."""
+    path = _asc(
+        tmp_path,
+        "MSG|100 DISPLAY_COORDS 0 0 799 599\n"
+        "START|100 |LEFT|SAMPLES|EVENTS\nPRESCALER|1\nVPRESCALER|10\nPUPIL|DIAMETER\n"
+        "SAMPLES|GAZE|LEFT|VEL|RES|RATE| 500.00|TRACKING|CR|FILTER|2\n"
+        "100|  10.0|  20.0|   4.1|  -512|   33|  22.1|  22.3|...\n"
+        "102|  11.0|  21.0|   4.1|     .|    .|  22.1|  22.3|I..\n"
+        "END|103 |SAMPLES|EVENTS|RES|  22.10|  22.30\n"
+        "START|200 |LEFT|RIGHT|SAMPLES|EVENTS\n"
+        "SAMPLES|GAZE|LEFT|RIGHT|VEL|RATE|1000.00|TRACKING|CR|FILTER|2\n"
+        "200|  30.0|  40.0|   4.0|  50.0|  60.0|   4.0|  1.0|  2.0|  3.0|  4.0|.....\n"
+        "END|201 |SAMPLES|EVENTS|RES|  22.10|  22.30\n",
+    )
+    log = read_eyelink_asc(path, strict=True)
+    ms = 1_000_000
+    assert xyv(log) == [
+        (100 * ms, 10.0, 20.0, True),
+        (102 * ms, 11.0, 21.0, True),  # interpolated ('I..'), no velocity: still placed
+        (103 * ms, None, None, False),
+        (200 * ms, 40.0, 50.0, True),  # the mean of (30, 40) and (50, 60)
+        (201 * ms, None, None, False),
+    ]
+    assert (log.samples[3].left, log.samples[3].right) == (EyeSample(30, 40), EyeSample(50, 60))
+    tracker = log.header.tracker
+    assert (tracker["eyes"], tracker["rate_hz"], tracker["rates_hz"]) == (
+        ["left", "right"], 500.0, [500.0, 1000.0],
+    )  # fmt: skip
+    assert (tracker["blocks"], tracker["pupil"]) == (2, "diameter")
+
+
+def test_eyelink_sample_only_files(tmp_path: Path) -> None:
+    """`edf2asc -s` (manual §4.9.1): sample lines only, no data specification; 3 values are
+    one eye, 6 both (GAZE, EDF2ASC's default); the screen must be given. Other counts cannot
+    be told apart (`-vel`, `-res`, `-input` add columns): refused, naming the first line."""
+    screen = ScreenGeometry(0.5, 1024, 768)
+    mono = _asc(tmp_path, "10|  1.0|  2.0|  3.0|...\n12|  .|  .|  0.0|...\n", "m.asc")
+    assert xyv(read_eyelink_asc(mono, geometry=screen)) == [
+        (10_000_000, 1.0, 2.0, True),
+        (12_000_000, None, None, False),
+    ]
+    bino = _asc(tmp_path, "10|  1.0|  2.0|  3.0|  5.0|  6.0|  3.0|.....\n", "b.asc")
+    log = read_eyelink_asc(bino, geometry=screen)
+    assert (log.samples[0].x, log.samples[0].y, log.header.tracker["eyes"]) == (
+        3.0, 4.0, ["left", "right"],
+    )  # fmt: skip
+    odd = _asc(tmp_path, "10|  1.0|  2.0|  3.0|  0.5|  0.6|...\n", "o.asc")
+    with pytest.raises(FormatError, match="cannot tell which eyes") as info:
+        read_eyelink_asc(odd, geometry=screen)
+    assert_names(info.value, odd, 1, "time")
+
+
+def test_eyelink_lines_not_understood_become_notes(tmp_path: Path) -> None:
+    """An unknown keyword, a line that continues no message, a BUTTON without its state, a
+    PRESCALER of 0, a screen no display has: each a note at the last time read (lines before
+    any time at the first), and the file is read; `strict=True` refuses at the first. BUTTON
+    and INPUT lines are read for their time (manual §4.9.3); a `=` may follow DISPLAY_COORDS."""
+    path = _asc(
+        tmp_path,
+        "FOO|bar\n"
+        "MSG|50 DISPLAY_COORDS = 0 0 1919 1079\n"
+        "MSG|60 GAZE_COORDS 0 0 99999 99999\n"
+        "START|100 |LEFT|SAMPLES|EVENTS\nPRESCALER|0\n"
+        "SAMPLES|GAZE|LEFT|RATE|1000.00|TRACKING|CR|FILTER|2\n"
+        "100|  10.0|  20.0|   4.1|...\n"
+        "BUTTON|101|1\nINPUT|102|255\n  -0.5  0.25\nMBLINK|103\n"
+        "104|  11.0|  21.0|   4.1|...\n"
+        "END|105 |SAMPLES|EVENTS|RES|  22.10|  22.30\n",
+    )
+    log = read_eyelink_asc(path)
+    assert xyv(log)[:2] == [(100_000_000, 10.0, 20.0, True), (104_000_000, 11.0, 21.0, True)]
+    ms = 1_000_000
+    unread = [(n.t_ns, n.text) for n in log.notes if " not read: " in n.text]
+    assert unread == [
+        (50 * ms, "line 1 not read: unknown keyword 'FOO': FOO\tbar"),
+        (60 * ms, "line 3 not read: field 'GAZE_COORDS': larger than any screen: "
+                  "'GAZE_COORDS 0 0 99999 99999': MSG\t60 GAZE_COORDS 0 0 99999 99999"),
+        (100 * ms, "line 5 not read: field 'prescaler': PRESCALER needs a positive number: "
+                   "PRESCALER\t0"),
+        (100 * ms, "line 8 not read: BUTTON has 4 fields, this line 3: BUTTON\t101\t1"),
+        (102 * ms, "line 10 not read: neither a sample, a keyword nor a message's line: "
+                   "-0.5  0.25"),
+        (102 * ms, "line 11 not read: unknown keyword 'MBLINK': MBLINK\t103"),
+    ]  # fmt: skip
+    assert log.header.tracker["unread_lines"] == 6
+    assert log.header.screen.screen_width_px == 1920  # DISPLAY_COORDS, GAZE_COORDS unread
+    with pytest.raises(FormatError, match="unknown keyword 'FOO'") as info:
+        read_eyelink_asc(path, strict=True)
+    assert_names(info.value, path, 1, None)
+
+
+def test_eyelink_files_with_no_sample_to_place_are_refused(tmp_path: Path) -> None:
+    """Refused only when no sample can be placed: every block HREF (the SAMPLES line's reason),
+    or events only (`edf2asc -e`); a HREF block beside a GAZE one loses only its own samples."""
+    head = "MSG|1 DISPLAY_COORDS 0 0 1023 767\nSTART|2 |LEFT|SAMPLES|EVENTS\n"
+    href = (
+        "SAMPLES|HREF|LEFT|RATE|1000.00\n2|  -512|  1024|  900.0|...\n3|  -510|  1020|  900.0|...\n"
+    )
+    path = _asc(tmp_path, head + href)
+    with pytest.raises(FormatError, match="edf2asc -sg") as info:
+        read_eyelink_asc(path)
+    assert_names(info.value, path, 3, "data type")
+    gaze = (
+        "START|10 |LEFT|SAMPLES|EVENTS\nSAMPLES|GAZE|LEFT|RATE|1000.00\n10|  1.0|  2.0|  3.0|...\n"
+    )
+    log = read_eyelink_asc(_asc(tmp_path, head + href + gaze, "mixed.asc"))
+    assert [s.t_ns for s in log.samples] == [10_000_000]
+    assert log.header.tracker["unread_lines"] == 3  # the SAMPLES line and its two samples
+    events = _asc(tmp_path, head + "EVENTS|GAZE|LEFT|RATE|1000.00\nSFIX L   2\n", "e.asc")
+    with pytest.raises(FormatError, match="edf2asc -e") as info:
+        read_eyelink_asc(events)
+    assert_names(info.value, events, None, "samples")
 
 
 # --- Pupil Player -----------------------------------------------------------------------------
@@ -407,6 +538,21 @@ def test_detect_format(tmp_path: Path) -> None:
         detect_format(other)
     with pytest.raises(ValueError, match="unknown format"):
         import_recording(DATA / "eyelink_mono.asc", "edf")
+
+
+def test_import_command_line_says_what_was_not_read_and_strict_refuses(
+    tmp_path: Path, capsys
+) -> None:
+    path = corrupt(tmp_path, "eyelink_mono.asc", 25, "2154558\t  640.6\t  abc\t 1012.0\t...")
+    out = tmp_path / "s01.jsonl"
+    assert import_main([str(path), "--out", str(out)]) == 0
+    assert "8 notes (1 line not read: see the notes 'line N not read')" in capsys.readouterr().out
+    note = read_session_log(out).notes[5]  # at the time of the line, 2154558 ms
+    assert note.t_ns == 2154558 * 1_000_000
+    assert note.text.startswith("line 25 not read: field 'yp': expected a number or '.'")
+    with pytest.raises(FormatError, match="field 'yp'"):
+        import_main([str(path), "--out", str(tmp_path / "strict.jsonl"), "--strict"])
+    assert not (tmp_path / "strict.jsonl").exists()
 
 
 def test_import_and_export_command_lines(tmp_path: Path, capsys) -> None:

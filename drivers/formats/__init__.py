@@ -66,7 +66,8 @@ def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> Ses
     `options` go to the importer: `geometry` (a `ScreenGeometry` for what the file does not
     record) for all; `select` (bids: {"sub": .., "ses": .., "task": .., "acq": .., "run": ..},
     which run of a dataset); `min_confidence` (pupil); `units` (tobii, psychopy_tobii_controller
-    files); `missing` (eyelink, the `edf2asc -miss` string).
+    files); `missing` and `strict` (eyelink: the `edf2asc -miss` string; refuse a file at its
+    first line not understood).
     """
     if fmt == "auto":
         fmt = detect_format(path)
@@ -115,6 +116,12 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         help="PsychoPy window units of a psychopy_tobii_controller file (the file does not say)",
     )
     p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse an EyeLink file at its first line not understood (by default such a line "
+        "becomes a note saying why, and the rest is read)",
+    )
+    p.add_argument(
         "--min-confidence",
         type=float,
         default=0.6,
@@ -147,14 +154,22 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         options["min_confidence"] = args.min_confidence
     if fmt == "tobii":
         options["units"] = args.units
+    if fmt == "eyelink":
+        options["strict"] = args.strict
     log = import_recording(args.file, fmt, **options)
     out = write_session_log(args.out, log, overwrite=args.overwrite)
     invalid = sum(not s.valid for s in log.samples)
     screen = log.header.screen
+    unread = log.header.tracker.get("unread_lines")
     print(
         f"{args.file} ({fmt}): {len(log.samples)} samples ({invalid} invalid), "
-        f"{len(log.events)} events, {len(log.notes)} notes, screen "
-        f"{screen.screen_width_px}x{screen.screen_height_px} -> {out}"
+        f"{len(log.events)} events, {len(log.notes)} notes"
+        + (
+            f" ({unread} line{'s' * (unread > 1)} not read: see the notes 'line N not read')"
+            if unread
+            else ""
+        )
+        + f", screen {screen.screen_width_px}x{screen.screen_height_px} -> {out}"
     )
     return 0
 

@@ -1,5 +1,5 @@
-"""What the importers share: exact decimal times, finite floats, the mean of two eyes, and a
-screen geometry with what a file records put in."""
+"""What the importers share: exact decimal times, finite floats, telling numbers from labels, the
+mean of two eyes, and a screen geometry with what a file records put in."""
 
 from __future__ import annotations
 
@@ -32,6 +32,15 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise ValueError(f"not a finite number: {text!r}")
     return value
+
+
+def is_number(text: str) -> bool:
+    """Whether `text` reads as a float (inf and nan included): what tells data from labels."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def mean_of_eyes(*eyes: EyeSample | None) -> tuple[float, float] | None:

@@ -43,7 +43,7 @@ import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gazehdr.drivers.formats.common import decimal_ns, geometry_with, mean_of_eyes
+from gazehdr.drivers.formats.common import decimal_ns, geometry_with, is_number, mean_of_eyes
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import ClockInfo, FormatError, Note, SessionHeader, SessionLog
 
@@ -126,7 +126,7 @@ def read_tobii_tsv(
             if text == "Session End":
                 in_rows = in_events = False
                 continue
-            if not (in_rows and (in_events or len(fields) >= 3 or _numeric(fields[0]))):
+            if not (in_rows and (in_events or len(fields) >= 3 or is_number(fields[0]))):
                 for key, pattern in _META.items():  # a header or PyGaze report line
                     match = pattern.fullmatch(text)
                     if match:
@@ -197,14 +197,6 @@ def _header(path: Path, line: int, fields: list[str]) -> tuple[tuple[str, ...], 
         f"unrecognised columns {' '.join(cols)}; expected PyGaze's {' '.join(PYGAZE_COLUMNS)} "
         f"or psychopy_tobii_controller's {' '.join(PTC_COLUMNS)} [Event]",
     )
-
-
-def _numeric(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _time(path: Path, line: int, text: str) -> int:

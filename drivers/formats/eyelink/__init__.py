@@ -1,0 +1,93 @@
+"""EyeLink ASC files (SR Research's EDF2ASC output) → a session log.
+
+Written from the EyeLink 1000 Plus User Manual (SR Research, 2013-2017, v1.0.12), §4.9 "The ASC
+File Format" (§4.9.1 file structure, §4.9.2 sample lines with the corneal-reflection and remote
+fields, §4.9.3 event lines, §4.9.4 data-specification lines) and §4.10 "Processing ASC Files";
+the column layouts checked against the `eyelinker` R package (a-hurst/eyelinker,
+`R/eyelink_parser.R`), and the whole against real EDF2ASC output: SR Research's test files that
+cili ships, an EyeLink 1000 Plus recording from syelink, a Portable Duo recording from
+pymovements (tests/data/formats/eyelink_real/README.md). `parser` reads the lines, `messages`
+what EyeLink's own messages say.
+
+- Lines (§4.9, §4.10): blank and comment lines (first non-blank character `#`, `/` or `;`) are
+  skipped; the `**` preamble gives the header's `tracker` (`DATE`, `VERSION`, `SERIAL NUMBER`,
+  `SOURCE`, `CAMERA`, and the `EYELINK ...` model line). A line whose first character is a
+  digit is a sample (EDF2ASC writes the time flush left); one that begins with a letter, with a
+  keyword. Any other line continues the message before it: EDF2ASC writes a message's text as
+  it is, and the calibration report (`!CAL`) holds lines such as `>>>>>>> CALIBRATION ... <<<`
+  and indented rows of numbers (`\t  -66     6   -53     5`), which §4.10's first-token rule
+  would take for samples.
+- Lines not understood (an unknown keyword, a field that is not a number, a time going back, an
+  event without its eye, ...) become notes, `line N not read: <why>: <line>`, at the last time
+  read, and the header counts them (`unread_lines`); `strict=True` refuses the file at the first
+  instead. A file is refused only when no sample could be placed (`FormatError` naming the line
+  and the reason of the first that could not), or when the screen size is known neither from
+  the file nor from `geometry`.
+- `SAMPLES <type> <eyes> <options>` (§4.9.4) says what the sample lines of its block hold;
+  `<type>` must be GAZE (screen pixels; HREF or PUPIL samples cannot be placed: convert with
+  `edf2asc -sg`). A monocular sample is `<time> <xp> <yp> <ps> ...`, a binocular one `<time>
+  <xpl> <ypl> <psl> <xpr> <ypr> <psr> ...`; what may follow is not read: velocity (`VEL`, `edf2asc
+  -vel`), resolution (`RES`, `-res`), the `INPUT` port, the corneal-reflection flags (`...` or
+  `.....`: interpolated, CR missing, CR recovery; a flagged sample keeps its position), and the
+  remote mode's target x, y, distance and 13 status flags (`HTARGET`, §4.9.2; the binocular
+  remote files from SR Research that cili ships declare it without the columns). Each `START`
+  clears the specification, so blocks may differ in eyes and rate; the header has the eyes seen,
+  `rate_hz` (the first block's) and `rates_hz` when blocks differ. A sample-only file (`edf2asc
+  -s`, §4.9.1) has no specification: 3 values are one eye, 6 both, GAZE as EDF2ASC's default. A
+  missing value is `.` (or the string given to `edf2asc -miss`, our `missing`).
+- Times are milliseconds on the tracker clock, with a fraction under `-ftime`: kept exactly, as
+  integer ns. Without `-ftime` a 2000 Hz file has two rows per time stamp, "the second row
+  refers to the sample collected at 0.5 ms after the reported time stamp" (§4.9.2): it gets that
+  time. Positions are divided by `PRESCALER` (1 for EDF2ASC; `VPRESCALER` scales the velocity,
+  not read) and shifted so that the screen's top-left is 0, 0.
+- Validity: a monocular sample is valid when x and y are present; a binocular one when either eye
+  is, its position the mean of the eyes that are (both kept per eye; a lost eye is NaN). Pupil
+  size is in the tracker's arbitrary units (`PUPIL AREA` or `DIAMETER`, kept as the header's
+  `pupil`), not millimetres, so it is not kept.
+- `SFIX <eye> <time>` / `EFIX <eye> <stime> <etime> <dur> <axp> <ayp> <aps>` become
+  `fixation_start` / `fixation_end` (mean position, duration from `<dur>`); with `EVENTS HREF`
+  the gaze averages follow three HREF columns. `SBLINK`/`EBLINK` become `blink_start` /
+  `blink_end`. Events keep their eye; a fixation's or blink's start and end share an id. An end
+  whose start is missing (`edf2asc -nse`) gets a start at its `<stime>`. `SSACC`/`ESACC` are
+  skipped: saccades are the gaps between fixations here.
+- `MSG <time> <message>` becomes a note, with the lines that continue it. A message that begins
+  with an integer carries a time offset (SR Research FAQ "How can I take advantage of the timing
+  offset in sending messages?"): the event happened at `<time> − offset`, and the note holds the
+  rest. `INPUT <time> <port>` and `BUTTON <time> <button> <state>` are read for their time but
+  not kept: a session log has no record for port states. From the messages (`messages`): the screen
+  from `GAZE_COORDS <left> <top> <right> <bottom>` (the space gaze positions are in; width =
+  right − left + 1), else `DISPLAY_COORDS` (the file records no physical size or distance:
+  `geometry` gives them); the header's `tracking` (CR or P) from `RECCFG` / `!MODE RECORD`,
+  `mount` from `ELCLCFG`, and `validations` from `!CAL VALIDATION` (eye, verdict, average and
+  largest error in degrees).
+- `START`/`END` delimit recording blocks; at each `END` an invalid sample is added, so a replay
+  does not hold a stale gaze through the unrecorded gap before the next block.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from gazehdr.drivers.formats.eyelink.parser import AscParser
+from gazehdr.drivers.samples import ScreenGeometry
+from gazehdr.drivers.sessionlog import SessionLog
+
+
+def read_eyelink_asc(
+    path: Path,
+    *,
+    geometry: ScreenGeometry | None = None,
+    missing: str = ".",
+    strict: bool = False,
+) -> SessionLog:
+    """Read an EyeLink ASC file; `geometry` supplies what the file lacks (diagonal, distance),
+    `missing` is `edf2asc -miss`'s string, `strict` refuses a file at its first line not
+    understood (by default such lines become notes)."""
+    parser = AscParser(Path(path), missing, strict)
+    with open(path, encoding="utf-8-sig", errors="replace") as f:  # an editor's BOM dropped
+        for number, line in enumerate(f, 1):
+            parser.line(number, line)
+    return parser.finish(geometry)
+
+
+__all__ = ["read_eyelink_asc"]
