@@ -265,6 +265,15 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         help="record each session (gaze followed, scene, parameter and model changes) as a "
         "session log in DATA_DIR/recordings, replayable in the viewer and by 'gazehdr render'",
     )
+    p.add_argument(
+        "--lsl-outlet",
+        nargs="?",
+        const="gazehdr",
+        metavar="NAME",
+        help="publish the gaze each session follows on Lab Streaming Layer, for LabRecorder: a "
+        "Gaze stream NAME (default: gazehdr) and a Markers stream 'NAME events' (fixations, "
+        "blinks, scene and parameter changes) per session (needs gazehdr[lsl])",
+    )
 
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
@@ -291,6 +300,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         split=args.split,
         seed=args.seed,
         record=args.record,
+        lsl_outlet=args.lsl_outlet,
     )
 
 

@@ -113,3 +113,17 @@ class GazeOutlets:
 def default_source_id(application: str, name: str) -> str:
     """A source_id that stays the same when the same thing is published again on this host."""
     return f"gazehdr:{application}:{name}@{socket.gethostname()}"
+
+
+def session_outlets(name: str, session_id: str, geometry: ScreenGeometry) -> GazeOutlets:
+    """The outlets of one `gazehdr serve --lsl-outlet NAME` session: the gaze it follows (its
+    journal, at the time each step publishes it), one source_id per session."""
+    return GazeOutlets(
+        name,
+        source_id=default_source_id("serve", f"{name}:{session_id}"),
+        geometry=geometry,
+        model=f"session {session_id}",
+        application="gazehdr serve",
+        monotonic=False,
+        extra={"session": session_id},
+    )
