@@ -81,13 +81,13 @@ def stream_predicate(query: str) -> str:
     """The liblsl predicate (XPath 1.0 over `<info>`) for an `lsl:QUERY` spec.
 
     Empty: a stream of a gaze type (`GAZE_TYPES`). `PROPERTY=VALUE` (`QUERY_PROPERTIES`): that
-    property. Anything with a quote: the predicate as written (`name='Tobii' and
+    property. A comparison with a quoted value: the predicate as written (`name='Tobii' and
     hostname='lab3'`). Anything else: the stream's name.
     """
     text = query.strip()
     if not text:
         return DEFAULT_PREDICATE
-    if "'" in text or '"' in text:
+    if re.search(r"""[=<>]\s*['"]""", text):
         return text
     prop, sep, value = text.partition("=")
     if sep and prop.strip() in QUERY_PROPERTIES:
@@ -195,13 +195,22 @@ class StreamDescription:
         """How messages name the stream: name, type, channels, host."""
         host = f" on {self.hostname}" if self.hostname else ""
         kind = f"{self.type}, " if self.type else ""
-        return f"'{self.name}' ({kind}{self.channel_count} {self.channel_format} channels{host})"
+        plural = "s" if self.channel_count != 1 else ""
+        count = f"{self.channel_count} {self.channel_format} channel{plural}"
+        return f"'{self.name}' ({kind}{count}{host})"
 
     def pinned_predicate(self) -> str:
         """The predicate that finds this very stream again: its source_id, else name and host."""
         if self.source_id:
             return f"source_id={xpath_literal(self.source_id)}"
         return f"name={xpath_literal(self.name)} and hostname={xpath_literal(self.hostname)}"
+
+    def desc_text(self, *path: str) -> str:
+        """The text at `path` under `<desc>` (the first element of each name), or ""."""
+        node = self.desc
+        for key in path[:-1]:
+            node = _first(node, key)
+        return _text(node, path[-1]) if path else ""
 
     def acquisition(self) -> dict[str, str]:
         """The `<acquisition>` fields (manufacturer, model, ...) where the stream gives them."""
