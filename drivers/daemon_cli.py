@@ -257,7 +257,7 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
         return 130
     finally:
         if outlet is not None:
-            outlet.close()
+            outlet.close(wait=True)
         for logger, (level, propagate) in zip(loggers, before, strict=True):
             logger.removeHandler(handler)
             logger.setLevel(level)

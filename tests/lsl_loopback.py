@@ -12,6 +12,7 @@ The layouts are those the apps publish (read in their sources: labstreaminglayer
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -93,19 +94,43 @@ def until(predicate: Callable[[], Any], timeout: float = 10.0, what: str = "cond
 
 def inlet_for(predicate: str, timeout: float = 10.0) -> pylsl.StreamInlet:
     """An open inlet on the one stream `predicate` finds (as LabRecorder would record it)."""
-    (found,) = until(lambda: pylsl.resolve_bypred(predicate, 1, 0.5), timeout, predicate)
+    # 1.5 s: on this machine a second stream answers the unicast wave, sent after 0.5 s
+    (found,) = until(lambda: pylsl.resolve_bypred(predicate, 1, 1.5), timeout, predicate)
     inlet = pylsl.StreamInlet(found, max_buflen=360, recover=False)
     inlet.open_stream(timeout)
     return inlet
 
 
-def pull_all(inlet: pylsl.StreamInlet, quiet_s: float = 0.5) -> tuple[list[Any], list[float]]:
-    """Everything the inlet receives until it has been quiet for `quiet_s`."""
-    rows: list[Any] = []
-    stamps: list[float] = []
-    while True:
-        chunk, times = inlet.pull_chunk(timeout=quiet_s, max_samples=4096)
-        if not times:
-            return rows, stamps
-        rows += chunk
-        stamps += times
+
+
+class Recorder:
+    """Records one stream as LabRecorder does, in a thread: its full header XML, every sample
+    with its time stamp, and clock offsets (`time_correction`) with the times they were taken,
+    until the stream is lost or `stop()` is called."""
+
+    def __init__(self, predicate: str) -> None:
+        self.inlet = inlet_for(predicate)
+        self.header = self.inlet.info(5.0).as_xml()
+        self.rows: list[Any] = []
+        self.stamps: list[float] = []
+        self.offsets: list[tuple[float, float]] = []
+        self.lost = False
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                chunk, times = self.inlet.pull_chunk(timeout=0.05, max_samples=1024)
+                self.rows += chunk
+                self.stamps += times
+                if len(self.offsets) < len(self.stamps) // 100 + 1:
+                    self.offsets.append((pylsl.local_clock(), self.inlet.time_correction(2.0)))
+        except pylsl.util.LostError:
+            self.lost = True
+
+    def stop(self) -> Recorder:
+        self._stop.set()
+        self._thread.join(5.0)
+        return self

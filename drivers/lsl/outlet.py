@@ -19,6 +19,7 @@ at the moment they are published.
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict
@@ -30,6 +31,7 @@ from gazehdr.drivers.lsl.meta import OUTLET_CHANNELS, marker_text, outlet_values
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 
 MARKERS_SUFFIX = " events"
+LINGER_S = 0.5  # how long closed outlets stay, so that inlets get what was pushed last
 
 
 class GazeOutlets:
@@ -105,9 +107,16 @@ class GazeOutlets:
         for record in records:
             self.push(record)
 
-    def close(self) -> None:
-        """Withdraw both streams (inlets see them lost; LabRecorder stops recording them)."""
-        self.gaze = self.markers = None
+    def close(self, *, wait: bool = False) -> None:
+        """Withdraw both streams (inlets see them lost; LabRecorder stops recording them),
+        `LINGER_S` from now: liblsl has no flush, and destroying an outlet at once can lose
+        what was pushed last. `wait`: wait for that here (a process about to exit), else in
+        a timer thread (a server's session ending on its event loop)."""
+        outlets, self.gaze, self.markers = (self.gaze, self.markers), None, None
+        if wait:
+            time.sleep(LINGER_S)
+            return
+        threading.Timer(LINGER_S, outlets.__len__).start()  # holds them until it fires
 
 
 def default_source_id(application: str, name: str) -> str:

@@ -211,9 +211,11 @@ class LslGazeSource:
         """Samples, and notes of what happened to the stream (connected, lost, clock)."""
         next_correction = 0.0
         while not self._closed:
-            if self.inlet is None and not self._reconnect():
-                break
-            yield from self._take_notes()
+            yield from self._take_notes()  # before waiting for a lost stream: the loss
+            if self.inlet is None:
+                if not self._reconnect():
+                    break
+                continue
             try:
                 chunk, stamps = self.inlet.pull_chunk(
                     timeout=self.pull_timeout_s, max_samples=1024, min_samples=1
