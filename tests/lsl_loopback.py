@@ -101,8 +101,6 @@ def inlet_for(predicate: str, timeout: float = 10.0) -> pylsl.StreamInlet:
     return inlet
 
 
-
-
 class Recorder:
     """Records one stream as LabRecorder does, in a thread: its full header XML, every sample
     with its time stamp, and clock offsets (`time_correction`) with the times they were taken,
