@@ -372,6 +372,8 @@ class ChannelLayout:
             }
         if self.confidence is not None:
             out["confidence"] = labels[self.confidence]
+        if self.ignored:
+            out["ignored"] = list(self.ignored)
         return out
 
 
