@@ -203,3 +203,25 @@ def test_sessions_that_do_not_publish_keep_no_journal(live_server) -> None:
             assert not live.session.recording and live.outlet is None
 
     asyncio.run(check())
+
+
+def test_the_outlet_flags_say_what_is_missing(tmp_path, monkeypatch, capsys) -> None:
+    from gazehdr.drivers.daemon_cli import daemon_main
+    from gazehdr.serve import build_config
+
+    options = dict(
+        host="127.0.0.1", port=0, scene="flash", scale=None, gaze="mouse", fps=30.0,
+        size=(96, 54), fit_viewport=False, params_file=None, token="t", data_dir=tmp_path,
+        allow_origins=(), encoding="rgb10a2", backend="reference", seed=0,
+    )  # fmt: skip
+    assert build_config(**options, lsl_outlet="gz").lsl_outlet == "gz"
+    with pytest.raises(ValueError, match="--lsl-outlet needs a stream name"):
+        build_config(**options, lsl_outlet=" ")
+    monkeypatch.setitem(sys.modules, "pylsl", None)
+    with pytest.raises(ValueError, match=r"LSL outlet unavailable: .*install gazehdr\[lsl\]"):
+        build_config(**options, lsl_outlet="gz")
+    argv = ["--source", "synthetic", "--server", "ws://127.0.0.1:9", "--token", "t"]
+    assert daemon_main([*argv, "--lsl-outlet"]) == 2
+    assert "LSL outlet unavailable: Lab Streaming Layer needs pylsl: install gazehdr[lsl]" in (
+        capsys.readouterr().err
+    )
