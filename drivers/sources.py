@@ -24,15 +24,17 @@ imports `server` or pyopencl.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.synthetic import SyntheticScanPath
 
+T = TypeVar("T")
 Clock = Callable[[], int]  # monotonic nanoseconds
 Sleep = Callable[[float], None]  # seconds
 
@@ -118,6 +120,43 @@ class Pacer:
         delay_ns = due - self.clock()
         if delay_ns > 0:
             self.sleep(delay_ns / 1e9)
+
+
+@dataclass(frozen=True)
+class Backoff:
+    """How a live source waits for its device or stream: `initial_s`, doubling up to `max_s`
+    between attempts; after `give_up_after_s` (None: never) it gives up."""
+
+    initial_s: float = 0.25
+    max_s: float = 8.0
+    give_up_after_s: float | None = None
+
+    def retry(
+        self,
+        attempt: Callable[[], T],
+        *,
+        what: str,
+        missing: str,
+        closed: Callable[[], bool],
+        clock: Callable[[], float],
+        sleep: Callable[[float], None],
+        log: logging.Logger,
+    ) -> T | None:
+        """`attempt()` until it returns, sleeping between the OSErrors it raises (an info
+        message each: "`what` not available"); None once `closed()`; OSError ("`missing` for
+        N s") after `give_up_after_s`."""
+        delay, start = self.initial_s, clock()
+        while not closed():
+            try:
+                return attempt()
+            except OSError as e:
+                waited = clock() - start
+                if self.give_up_after_s is not None and waited >= self.give_up_after_s:
+                    raise OSError(f"{missing} for {waited:.1f} s: {e}") from e
+                log.info("%s not available (%s); retrying in %.2f s", what, e, delay)
+                sleep(delay)
+                delay = min(delay * 2.0, self.max_s)
+        return None
 
 
 class IterableSource:

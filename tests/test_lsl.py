@@ -54,26 +54,26 @@ def test_the_daemon_follows_an_lsl_tracker_and_publishes_what_it_records(
     command = [str(gazehdr), "daemon", "--source", "lsl:LoopTobii", "--server", server.ws_url]
     command += ["--token", "t", "--record", str(record), "--lsl-outlet", "gz-daemon-test"]
     command += ["--screen", "1000x500"]
-    proc = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
-    try:
-        gaze = Recorder("name='gz-daemon-test'")  # as LabRecorder records it
-        events = Recorder("name='gz-daemon-test events'")
-        until(lambda: server.hub.trackers.feeds(), what="the daemon's hello")
-        rows = _scripted_tobii()
-        t0 = pylsl.local_clock()
-        stamps = [t0 + i / 250 for i in range(len(rows))]
-        for row, stamp in zip(rows, stamps, strict=True):
-            tracker.push_sample(row, stamp)
-            time.sleep(max(0.0, stamp - pylsl.local_clock()))
-        until(lambda: sole_tracker(server).samples == len(rows), what="every sample delivered")
-        reading = sole_tracker(server).reading
-        assert (reading.x, reading.y) == (pytest.approx(0.75, abs=0.01), pytest.approx(0.7))
-        until(lambda: len(gaze.rows) == len(rows), what="every sample published")
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=15)
-    finally:
-        if proc.poll() is None:
+    with subprocess.Popen(command, stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            gaze = Recorder("name='gz-daemon-test'")  # as LabRecorder records it
+            events = Recorder("name='gz-daemon-test events'")
+            until(lambda: server.hub.trackers.feeds(), what="the daemon's hello")
+            rows = _scripted_tobii()
+            t0 = pylsl.local_clock()
+            stamps = [t0 + i / 250 for i in range(len(rows))]
+            for row, stamp in zip(rows, stamps, strict=True):
+                tracker.push_sample(row, stamp)
+                time.sleep(max(0.0, stamp - pylsl.local_clock()))
+            until(lambda: sole_tracker(server).samples == len(rows), what="every sample delivered")
+            reading = sole_tracker(server).reading
+            assert (reading.x, reading.y) == (pytest.approx(0.75, abs=0.01), pytest.approx(0.7))
+            until(lambda: len(gaze.rows) == len(rows), what="every sample published")
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=15)
+        except BaseException:
             proc.kill()
+            raise
     assert proc.returncode == 0, err
     log = read_session_log(record)
     assert log.header.tracker["stream"] == "LoopTobii" and log.header.screen.screen_width_px == 1000

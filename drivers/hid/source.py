@@ -43,7 +43,7 @@ from gazehdr.drivers.hid.tracker import (
 from gazehdr.drivers.hid.usages import SENSOR_TIMESTAMP, USAGE_PAGE
 from gazehdr.drivers.registry import SourceUnavailableError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
-from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.sources import Backoff, SourceInfo
 
 log = logging.getLogger(__name__)
 
@@ -272,20 +272,11 @@ class HidGazeSource:
 
     def _reconnect(self) -> HidTracker | None:
         """Open the tracker, waiting with back-off; None when the source was closed meanwhile."""
-        delay = self.backoff_initial_s
-        start = self._clock()
-        while True:
-            if self._closed:
-                return None
-            try:
-                return self.connect()
-            except OSError as e:
-                waited = self._clock() - start
-                if self.give_up_after_s is not None and waited >= self.give_up_after_s:
-                    raise OSError(f"no HID eye tracker for {waited:.1f} s: {e}") from e
-                log.info("HID tracker not available (%s); retrying in %.2f s", e, delay)
-                self._sleep(delay)
-                delay = min(delay * 2.0, self.backoff_max_s)
+        backoff = Backoff(self.backoff_initial_s, self.backoff_max_s, self.give_up_after_s)
+        return backoff.retry(
+            self.connect, what="HID tracker", missing="no HID eye tracker",
+            closed=lambda: self._closed, clock=self._clock, sleep=self._sleep, log=log,
+        )  # fmt: skip
 
     def _drop(self) -> None:
         if self.tracker is not None:

@@ -35,7 +35,7 @@ from gazehdr.drivers.lsl.meta import (
 from gazehdr.drivers.registry import SourceUnavailableError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sessionlog import Note
-from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.sources import Backoff, SourceInfo
 
 log = logging.getLogger(__name__)
 
@@ -140,8 +140,9 @@ class LslGazeSource:
             )
         return found[0]
 
-    def connect(self) -> None:
-        """Resolve, open an inlet and read its description and clock correction once."""
+    def connect(self) -> ChannelLayout:
+        """Resolve, open an inlet and read its description (its layout, returned) and clock
+        correction once."""
         found = self._resolve()
         inlet = self.lsl.StreamInlet(found, max_buflen=360, recover=False)
         try:
@@ -163,6 +164,7 @@ class LslGazeSource:
             f"LSL stream {stream.title()} connected; clock correction {offset * 1e3:+.3f} ms"
         )
         log.info("LSL stream %s connected", stream.title())
+        return layout
 
     def _note(self, text: str) -> None:
         self._notes.append(Note(self._clock_ns(), text))
@@ -175,19 +177,12 @@ class LslGazeSource:
 
     def _reconnect(self) -> bool:
         """Connect with back-off; False when the source was closed meanwhile."""
-        delay, start = self.backoff_initial_s, self._clock()
-        while not self._closed:
-            try:
-                self.connect()
-                return True
-            except OSError as e:
-                waited = self._clock() - start
-                if self.give_up_after_s is not None and waited >= self.give_up_after_s:
-                    raise OSError(f"no LSL stream for {waited:.1f} s: {e}") from e
-                log.info("LSL stream not available (%s); retrying in %.2f s", e, delay)
-                self._sleep(delay)
-                delay = min(delay * 2.0, self.backoff_max_s)
-        return False
+        backoff = Backoff(self.backoff_initial_s, self.backoff_max_s, self.give_up_after_s)
+        layout = backoff.retry(
+            self.connect, what="LSL stream", missing="no LSL stream",
+            closed=lambda: self._closed, clock=self._clock, sleep=self._sleep, log=log,
+        )  # fmt: skip
+        return layout is not None
 
     def _drop(self, why: str) -> None:
         self.reconnects += 1
