@@ -80,6 +80,7 @@ def test_the_daemon_follows_an_lsl_tracker_and_publishes_what_it_records(
     assert [s.valid for s in log.samples] == [True] * len(rows)
     assert log.samples[0].left.pupil_mm == 3.0 and log.samples[0].x == pytest.approx(250.0)
     assert any(n.text.startswith("LSL stream 'LoopTobii'") for n in log.notes)
+    assert list(open_source(f"replay:{record}@max")) == log.samples  # and it replays
     # the time stamps survive the trip: tracker stamp -> monotonic ns -> published LSL time
     # (give or take the clock correction: tens of µs on loopback, refreshed as it runs)
     published = gaze.stop().stamps

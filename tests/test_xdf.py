@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import random
 import struct
+import sys
 import time
 from pathlib import Path
 
@@ -122,6 +123,14 @@ def test_several_gaze_streams_import_the_one_named(recording, tmp_path) -> None:
     with pytest.raises(SystemExit):
         import_main([str(DATA / "minimal.xdf"), "--out", str(tmp_path / "x"), "--units", "pix",
                      "--stream", "x", "--format", "pupil"])  # fmt: skip
+
+
+def test_without_pyxdf_the_import_says_what_to_install(monkeypatch, capsys, tmp_path) -> None:
+    monkeypatch.setitem(sys.modules, "pyxdf", None)
+    with pytest.raises(SystemExit) as e:
+        import_main([str(DATA / "minimal.xdf"), "--out", str(tmp_path / "x.jsonl")])
+    assert e.value.code == 2
+    assert "reading XDF needs pyxdf: install gazehdr[xdf]" in capsys.readouterr().err
 
 
 def test_a_real_example_file_without_gaze_is_refused_naming_its_streams() -> None:

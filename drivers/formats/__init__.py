@@ -146,7 +146,10 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         p.error("--stream is for XDF files")
     if fmt == "tobii":
         options["units"] = args.units
-    log = import_recording(args.file, fmt, **options)
+    try:
+        log = import_recording(args.file, fmt, **options)
+    except ImportError as e:  # an optional reader's package (pyxdf) is not installed
+        p.error(str(e))
     out = write_session_log(args.out, log, overwrite=args.overwrite)
     invalid = sum(not s.valid for s in log.samples)
     screen = log.header.screen

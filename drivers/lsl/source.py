@@ -151,7 +151,7 @@ class LslGazeSource:
             layout = channel_layout(stream)
             inlet.open_stream(self.open_timeout_s)
             offset = inlet.time_correction(self.open_timeout_s)
-        except self.lsl.util.TimeoutError as e:
+        except (self.lsl.util.TimeoutError, self.lsl.util.LostError) as e:
             inlet.close_stream()
             raise OSError(f"LSL stream '{found.name()}' did not answer: {e}") from None
         except BaseException:
