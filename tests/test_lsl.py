@@ -141,6 +141,20 @@ def test_a_stream_that_goes_and_comes_back_is_read_again_and_nothing_received_is
     assert source.reconnects == 1
 
 
+def test_a_daemon_started_before_its_stream_waits_for_it() -> None:
+    opened: list = []
+    waiter = threading.Thread(
+        target=lambda: opened.append(open_source("lsl:Late", wait=True, **FAST))
+    )
+    waiter.start()
+    time.sleep(1.0)
+    assert waiter.is_alive() and not opened  # still waiting, with back-off
+    late = pylsl.StreamOutlet(stream_info("Late", "Gaze", XY, source_id="late"))
+    waiter.join(10)
+    (source,) = opened
+    assert source.info.name == "lsl Late" and source.info.tracker["source_id"] == "late" and late
+
+
 def test_what_cannot_be_followed_is_refused_clearly(monkeypatch: pytest.MonkeyPatch) -> None:
     twins = [
         pylsl.StreamOutlet(stream_info("Twin", "Gaze", XY, source_id=f"twin-{c}")) for c in "ab"
