@@ -9,7 +9,9 @@ resending, the clock offset); this module is the I/O around it, on one asyncio l
   to the loop, which feeds it to the core. A source that is not live (a replay) is made to wait
   while the core's send buffer is full, so it loses nothing;
 - what the core gives for the session log is written there (`record=`, or a new timestamped
-  file in `record_dir=`), and its warnings are logged;
+  file in `record_dir=`), and published where an `outlet=` is given (`gazehdr.drivers.lsl.
+  outlet.GazeOutlets`: samples on an LSL gaze stream, events and notes on a marker stream);
+  its warnings are logged;
 - a connection opens with the bearer token and the core's hello; then the loop runs sending
   rounds, sending what the core returns and then its echo, every `flush_interval` or sooner
   when the core says a round is due; a reader task feeds the server's replies to the core with
@@ -99,8 +101,10 @@ class Daemon:
     """One source, one server. `await run()`; `stop()` (on the loop) ends it cleanly.
 
     `name` is the tracker's name in the hello (default: the source's); give each station its
-    own. `options` are the delivery core's (`Delivery`: buffer, batch, flush_interval, max_rate,
-    burst, max_inflight, echo_interval, clock_window); the rest are about I/O.
+    own. `outlet` (anything with `push(record)`) gets every record the session log gets, as
+    the core gives them, whether or not a log is written. `options` are the delivery core's
+    (`Delivery`: buffer, batch, flush_interval, max_rate, burst, max_inflight, echo_interval,
+    clock_window); the rest are about I/O.
     """
 
     def __init__(
@@ -118,6 +122,7 @@ class Daemon:
         welcome_timeout: float = 5.0,
         status_interval: float | None = None,
         name: str | None = None,
+        outlet: Any = None,
         **options: Any,
     ) -> None:
         if record is not None and record_dir is not None:
@@ -136,6 +141,7 @@ class Daemon:
         self.backoff, self.drain_timeout = backoff, drain_timeout
         self.welcome_timeout = welcome_timeout
         self.status_interval = status_interval
+        self.outlet = outlet
         places = fixation_places_of(source) if self.info.has_events else None
         self.core = Delivery(self.info, places=places, detector=detector, **options)
         self.stats: DaemonStats = self.core.stats
@@ -196,6 +202,8 @@ class Daemon:
         warnings, and wake the sender when a round is due."""
         for record in self.core.records_to_write():
             self._write(record)
+            if self.outlet is not None:
+                self.outlet.push(record)
         for text in self.core.warnings():
             log.warning("%s", text)
         if self.core.send_due and self._wake is not None:

@@ -17,6 +17,7 @@ import signal
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, replace
+from typing import Any
 
 from gazehdr.drivers import registry
 from gazehdr.drivers.cli_args import OneLineParser, positive_arg, screen_size_arg
@@ -46,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         "  gazehdr daemon --source synthetic --server ws://127.0.0.1:8000 --token T\n"
         "  gazehdr daemon --source replay:session.jsonl@2 --server ws://HOST:8000\n"
         "  gazehdr daemon --source hid --record today.jsonl   # token from $GAZEHDR_TOKEN\n"
-        "  gazehdr daemon --source hid --screen 2560x1440 --distance 0.65 --record-dir /data",
+        "  gazehdr daemon --source hid --screen 2560x1440 --distance 0.65 --record-dir /data\n"
+        "  gazehdr daemon --source lsl:Tobii --lsl-outlet --server ws://HOST:8000",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
@@ -81,6 +83,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="the tracker's name on the server, which sessions follow it by (gaze source "
         "remote:NAME); give each station its own (default: the source's, e.g. 'synthetic (seed "
         "0)' or the HID tracker's product)",
+    )
+    p.add_argument(
+        "--lsl-outlet",
+        nargs="?",
+        const="gazehdr",
+        metavar="NAME",
+        help="also publish on Lab Streaming Layer, for LabRecorder: the samples as a Gaze stream "
+        "NAME (default: gazehdr) and the fixation and blink events as a Markers stream "
+        "'NAME events' (needs gazehdr[lsl])",
     )
     p.add_argument("--detector", choices=sorted(DETECTORS), default="ivt", help="default: ivt")
     p.add_argument(
@@ -138,6 +149,24 @@ def _warn_unused_screen(info: SourceInfo, screen: Mapping[str, float]) -> None:
         )
 
 
+def _lsl_outlet(name: str, info: SourceInfo) -> Any:
+    """The daemon's LSL outlets (`gazehdr.drivers.lsl.outlet`), publishing `info`'s gaze."""
+    try:
+        from gazehdr.drivers.lsl.outlet import GazeOutlets, default_source_id
+
+        return GazeOutlets(
+            name,
+            source_id=default_source_id("daemon", name),
+            geometry=info.geometry,
+            model=info.name,
+            application="gazehdr daemon",
+            rate_hz=info.rate_hz,
+            monotonic=info.live,
+        )
+    except ImportError as e:
+        raise SourceUnavailableError(f"LSL outlet unavailable: {e}") from None
+
+
 async def _run_until_signalled(daemon: Daemon) -> tuple[DaemonStats, int | None]:
     """Run `daemon`; SIGTERM or Ctrl-C stops it as `stop()` does, the buffer draining for at
     most `SIGNAL_DRAIN_S`; a second one stops it at once. Returns the stats and the signal."""
@@ -176,13 +205,15 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
         log,
         logging.getLogger("gazehdr.drivers.hid"),
         logging.getLogger("gazehdr.drivers.pupil"),
-    )  # the tracker's waits and unplugs, too
+        logging.getLogger("gazehdr.drivers.lsl"),
+    )  # the tracker's (or stream's) waits, unplugs and losses, too
     before = [(logger.level, logger.propagate) for logger in loggers]
     for logger in loggers:
         logger.addHandler(handler)
         logger.setLevel(logging.WARNING if args.quiet else logging.INFO)
         logger.propagate = False
     signalled: int | None = None
+    outlet: Any = None
     try:
         if not args.server:
             parser.error("--server (or $GAZEHDR_SERVER) is required")
@@ -200,6 +231,8 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--screen: {e}")
         source = open_source(args.source, rate_hz=args.rate, screen=screen, wait=True)
         _warn_unused_screen(source.info, screen)
+        if args.lsl_outlet is not None:
+            outlet = _lsl_outlet(args.lsl_outlet, source.info)
         daemon = Daemon(
             source,
             args.server,
@@ -210,6 +243,7 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
             buffer=args.buffer,
             status_interval=10.0,
             name=args.name,
+            outlet=outlet,
         )
         stats, signalled = asyncio.run(_run_until_signalled(daemon))
     except UnauthorizedError as e:
@@ -223,6 +257,8 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
         sys.stderr.write(f"{prog}: interrupted\n")
         return 130
     finally:
+        if outlet is not None:
+            outlet.close(wait=True)
         for logger, (level, propagate) in zip(loggers, before, strict=True):
             logger.removeHandler(handler)
             logger.setLevel(level)

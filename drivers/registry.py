@@ -147,6 +147,17 @@ KINDS: tuple[SourceKind, ...] = (
         ),
         title="Pupil",
     ),
+    SourceKind(
+        "lsl",
+        stream=Opening(
+            "lsl[:QUERY]",
+            "a Lab Streaming Layer gaze stream: of type Gaze (or gaze, Eyetracker), or the one "
+            "named QUERY, or PROPERTY=VALUE (type, source_id, hostname, ...), or an XPath "
+            "predicate such as \"name='Tobii' and hostname='lab3'\"",
+            f"{_D}.lsl.source:open_lsl",
+        ),
+        title="LSL",
+    ),
 )
 
 

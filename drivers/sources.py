@@ -28,11 +28,12 @@ import math
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.synthetic import SyntheticScanPath
 
+T = TypeVar("T")
 Clock = Callable[[], int]  # monotonic nanoseconds
 Sleep = Callable[[float], None]  # seconds
 

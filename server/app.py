@@ -15,7 +15,7 @@ import logging
 import math
 import secrets
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +36,7 @@ from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes import Scene
 from gazehdr.scenes.exr import SceneError
 from gazehdr.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
-from gazehdr.session import SessionSettings
+from gazehdr.session import Session, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 from gazehdr.viewer import default_web_dir, viewer_files
@@ -65,6 +65,9 @@ class ServerConfig:
     max_upload_bytes: int = MAX_UPLOAD_BYTES
     #: The viewer's files (`gazehdr.viewer`); None: the installed package's.
     web_dir: Path | None = None
+    #: Publish each session's journal (the gaze it follows, its events) as LSL streams of this
+    #: name (`gazehdr.drivers.lsl.outlet.session_outlets`); None: no LSL.
+    lsl_outlet: str | None = None
 
 
 def origin_allowed(origin: str | None, host: str | None, allowed: tuple[str, ...]) -> bool:
@@ -103,6 +106,15 @@ ECHO_LIMIT = GazeLimit("echoes", 500.0, 1000.0)
 NOTE_INTERVAL_S = 1.0  # one rate-limit note a second per kind and connection tells enough
 
 
+def _publisher(name: str | None) -> Callable[[Session], Any] | None:
+    """What makes each session's LSL outlets (`serve --lsl-outlet NAME`), or None."""
+    if name is None:
+        return None
+    from gazehdr.drivers.lsl.outlet import session_outlets
+
+    return lambda session: session_outlets(name, session.id, session.log_screen)
+
+
 def create_app(config: ServerConfig) -> FastAPI:
     """The app for `config`; ViewerMissingError (a ValueError) when the viewer is incomplete."""
     web_dir = config.web_dir or default_web_dir()
@@ -117,6 +129,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         recordings,
         grace_s=config.session_grace_s,
         max_sessions=config.max_sessions,
+        publish=_publisher(config.lsl_outlet),
     )
     defaults = {"params": config.session.params}
 

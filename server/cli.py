@@ -274,6 +274,15 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         f"would, recorded to DATA_DIR/recordings (repeatable): {registry.choices(registry.STREAM)}"
         "; sessions follow it as remote:NAME, or with --gaze remote",
     )
+    p.add_argument(
+        "--lsl-outlet",
+        nargs="?",
+        const="gazehdr",
+        metavar="NAME",
+        help="publish the gaze each session follows on Lab Streaming Layer, for LabRecorder: a "
+        "Gaze stream NAME (default: gazehdr) and a Markers stream 'NAME events' (fixations, "
+        "blinks, scene and parameter changes) per session (needs gazehdr[lsl])",
+    )
 
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
@@ -301,6 +310,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         seed=args.seed,
         record=args.record,
         trackers=tuple(args.tracker),
+        lsl_outlet=args.lsl_outlet,
     )
 
 

@@ -1,7 +1,8 @@
 """Sessions at real time: a render loop per session, a newest-frame mailbox per viewer.
 
 The loop steps its `Session` on a worker thread with the wall-clock time since the last step
-(and, when the server records, appends what the step journaled to the session's log), then
+(and, when the server records, appends what the step journaled to the session's log; when it
+publishes on LSL, `serve --lsl-outlet`, pushes it to the session's outlets), then
 hands the frame to every viewer's mailbox. A mailbox holds one frame: a viewer that reads
 slowly skips frames (counted as dropped) instead of growing a queue, and because each viewer
 sends from its own task, one stuck socket never delays another viewer or session.
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import secrets
 import threading
@@ -127,10 +129,15 @@ class Viewer:
 
 
 class LiveSession:
-    """A `Session` stepped at real time for its viewers."""
+    """A `Session` stepped at real time for its viewers. Its journal goes to `log` (a file) and
+    to `outlet` (anything with `push_all(records)` and `close()`: LSL streams), where given."""
 
     def __init__(
-        self, session: Session, metrics: Metrics, log: SessionLogWriter | None = None
+        self,
+        session: Session,
+        metrics: Metrics,
+        log: SessionLogWriter | None = None,
+        outlet: Any = None,
     ) -> None:
         self.session = session
         self.viewers: set[Viewer] = set()
@@ -139,17 +146,21 @@ class LiveSession:
         self.task: asyncio.Task[None] | None = None
         self.closing: asyncio.TimerHandle | None = None
         self.log = log
+        self.outlet = outlet
         # A step may still be writing on its thread when the session ends and the log closes.
         self._log_lock = threading.Lock()
 
     def _tick(
         self, dt: float, controls: list[tuple[Control, float]]
     ) -> tuple[Frame, list[dict[str, Any]]]:
-        """One step, on the worker thread, with what it journaled appended to the log. A log
-        that cannot be written stops recording, not the session; the viewers are told."""
+        """One step, on the worker thread, with what it journaled published and appended to the
+        log. A log that cannot be written stops recording, not the session; the viewers are
+        told."""
         frame, notes = self.session.tick(dt, controls)
         records = self.session.take_journal()
         with self._log_lock:
+            if self.outlet is not None:
+                self.outlet.push_all(records)
             if self.log is None:
                 return frame, notes
             try:
@@ -161,12 +172,19 @@ class LiveSession:
         return frame, notes
 
     def close_log(self) -> None:
-        """End the session's log with its last records (`Session.end_journal`)."""
+        """End the session's log and outlet with its last records (`Session.end_journal`)."""
         with self._log_lock:
+            if self.log is None and self.outlet is None:
+                return
+            records = self.session.end_journal()
+            if self.outlet is not None:
+                self.outlet.push_all(records)
+                self.outlet.close()
+                self.outlet = None
             if self.log is None:
                 return
             try:
-                self.log.write_all(self.session.end_journal())
+                self.log.write_all(records)
             except OSError as e:
                 log.error("session %s: recording its end: %s", self.session.id, e)
             self._close_log()
@@ -244,8 +262,12 @@ class SessionHub:
         *,
         grace_s: float = 10.0,
         max_sessions: int = 8,
+        publish: Callable[[Session], Any] | None = None,
     ) -> None:
         self.settings = settings
+        # `publish` makes a session's outlets; a session that publishes keeps a journal even
+        # when the server does not record. Others keep none: they pay nothing.
+        self.publish = publish
         self.scenes = scenes
         self.recordings = recordings or RecordingLibrary(None)
         self.metrics = metrics
@@ -263,14 +285,18 @@ class SessionHub:
             if len(self.sessions) >= self.max_sessions:
                 raise TooManySessionsError(f"the server already runs {self.max_sessions} sessions")
             new_id = secrets.token_urlsafe(9)
+            settings = self.settings
+            if self.publish is not None:
+                settings = dataclasses.replace(settings, record=True)
             session = await asyncio.to_thread(
-                Session, new_id, self.settings, self.scenes, clock=time.perf_counter,
+                Session, new_id, settings, self.scenes, clock=time.perf_counter,
                 trackers=self.trackers, recordings=self.recordings,
             )  # fmt: skip
             recording = (
-                await asyncio.to_thread(self._record, session) if session.recording else None
+                await asyncio.to_thread(self._record, session) if self.settings.record else None
             )
-            live = LiveSession(session, self.metrics, recording)
+            outlet = self.publish(session) if self.publish is not None else None
+            live = LiveSession(session, self.metrics, recording, outlet)
             live.task = asyncio.create_task(live.run(), name=f"session {new_id}")
             self.sessions[new_id] = live
         if live.closing:

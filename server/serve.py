@@ -50,8 +50,11 @@ def build_config(
     acuity: str = "stochastic",
     split: str | None = None,
     record: bool = False,
+    lsl_outlet: str | None = None,
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
+    if lsl_outlet is not None:
+        _check_lsl(lsl_outlet)
     if not (math.isfinite(fps) and 0 < fps <= 240):
         raise ValueError(f"fps must be in (0, 240], got {fps}")
     if not 0 <= port <= 65535:
@@ -97,7 +100,20 @@ def build_config(
         data_dir=data_dir,
         scenes=loaded,
         allow_origins=allow_origins,
+        lsl_outlet=lsl_outlet,
     )
+
+
+def _check_lsl(name: str) -> None:
+    """--lsl-outlet needs a name and pylsl with its liblsl, checked before the server starts."""
+    if not name.strip():
+        raise ValueError("--lsl-outlet needs a stream name")
+    from gazehdr.drivers.lsl import load_pylsl
+
+    try:
+        load_pylsl()
+    except ImportError as e:
+        raise ValueError(f"--lsl-outlet: LSL outlet unavailable: {e}") from None
 
 
 def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicorn.Server:
@@ -209,6 +225,9 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     print(f"gazehdr: gaze daemon token: {config.token}", flush=True)
     if s.record:
         print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}", flush=True)
+    if config.lsl_outlet is not None:
+        name = config.lsl_outlet
+        print(f"gazehdr: publishing each session on LSL: '{name}', '{name} events'", flush=True)
     loopback = "[::1]" if ":" in config.host else "127.0.0.1"
     for spec in trackers:
         start_tracker(spec, f"ws://{loopback}:{port}", config.token, config.data_dir / "recordings")

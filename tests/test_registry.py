@@ -45,14 +45,15 @@ def test_every_kind_is_named_once_and_its_code_loads() -> None:
 
 
 def test_what_opens_how() -> None:
-    assert [k.name for k in kinds(STREAM)] == ["synthetic", "replay", "hid", "pupil"]
+    assert [k.name for k in kinds(STREAM)] == ["synthetic", "replay", "hid", "pupil", "lsl"]
     assert [k.name for k in kinds(TRACK)] == ["synthetic", "fixed", "point", "csv", "replay"]
     assert kinds() == KINDS
 
 
 def test_choices_and_help_come_from_the_table() -> None:
     assert choices(STREAM) == (
-        "synthetic[:SEED], replay:FILE[@SPEED], hid[:PATH], pupil[:HOST[:PORT][/SURFACE]]"
+        "synthetic[:SEED], replay:FILE[@SPEED], hid[:PATH], pupil[:HOST[:PORT][/SURFACE]], "
+        "lsl[:QUERY]"
     )
     assert choices(TRACK) == "synthetic, fixed, X,Y or a file ending in .csv, .jsonl"
     assert describe(TRACK).startswith("synthetic (seeded scan path, fixation to fixation), fixed")
@@ -127,7 +128,7 @@ def test_a_new_kind_is_one_entry(monkeypatch: pytest.MonkeyPatch) -> None:
     assert [(s.x, s.y) for s in source] == [(3.0, 4.0), (3.0, 4.0)]
     assert source.info.geometry.screen_width_px == 640
     assert open_track("constant").at(1.0) == GazePoint(0.25, 0.75, True)
-    assert choices(STREAM).endswith("[:PATH], pupil[:HOST[:PORT][/SURFACE]], constant:X,Y, lab")
+    assert choices(STREAM).endswith("pupil[:HOST[:PORT][/SURFACE]], lsl[:QUERY], constant:X,Y, lab")
     assert "constant (a fixed point)" in describe(TRACK)
     with pytest.raises(SourceUnavailableError, match="Lab source unavailable: No module named"):
         open_source("lab")

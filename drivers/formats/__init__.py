@@ -8,6 +8,7 @@ Importers (each module's docstring says which documentation it follows, and what
 - `eyelink`: SR Research EyeLink ASC files (EDF2ASC output).
 - `pupil`: Pupil Player's `gaze_positions.csv`.
 - `tobii`: the Tobii TSV written by PyGaze's `libtobii` and by `psychopy_tobii_controller`.
+- `xdf`: LabRecorder's XDF (Lab Streaming Layer recordings): one gaze stream and its markers.
 
 Each gives a `SessionLog` (samples in screen pixels, time in integer ns on the recording's clock,
 events, notes, the screen geometry where the format records it). Malformed input raises
@@ -33,6 +34,7 @@ IMPORTERS: dict[str, tuple[str, str]] = {
     "eyelink": ("gazehdr.drivers.formats.eyelink", "read_eyelink_asc"),
     "pupil": ("gazehdr.drivers.formats.pupil", "read_pupil_gaze_csv"),
     "tobii": ("gazehdr.drivers.formats.tobii", "read_tobii_tsv"),
+    "xdf": ("gazehdr.drivers.formats.xdf", "read_xdf"),
 }
 
 
@@ -49,6 +51,8 @@ def detect_format(path: str | Path) -> str:
         return "eyelink"
     if name.endswith(".csv"):
         return "pupil"
+    if name.endswith((".xdf", ".xdfz", ".xdf.gz")):
+        return "xdf"
     if name.endswith((".tsv", ".txt")):
         with p.open(encoding="utf-8", errors="replace") as f:
             if f.readline().startswith("Recording date:"):
@@ -56,7 +60,7 @@ def detect_format(path: str | Path) -> str:
     raise ValueError(
         f"{p}: cannot tell its format from the name; pass --format "
         f"({', '.join(IMPORTERS)}). Expected a BIDS *_physio.tsv.gz, an EyeLink .asc, a Pupil "
-        "Player gaze_positions.csv or a Tobii .tsv starting with 'Recording date:'"
+        "Player gaze_positions.csv, a Tobii .tsv starting with 'Recording date:' or an .xdf"
     )
 
 
@@ -94,13 +98,14 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         "  gazehdr import bids/ --sub 01 --run 2 --out s01.jsonl\n"
         "  gazehdr import bids/sub-01 --task x --out s01.jsonl\n"
         "  gazehdr import exports/000/gaze_positions.csv --screen 1280x720 --out s01.jsonl\n"
-        "  gazehdr import test.tsv --units height --out s01.jsonl",
+        "  gazehdr import test.tsv --units height --out s01.jsonl\n"
+        "  gazehdr import sub-01_ses-S001_task-T1_run-001_eeg.xdf --stream Tobii --out s01.jsonl",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "file",
         help="the recording: a BIDS dataset, a folder in one (sub-*, ses-*) or a physio file; "
-        ".asc, .csv, .tsv",
+        ".asc, .csv, .tsv, .xdf",
     )
     p.add_argument("--out", required=True, help="the session log to write (.jsonl)")
     p.add_argument("--format", default="auto", choices=["auto", *IMPORTERS])
@@ -125,7 +130,13 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         "--min-confidence",
         type=float,
         default=0.6,
-        help="Pupil gaze below this confidence is invalid (default 0.6, Pupil Player's own)",
+        help="Pupil (and XDF) gaze below this confidence is invalid (default 0.6, Pupil "
+        "Player's own)",
+    )
+    p.add_argument(
+        "--stream",
+        metavar="NAME",
+        help="XDF: the gaze stream to import (its name or source_id), when there are several",
     )
     runs = p.add_argument_group(
         "BIDS", "which run of a dataset, where it holds several (the error lists them)"
@@ -150,13 +161,20 @@ def import_main(argv: Sequence[str] | None = None) -> int:
     options: dict[str, Any] = {"geometry": geometry}
     if fmt == "bids":
         options["select"] = select
-    if fmt == "pupil":
+    if fmt in ("pupil", "xdf"):
         options["min_confidence"] = args.min_confidence
+    if fmt == "xdf":
+        options["stream"] = args.stream
+    elif args.stream is not None:
+        p.error("--stream is for XDF files")
     if fmt == "tobii":
         options["units"] = args.units
     if fmt == "eyelink":
         options["strict"] = args.strict
-    log = import_recording(args.file, fmt, **options)
+    try:
+        log = import_recording(args.file, fmt, **options)
+    except ImportError as e:  # an optional reader's package (pyxdf) is not installed
+        p.error(str(e))
     out = write_session_log(args.out, log, overwrite=args.overwrite)
     invalid = sum(not s.valid for s in log.samples)
     screen = log.header.screen
