@@ -3,8 +3,9 @@
 Both sides run in one process on the same scene, gaze path and sizes, alternating frame by
 frame so that drift of a shared machine hits both alike. The OpenCV side is a straight port of
 the stages to cv2 calls (area resize, separable filters, remap, exp/log/pow, per-pixel matrix
-transforms) with NumPy only for glue; it is checked against the reference model at the end so
-the comparison is of the same work. Figures are medians over the timed frames.
+transforms) with NumPy only for glue, and the reference model's own NumPy function for the
+gamut; it is checked against the kernels at the end so the comparison is of the same work.
+Figures are medians over the timed frames.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from gazehdr.sim.layout import (
     gaussian_taps,
 )
 from gazehdr.sim.models import Models, each_beside_default
+from gazehdr.sim.reference import gamut_map
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
@@ -147,12 +149,7 @@ class OpenCVPipeline:
         lms = cv2.transform(J, RGB_TO_LMS.astype(np.float32)) * (1 + f[..., None] * (gain - 1))
         J = cv2.transform(lms, LMS_TO_RGB.astype(np.float32))
         J += f[..., None] * cv2.transform(bleach, np.array(p.H, np.float32))
-        Y = np.clip(cv2.transform(J, self.w_P[None]), 0, 1)[..., None]
-        d = J - Y
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(d > 0, (1 - Y) / d, np.where(d < 0, Y / -d, np.inf)).min(axis=2)
-        t = np.clip(t, 0, 1)[..., None]
-        J = np.clip(Y + t * d, 0, 1)
+        J = np.moveaxis(gamut_map(np.moveaxis(J, 2, 0), p.w_P), 0, 2).astype(np.float32)
         return cv2.pow(J, p.gamma)
 
 

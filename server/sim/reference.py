@@ -74,18 +74,27 @@ def rho_of(L_log: np.ndarray, p: Params) -> np.ndarray:
 
 
 def gamut_map(rgb: np.ndarray, w_P) -> np.ndarray:
-    """Bring linear RGB into [0,1]^3 along the line to the grey of equal luminance (no hue flip).
+    """Bring linear RGB into [0,1]^3 within its hue plane (ours): never a hue flip.
 
-    Luminance is clamped to [0,1]; then the largest t in [0,1] with grey + t*(rgb - grey)
-    inside the cube is taken, so a colour keeps its hue and loses only saturation.
+    d = rgb - Y is the colour's chroma direction (w_P . d = 0); the most saturated colour of
+    that hue, its cusp, has luminance Y_c = -min(d) / (max(d) - min(d)). A colour outside the
+    cube moves toward the grey of luminance min(Y, Y_c) (Y clamped to [0, 1]) just far enough
+    to fit: a dark one keeps its luminance and loses saturation; a bright one trades luminance
+    for saturation, as gamut mapping toward the lightness of the cusp does (Morovic's CUSP), so
+    that a bright saturated blue stays blue instead of turning white.
     """
-    Y = np.clip(np.tensordot(np.asarray(w_P), rgb, axes=1), 0.0, 1.0)
+    Y = np.tensordot(np.asarray(w_P), rgb, axes=1)
     d = rgb - Y
+    spread = d.max(axis=0) - d.min(axis=0)  # 0 for a grey: then any anchor gives min(Y, 1)
+    # In [0, 1] but for rounding, which can leave a grey's d all of one sign: clamped.
+    Y_c = np.clip(-d.min(axis=0) / np.maximum(spread, np.finfo(np.float32).tiny), 0.0, 1.0)
+    anchor = np.minimum(np.clip(Y, 0.0, 1.0), Y_c)
+    e = rgb - anchor
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # inf: not taken
-        t_hi = np.where(d > 0, (1.0 - Y) / np.where(d > 0, d, 1.0), np.inf)
-        t_lo = np.where(d < 0, Y / np.where(d < 0, -d, 1.0), np.inf)
+        t_hi = np.where(e > 0, (1.0 - anchor) / np.where(e > 0, e, 1.0), np.inf)
+        t_lo = np.where(e < 0, anchor / np.where(e < 0, -e, 1.0), np.inf)
     t = np.clip(np.minimum(t_hi, t_lo).min(axis=0), 0.0, 1.0)
-    return np.clip(Y + t * d, 0.0, 1.0)
+    return np.clip(anchor + t * e, 0.0, 1.0)
 
 
 # --- stages --------------------------------------------------------------------------------------
