@@ -3,9 +3,9 @@
 Both sides run in one process on the same scene, gaze path and sizes, alternating frame by
 frame so that drift of a shared machine hits both alike. The OpenCV side is a straight port of
 the stages to cv2 calls (area resize, separable filters, remap, exp/log/pow, per-pixel matrix
-transforms) with NumPy only for glue, and the reference model's own NumPy function for the
-gamut; it is checked against the kernels at the end so the comparison is of the same work.
-Figures are medians over the timed frames.
+transforms) with NumPy only for glue, and the reference model's own NumPy functions for the
+colour of the afterimage maps and the gamut; it is checked against the kernels at the end so
+the comparison is of the same work. Figures are medians over the timed frames.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from gazehdr.sim.layout import (
     gaussian_taps,
 )
 from gazehdr.sim.models import Models, each_beside_default
-from gazehdr.sim.reference import gamut_map
+from gazehdr.sim.reference import bleach_response, gamut_map, opponent_gain
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
@@ -107,10 +107,12 @@ class OpenCVPipeline:
         new = np.clip(np.concatenate([B, c], axis=2), 0, 1)
         sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
         self.state = self._sep(new, gaussian_taps(sigma)) if sigma > 0 else new
-        alpha = (1 - c_inf + p.alpha_eps) / (1 - self.state[..., 3:] + p.alpha_eps)
-        gain = cv2.pow(alpha, p.j2)
-        bleach = p.j1 * self.state[..., 3:] * np.maximum(self.state[..., :3] - B_inf, 0)
-        self.maps = np.concatenate([gain, bleach], axis=2)
+        # The maps' colour math per retina cell: the reference's NumPy functions (planar).
+        hwc = (I, self.state[..., :3], B_inf, self.state[..., 3:], c_inf)
+        I, B, B_inf, c, c_inf = (np.moveaxis(a, 2, 0) for a in hwc)
+        gain = opponent_gain(c, c_inf, p)
+        bleach = bleach_response(I, B, B_inf, c, self.A, p)
+        self.maps = np.moveaxis(np.concatenate([gain, bleach]), 0, 2).astype(np.float32)
 
     def acuity(self, scene: np.ndarray, noise: NoiseFrame) -> None:
         cv2, lay, p = self.cv2, self.lay, self.p
