@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -439,7 +440,7 @@ def surround_rects(width: int, height: int, centre: tuple[float, float]):
     ]
 
 
-def squares(width: int, height: int, colour=BLUE) -> np.ndarray:
+def squares(width: int, height: int, colour: Sequence[float] | np.ndarray = BLUE) -> np.ndarray:
     """Grey field with squares of `colour` around SQUARES_GAZE (pixels whose centre is inside)."""
     scene = np.full((height, width, 3), GREY_FIELD, np.float32)
     xs, ys = (np.arange(width) + 0.5) / width, (np.arange(height) + 0.5) / height
@@ -455,7 +456,7 @@ def mean_over(v: np.ndarray, rects, keep: float) -> np.ndarray:
     return np.mean([rect_mean(J, r, keep) for r in rects], axis=0)
 
 
-def squares_run(ctx: Context, model: str, colour=BLUE) -> LookRun:
+def squares_run(ctx: Context, model: str, colour: Sequence[float] | np.ndarray = BLUE) -> LookRun:
     """The squares (blue: Fig. 9, bottom row), then the plain grey field."""
     w, h = ctx.width, ctx.height
     first, second = (

@@ -196,7 +196,9 @@ def opponent_gain(c: np.ndarray, c_inf: np.ndarray, p: Params) -> np.ndarray:
     return np.exp(-length * u / np.maximum(u_length, np.finfo(np.float32).tiny))
 
 
-def bleach_response(I, B, B_inf, c, A: float, p: Params) -> np.ndarray:
+def bleach_response(
+    I: np.ndarray, B: np.ndarray, B_inf: np.ndarray, c: np.ndarray, A: float, p: Params
+) -> np.ndarray:
     """Eq. 12's bleaching term per cone, shown as the cone's response to an equivalent light.
 
     x = g j1 (C / C_max) max(B - B_inf, 0), with the display gain g = bleach_display_gain (ours),
