@@ -3,7 +3,8 @@
 Both sides run in one process on the same scene, gaze path and sizes, alternating frame by
 frame so that drift of a shared machine hits both alike. The OpenCV side is a straight port of
 the stages to cv2 calls (area resize, separable filters, remap, exp/log/pow, per-pixel matrix
-transforms) with NumPy only for glue; it is checked against the reference model at the end so
+transforms) with NumPy only for glue, and the reference model's own NumPy functions for the
+colour of the afterimage maps and the gamut; it is checked against the kernels at the end so
 the comparison is of the same work. Figures are medians over the timed frames.
 """
 
@@ -27,6 +28,7 @@ from gazehdr.sim.layout import (
     gaussian_taps,
 )
 from gazehdr.sim.models import Models, each_beside_default
+from gazehdr.sim.reference import bleach_response, gamut_map, opponent_gain
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
@@ -105,10 +107,12 @@ class OpenCVPipeline:
         new = np.clip(np.concatenate([B, c], axis=2), 0, 1)
         sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
         self.state = self._sep(new, gaussian_taps(sigma)) if sigma > 0 else new
-        alpha = (1 - c_inf + p.alpha_eps) / (1 - self.state[..., 3:] + p.alpha_eps)
-        gain = cv2.pow(alpha, p.j2)
-        bleach = p.j1 * self.state[..., 3:] * np.maximum(self.state[..., :3] - B_inf, 0)
-        self.maps = np.concatenate([gain, bleach], axis=2)
+        # The maps' colour math per retina cell: the reference's NumPy functions (planar).
+        hwc = (I, self.state[..., :3], B_inf, self.state[..., 3:], c_inf)
+        I, B, B_inf, c, c_inf = (np.moveaxis(a, 2, 0) for a in hwc)
+        gain = opponent_gain(c, c_inf, p)
+        bleach = bleach_response(I, B, B_inf, c, self.A, p)
+        self.maps = np.moveaxis(np.concatenate([gain, bleach]), 0, 2).astype(np.float32)
 
     def acuity(self, scene: np.ndarray, noise: NoiseFrame) -> None:
         cv2, lay, p = self.cv2, self.lay, self.p
@@ -147,12 +151,7 @@ class OpenCVPipeline:
         lms = cv2.transform(J, RGB_TO_LMS.astype(np.float32)) * (1 + f[..., None] * (gain - 1))
         J = cv2.transform(lms, LMS_TO_RGB.astype(np.float32))
         J += f[..., None] * cv2.transform(bleach, np.array(p.H, np.float32))
-        Y = np.clip(cv2.transform(J, self.w_P[None]), 0, 1)[..., None]
-        d = J - Y
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(d > 0, (1 - Y) / d, np.where(d < 0, Y / -d, np.inf)).min(axis=2)
-        t = np.clip(t, 0, 1)[..., None]
-        J = np.clip(Y + t * d, 0, 1)
+        J = np.moveaxis(gamut_map(np.moveaxis(J, 2, 0), p.w_P), 0, 2).astype(np.float32)
         return cv2.pow(J, p.gamma)
 
 

@@ -6,6 +6,8 @@ read the numbers it stores in figures.json and the PNGs themselves.
 
 from __future__ import annotations
 
+import colorsys
+import html
 import json
 import re
 import subprocess
@@ -59,6 +61,16 @@ def test_fig4_bleaching_rises_in_the_flash_and_decays_as_eq5(figs: tuple[Path, d
     assert np.allclose(fig["half_life_s"], expected, rtol=0.05)
 
 
+def hue(rgb) -> float:
+    """HSV hue of RGB, degrees: 0 red, 60 yellow, 120 green, 180 cyan, 240 blue, 300 magenta."""
+    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
+    return colorsys.rgb_to_hsv(*(rgb / max(rgb.max(), 1e-12)))[0] * 360
+
+
+def hue_error(a: float, b: float) -> float:
+    return abs((a - b + 180) % 360 - 180)
+
+
 def test_fig5_bright_flashes_start_green_weak_ones_magenta(figs: tuple[Path, dict]) -> None:
     fig = figs[1]["5"]
     share = fig["green_share_at_start"]
@@ -66,6 +78,28 @@ def test_fig5_bright_flashes_start_green_weak_ones_magenta(figs: tuple[Path, dic
     for e in ("3", "4", "5", "6", "7"):
         late = np.array(fig["rgb_linear"][e][int(np.searchsorted(fig["times_s"], 4.0))])
         assert late[0] > late[1] and late[2] > late[1], f"10^{e} should fade to magenta"
+
+
+def test_fig5_hues_on_the_page_start_toward_cyan_and_end_at_the_l_cones_colour(
+    figs: tuple[Path, dict],
+) -> None:
+    """The page lists the hues it measured. As the caption says, the brighter flashes start
+    increasingly toward cyan (10^7 within 30 degrees of it on the display). Every row ends at
+    the hue of H's first column (in light): the L cones' bleaching lasts longest (smallest b2),
+    so the last bleaching term is H (B_L, 0, 0)."""
+    out, data = figs
+    fig = data["5"]
+    display, light = fig["hue_deg"]["display"], fig["hue_deg"]["linear"]
+    assert len(fig["hue_times_s"]) == len(display["7"]) and fig["hue_times_s"][-1] >= 7.9
+    starts = [display[e][0] for e in ("5", "6", "7")]
+    assert starts == sorted(starts) and hue_error(starts[-1], 180) <= 30, starts
+    assert np.argmin(Params().b2) == 0
+    l_column = hue(np.array(Params().H)[:, 0])
+    for e in ("3", "4", "5", "6", "7"):
+        assert hue_error(light[e][-1], l_column) <= 30, (e, light[e][-1], l_column)
+    section = _section(out, "5")
+    for e in ("3", "4", "5", "6", "7"):
+        assert f"({display[e][0]:.0f}° on the display, {light[e][0]:.0f}° in light)" in section
 
 
 def test_fig6_7_ritschel_stays_neutral_ours_and_mikamo_are_coloured(figs: tuple[Path, dict]):
@@ -88,6 +122,35 @@ def test_fig8_calcium_weakens_the_bleaching_afterimage(figs: tuple[Path, dict]) 
 def test_fig9_ours_is_a_dark_spot_ritschels_a_bright_one(figs: tuple[Path, dict]) -> None:
     ratio = figs[1]["9"]["spot_luminance_ratio"]
     assert ratio["jacobs"] < 0.95 and ratio["ritschel"] > 1.5
+
+
+def _section(out: Path, key: str) -> str:
+    """The part of index.html that shows figure `key`, as text (entities decoded)."""
+    index = (out / "index.html").read_text()
+    start = index.index(f"<section id='fig{key}'>")
+    return html.unescape(index[start : index.index("</section>", start)])
+
+
+def test_fig9_ours_is_the_complement_of_the_blue_and_of_every_hue(figs: tuple[Path, dict]):
+    """Fig. 9's bottom row and the hue circle: where squares of a saturated colour were, our
+    afterimage's hue is within 30 degrees of the complement of the squares' hue (for the blue,
+    yellow), and the page says so. The blue squares show strongly coloured."""
+    out, data = figs
+    fig = data["9"]
+    ours = {k: np.array(v) for k, v in fig["squares"]["jacobs"].items()}
+    shown = ours["fixating_rgb"]
+    assert (shown.max() - shown.min()) / shown.max() > 0.8, f"pale squares: {shown}"
+    measured = hue(ours["afterimage_rgb"] / ours["surround_rgb"])
+    assert hue_error(measured, 60) <= 30, f"the blue's afterimage has hue {measured:.0f}"
+    assert f"hue of the change {measured:.0f}°" in _section(out, "9")
+    circle = fig["hue_circle"]
+    assert len(circle["inducer_hue_deg"]) == 12
+    for inducer, after in zip(circle["inducer_hue_deg"], circle["afterimage_hue_deg"], strict=True):
+        assert hue_error(after, inducer + 180) <= 30, (inducer, after)
+    assert "fig09_hue_circle.png" in fig["images"]
+    assert f"{circle['inducer_hue_deg'][8]:.0f}° → {circle['afterimage_hue_deg'][8]:.0f}°" in (
+        _section(out, "9")
+    )
 
 
 def test_fig9_blue_squares_leave_opponent_afterimages(figs: tuple[Path, dict]) -> None:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from gazehdr.figures import afterimage, mesopic
+from gazehdr.figures import afterimage, colour, mesopic
 from gazehdr.figures.common import Context, ModelUnavailableError, Result
 
 __all__ = ["FIGURES", "Context", "Figure", "Summary", "make_figures", "select"]
@@ -72,12 +72,23 @@ FIGURES: tuple[Figure, ...] = (
         "Figure 4.",
         "The displayed value at the centre of the flash disc (the same runs as Fig. 4, one per "
         "intensity), eyes closed after the flash, every 0.05 s. Top: as the display shows it "
-        "(dim: j1 = 0.03); bottom: each swatch scaled to full brightness, so only its hue "
-        "remains.",
-        "Matches: weak flashes (10³, 10⁴) start and stay red-magenta; from 10⁵ the afterimage "
-        "starts green-cyan, passes through yellow and fades to magenta, and the change between "
-        "10⁴ and 10⁵ is abrupt. Differs: our 10⁷ row starts mint green rather than the paper's "
-        "cyan.",
+        "(Eq. 12's bleaching term times our display gain, 32, which brings the 10⁷ row's start "
+        "to display white); bottom: each swatch scaled to full brightness, so only its hue "
+        "remains. The hues listed below are HSV hues (0° red, 60° yellow, 120° green, 180° "
+        "cyan, 300° magenta) at 0.05, 1, 2, 4 and 8 s, of the display values (as a figure is "
+        "seen) and of the light (linear RGB), named after the nearest of the RGB colour "
+        "wheel's twelve hues.",
+        "Matches: weak flashes (10³, 10⁴) start and stay red to rose; from 10⁵ the afterimage "
+        "starts green and the change between 10⁴ and 10⁵ is abrupt; the stronger the flash, "
+        "the nearer cyan it starts: 10⁵ 114°, 10⁶ 144°, 10⁷ 155° on the display (spring "
+        "green, 25° short of cyan). Differs: every row ends rose-pink, 339° on the display "
+        "(348° in light), where the caption says magenta (300°); Fig. 3's “pink or deep "
+        "purple” fits it better. That end is the hue of the first column of H, (1.14, 0.08, "
+        "0.30): the L cones' bleaching outlasts the others' (b2 smallest), and H and b2 are "
+        "Appendix A's. On the way, strong flashes pass through yellow (about 1 s) and red "
+        "(2 s) as the M cones' bleaching fades before the L cones', a phase the caption does "
+        "not name. The 10⁷ start is nearer green than cyan in light (146°): only the display's "
+        "gamma moves it toward cyan.",
         afterimage.fig5,
     ),
     Figure(
@@ -106,9 +117,9 @@ FIGURES: tuple[Figure, ...] = (
         "every panel 4× brighter in linear light, to show the colours of the dim ones.",
         "Matches: Ritschel's afterimage of the neutral flash is neutral grey; Mikamo's runs "
         "through a sequence of hues and lasts longest; ours has a green centre with a red rim "
-        "and fades to red-magenta. Differs: ours is much dimmer than the other two (j1 = "
-        "0.03 of display white), and we show one scene, not the paper's three (two are "
-        "Fairchild's photographs, which we do not ship).",
+        "and fades to red-rose, at first about as bright as the other two (Eq. 12's bleaching "
+        "term times our display gain, 32). Differs: we show one scene, not the paper's three "
+        "(two are Fairchild's photographs, which we do not ship).",
         afterimage.fig6_7,
     ),
     Figure(
@@ -156,21 +167,27 @@ FIGURES: tuple[Figure, ...] = (
         "(second image): a procedural stimulus, four squares of saturated blue (the sRGB blue "
         "primary, 433 cd/m²) on a 100 cd/m² grey, fixated for 3 s, then 0.3 s on the plain "
         "grey field to their right, so that their afterimage lands on grey; same columns. "
-        "The display shows the squares pale blue: its blue primary alone cannot reach that "
-        "luminance, so compose brings them into gamut by adding white. The numbers below give "
-        "the grey field where the squares' afterimage lies, per channel relative to the grey "
-        "around it.",
+        "The display's blue primary alone cannot reach the squares' luminance; the gamut "
+        "mapping (ours) keeps their hue and saturation and gives up luminance, so they show "
+        "saturated blue. The numbers below give the grey field where the squares' afterimage "
+        "lies, per channel relative to the grey around it, and the hue of that change against "
+        "the blue's complement (60°, yellow). Third image: the same for squares of twelve "
+        "saturated hues at the grey's luminance (ours only); its last row shows each "
+        "afterimage's change from the grey 5× larger.",
         "Matches the top row: ours is a dark spot on the book, Ritschel's a bright one. Bottom "
         "row: matches in kind. Both afterimages are opponent to blue on the yellow-blue axis "
         "(R + G > 2B in linear light); ours modulates the grey (darker in blue and green, "
         "brighter in red) while Ritschel's is added on top (no channel darker, all brighter "
-        "or equal). Differs: neither is the paper's yellow; both come out red-orange to "
-        "pinkish (hue about 5-15°): the blue primary excites M cones about twice as much as L "
-        "cones, so afterwards M is more adapted (or bleached) than L, and through the L − M "
-        "opponent term of LMS → RGB red dominates. The stimulus and its luminances are ours "
-        "(the paper's picture is not given); a blue no brighter than the grey leaves "
-        "Ritschel's model almost nothing.",
-        afterimage.fig9,
+        "or equal). Ours is the complement of the blue: yellow at the moment the gaze moves, "
+        "yellow-orange (about 33°) after 0.3 s, as the calcium relaxes; at the grey's "
+        "luminance the blue's afterimage is 48° and every hue of the circle lands within 15° "
+        "of its complement. Our calcium gain keeps each cone's strength (Eq. 11) but points "
+        "along the adapting light's cone contrast (ours, docs/model.md); per cone, as the "
+        "paper writes it, it compressed the blue's large S contrast far more than its small "
+        "L − M contrast and left salmon (11°). Differs: Ritschel's comes out red (about 6°), "
+        "not yellow. The stimulus and its luminances are ours (the paper's picture is not "
+        "given); a blue no brighter than the grey leaves Ritschel's model almost nothing.",
+        colour.fig9,
     ),
     Figure(
         "10",

@@ -7,9 +7,9 @@ at the book; the bottom row of Fig. 9 fixates blue squares on grey, then the gre
 
 from __future__ import annotations
 
-import colorsys
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +22,9 @@ from gazehdr.figures.common import (
     crop,
     display,
     grid,
+    hue_angle,
+    hue_difference,
+    hue_name,
     linear,
     rect_mean,
     saturation,
@@ -46,6 +49,7 @@ AFTER_SECONDS = 8.0
 #: Radius of the uniform flash disc: far more than the state blur reaches in 8 s (0.1° sqrt(8)).
 DISC_DEG = 3.0
 INTENSITIES = (3, 4, 5, 6, 7)  # log10 cd/m^2, the rows of Fig. 5
+HUE_TIMES = (AFTER_DT, 1.0, 2.0, 4.0, AFTER_SECONDS)  # s after the flash: Fig. 5's hues on the page
 
 
 @dataclass(frozen=True)
@@ -137,30 +141,6 @@ def fig4(ctx: Context) -> Result:
     return res
 
 
-#: Upper ends of HSV hue ranges (degrees) and their names, for the page's findings.
-_HUES = (
-    (15, "red"), (45, "orange"), (70, "yellow"), (150, "green"), (200, "cyan"), (255, "blue"),
-    (285, "purple"), (335, "magenta"), (361, "red"),
-)  # fmt: skip
-
-
-def hue_angle(rgb: np.ndarray) -> float:
-    """HSV hue of linear RGB (negatives clipped), degrees: 0 red, 60 yellow, 240 blue."""
-    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
-    return colorsys.rgb_to_hsv(*(rgb / max(rgb.max(), 1e-12)))[0] * 360
-
-
-def hue_name(rgb: np.ndarray, min_saturation: float = 0.15) -> str:
-    """A coarse name for the colour of linear RGB ("grey" below `min_saturation`)."""
-    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
-    if rgb.max() <= 1e-6:
-        return "black"
-    s = saturation(rgb)
-    if s < min_saturation or s == 0:  # no hue at all, even where any saturation is asked for
-        return "grey"
-    return next(name for limit, name in _HUES if hue_angle(rgb) < limit)
-
-
 def fig5(ctx: Context) -> Result:
     import matplotlib.pyplot as plt
 
@@ -186,8 +166,15 @@ def fig5(ctx: Context) -> Result:
     plt.close(fig)
     res.images.append(("fig05_flash_intensity.png", "Afterimage colour over time per flash"))
 
-    start, late = 0, int(np.searchsorted(t, 3.0))
+    start = 0
     lin = {e: linear(traces[e].v[after], _PARAMS) for e in INTENSITIES}
+    at = [int(np.searchsorted(t, s - 1e-9)) for s in HUE_TIMES]
+    # Hues as the display shows them (v, gamma-encoded, as the paper's figure is seen) and of
+    # the light (linear); the last sample is the end of the record.
+    hues = {
+        space: {str(e): [round(hue_angle(x[e][i]), 1) for i in at] for e in INTENSITIES}
+        for space, x in (("display", {e: traces[e].v[after] for e in INTENSITIES}), ("linear", lin))
+    }
     res.measures = {
         "times_s": t.round(4).tolist(),
         "rgb_linear": {str(e): lin[e].round(6).tolist() for e in INTENSITIES},
@@ -195,9 +182,18 @@ def fig5(ctx: Context) -> Result:
             str(e): round(float(lin[e][start, 1] / max(lin[e][start].sum(), 1e-12)), 4)
             for e in INTENSITIES
         },
+        "hue_times_s": [round(float(t[i]), 4) for i in at],
+        "hue_deg": hues,
     }
     res.findings = [
-        f"10^{e} cd/m²: starts {hue_name(lin[e][start])}, at 3 s {hue_name(lin[e][late])}."
+        f"10^{e} cd/m²: "
+        + ", ".join(
+            f"{'starts' if k == 0 else f'{t[i]:g} s'} {hue_name(traces[e].v[after][i], 0.0)} "
+            f"({hues['display'][str(e)][k]:.0f}° on the display, {hues['linear'][str(e)][k]:.0f}° "
+            "in light)"
+            for k, i in enumerate(at)
+        )
+        + "."
         for e in INTENSITIES
     ]
     return res
@@ -444,30 +440,30 @@ def surround_rects(width: int, height: int, centre: tuple[float, float]):
     ]
 
 
-def blue_squares(width: int, height: int) -> np.ndarray:
-    """Grey field with the blue squares around SQUARES_GAZE (pixels whose centre is inside)."""
+def squares(width: int, height: int, colour: Sequence[float] | np.ndarray = BLUE) -> np.ndarray:
+    """Grey field with squares of `colour` around SQUARES_GAZE (pixels whose centre is inside)."""
     scene = np.full((height, width, 3), GREY_FIELD, np.float32)
     xs, ys = (np.arange(width) + 0.5) / width, (np.arange(height) + 0.5) / height
     for x0, y0, x1, y1 in square_rects(width, height, SQUARES_GAZE):
         inside = ((ys >= y0) & (ys < y1))[:, None] & ((xs >= x0) & (xs < x1))[None, :]
-        scene[inside] = BLUE
+        scene[inside] = colour
     return scene
 
 
-def _mean_over(v: np.ndarray, rects, keep: float) -> np.ndarray:
+def mean_over(v: np.ndarray, rects, keep: float) -> np.ndarray:
     """Mean linear RGB over rectangles (frame fractions), each its central `keep` fraction."""
     J = linear(v, _PARAMS)
     return np.mean([rect_mean(J, r, keep) for r in rects], axis=0)
 
 
-def squares_run(ctx: Context, model: str) -> LookRun:
-    """The blue squares, then the plain grey field (Fig. 9, bottom row)."""
+def squares_run(ctx: Context, model: str, colour: Sequence[float] | np.ndarray = BLUE) -> LookRun:
+    """The squares (blue: Fig. 9, bottom row), then the plain grey field."""
     w, h = ctx.width, ctx.height
     first, second = (
         (SQUARES_GAZE[0] * w, SQUARES_GAZE[1] * h),
         (FIELD_GAZE[0] * w, FIELD_GAZE[1] * h),
     )
-    return look_away(ctx, model, blue_squares(w, h), first, second)
+    return look_away(ctx, model, squares(w, h, colour), first, second)
 
 
 def _lamp_row(ctx: Context, res: Result) -> dict[str, float]:
@@ -504,10 +500,10 @@ def _squares_row(ctx: Context, res: Result) -> dict[str, dict[str, np.ndarray]]:
             + [_panel(ctx, v, FIELD_GAZE, SQUARES_CROP) for v in (plain, run.after)]
         )
         colours[model] = {
-            "fixating_rgb": _mean_over(run.fixating, stimulus, 0.5),
-            "afterimage_rgb": _mean_over(run.after, where, 0.5),
-            "surround_rgb": _mean_over(run.after, around, 1.0),
-            "without_afterimage_rgb": _mean_over(plain, where, 0.5),
+            "fixating_rgb": mean_over(run.fixating, stimulus, 0.5),
+            "afterimage_rgb": mean_over(run.after, where, 0.5),
+            "surround_rgb": mean_over(run.after, around, 1.0),
+            "without_afterimage_rgb": mean_over(plain, where, 0.5),
         }
     columns = [
         f"fixating the blue squares {FIXATION_SECONDS:g} s",
@@ -519,8 +515,17 @@ def _squares_row(ctx: Context, res: Result) -> dict[str, dict[str, np.ndarray]]:
     return colours
 
 
+#: The hue of the blue's complement about the grey, grey - k (blue - grey): yellow, 60°.
+BLUE_COMPLEMENT_DEG = (hue_angle(np.array(BLUE)) + 180) % 360
+
+
+def afterimage_ratio(colours: dict[str, np.ndarray]) -> np.ndarray:
+    """Linear RGB where the squares' afterimage lies over the grey around it."""
+    return colours["afterimage_rgb"] / colours["surround_rgb"]
+
+
 def _squares_finding(model: str, colours: dict[str, np.ndarray]) -> str:
-    ratio = colours["afterimage_rgb"] / colours["surround_rgb"]
+    ratio = afterimage_ratio(colours)
     r, g, b = colours["afterimage_rgb"]
     # Changes under 0.1 % are not named: the ratios are shown to three decimals.
     darker = ", ".join(c for c, x in zip("RGB", ratio, strict=True) if x < 1 - 1e-3) or "none"
@@ -530,7 +535,9 @@ def _squares_finding(model: str, colours: dict[str, np.ndarray]) -> str:
         f"({ratio[0]:.3f}, {ratio[1]:.3f}, {ratio[2]:.3f}) times the grey around it in linear "
         f"R, G, B (darker: {darker}; brighter: {brighter}); "
         f"(R + G) / 2B = {(r + g) / (2 * b):.3f} (above 1: towards yellow); hue of the change "
-        f"{hue_angle(ratio):.0f}° ({hue_name(ratio, 0.0)})."
+        f"{hue_angle(ratio):.0f}° ({hue_name(ratio, 0.0)}), "
+        f"{hue_difference(hue_angle(ratio), BLUE_COMPLEMENT_DEG):.0f}° from the blue's complement "
+        f"({BLUE_COMPLEMENT_DEG:.0f}°, yellow)."
     )
 
 
@@ -542,6 +549,10 @@ def fig9(ctx: Context) -> Result:
         "spot_luminance_ratio": {k: round(v, 4) for k, v in ratios.items()},
         "squares": {
             m: {k: np.round(x, 6).tolist() for k, x in d.items()} for m, d in colours.items()
+        },
+        "squares_complement_hue_deg": round(BLUE_COMPLEMENT_DEG, 1),
+        "squares_afterimage_hue_deg": {
+            m: round(hue_angle(afterimage_ratio(d)), 1) for m, d in colours.items()
         },
     }
     res.findings = [

@@ -7,6 +7,7 @@ helps only when frames average over time, and on a still it only adds noise.
 
 from __future__ import annotations
 
+import colorsys
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -120,6 +121,36 @@ def saturation(rgb: np.ndarray) -> np.ndarray:
     """(max - min) / max of linear RGB along the last axis: 0 for grey, 1 for a primary."""
     hi, lo = rgb.max(axis=-1), rgb.min(axis=-1)
     return (hi - lo) / np.maximum(hi, 1e-12)
+
+
+#: The twelve hues of the RGB colour wheel, 30 degrees apart from red: primaries, secondaries
+#: (yellow, cyan, magenta) and the tertiaries between them.
+HUE_NAMES = (
+    "red", "orange", "yellow", "chartreuse", "green", "spring green", "cyan", "azure", "blue",
+    "violet", "magenta", "rose",
+)  # fmt: skip
+
+
+def hue_angle(rgb: np.ndarray) -> float:
+    """HSV hue of RGB (negatives clipped), degrees: 0 red, 60 yellow, 120 green, 240 blue."""
+    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
+    return colorsys.rgb_to_hsv(*(rgb / max(rgb.max(), 1e-12)))[0] * 360
+
+
+def hue_name(rgb: np.ndarray, min_saturation: float = 0.15) -> str:
+    """The nearest of `HUE_NAMES` to the hue of linear RGB ("grey" below `min_saturation`)."""
+    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
+    if rgb.max() <= 1e-6:
+        return "black"
+    s = saturation(rgb)
+    if s < min_saturation or s == 0:  # no hue at all, even where any saturation is asked for
+        return "grey"
+    return HUE_NAMES[round(hue_angle(rgb) / 30) % 12]
+
+
+def hue_difference(a: float, b: float) -> float:
+    """|a - b| around the hue circle, degrees in [0, 180]."""
+    return abs((a - b + 180) % 360 - 180)
 
 
 def rect_mean(img: np.ndarray, rect: tuple[float, float, float, float], keep: float = 0.5):

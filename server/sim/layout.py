@@ -27,23 +27,28 @@ RGB_TO_XYZ = np.array(
         [0.0193339, 0.1191920, 0.9503041],
     ]
 )
-# Hunt-Pointer-Estevez XYZ -> LMS (equal-energy normalisation).
-XYZ_TO_LMS_HPE = np.array(
+# Stockman & Sharpe (2000) 2-degree cone fundamentals (the CIE 170-1:2006 LMS) as a linear map of
+# CIE 1931 XYZ, the XYZ that sRGB is defined in: the least-squares fit over 390-780 nm of the
+# 1-nm CVRL tables (RMS error 1 % of the peak for L and M, 4 % for S; docs/model.md, "Cone
+# space", shows the fit). The CIE's own XYZ -> LMS matrix maps the CIE 2012 XYZ, not 1931's.
+XYZ_TO_LMS_SS2 = np.array(
     [
-        [0.38971, 0.68898, -0.07868],
-        [-0.22981, 1.18340, 0.04641],
-        [0.0, 0.0, 1.0],
+        [0.268274, 0.846614, -0.034892],
+        [-0.385945, 1.164877, 0.102851],
+        [0.021247, -0.024552, 0.534161],
     ]
 )
 
 
 def rgb_to_lms_matrix() -> np.ndarray:
-    """RGB -> LMS through XYZ with Hunt-Pointer-Estevez, rows scaled so RGB white gives L=M=S=Y.
+    """RGB -> LMS through XYZ with Stockman & Sharpe's cone fundamentals, rows scaled so that
+    the display white gives L = M = S = Y (von Kries to the adapting white, D65).
 
     With this normalisation a neutral stimulus of luminance Y excites every cone by Y, so the
-    paper's per-cone bleaching rates b1 (per cd/m^2) apply to each cone directly.
+    paper's per-cone bleaching rates b1 (per cd/m^2) apply to each cone directly, and white
+    stimulates all cone types equally (Fig. 4).
     """
-    m = XYZ_TO_LMS_HPE @ RGB_TO_XYZ
+    m = XYZ_TO_LMS_SS2 @ RGB_TO_XYZ
     return m / m.sum(axis=1, keepdims=True)
 
 

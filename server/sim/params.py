@@ -79,6 +79,12 @@ class Params:
     map_blur_deg: float = 0.1  # sigma of the B, C map blur after 1 s; scales with sqrt(dt)
     fovea_sigma_deg: float = 10.0  # afterimage visibility fall-off (Sec. 2.4): fades by 20 deg
     retina_cell_deg: float = 0.1  # retinal state cell: afterimages are blurry, 6 arcmin is ample
+    # Display gain of Eq. 12's bleaching term, shown as a response to its equivalent light
+    # (reference.bleach_response). With j1 alone the afterimage of Fig. 4's flash (1e7 cd/m^2,
+    # 1/8 s) is 1.00x a 100 cd/m^2 grey, where Sec. 2.2.2 has it brighter. 32 puts that flash's
+    # afterimage in the dark at display white in its brightest channel, G, when the flash ends:
+    # 1 / (j1 e^(-c2/8) (H (1, 1, 0.37))_G) = 32.4 (docs/model.md, "Bleaching afterimages").
+    bleach_display_gain: float = 32.0
     alpha_eps: float = 1e-3  # Eq. 11 guard: alpha = (1 - c_inf + eps) / (1 - c + eps)
     Y_min: float = 1e-6  # cd/m^2 floor inside log10; far below the scotopic range
     radiance_max: float = 1e10  # cd/m^2 cap on input; the sun's disc is about 1.6e9
@@ -156,8 +162,8 @@ class Params:
         if not 0 < self.mikamo_top_fraction <= 1:
             raise ValueError("mikamo_top_fraction must lie in (0, 1]")
         non_negative = (
-            "c_a", "c_d", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
-            "ritschel_strength", "mikamo_lowpass_deg", "mikamo_strength",
+            "bleach_display_gain", "c_a", "c_d", "ritschel_saccade_sigma_deg",
+            "ritschel_N_sigma_deg", "ritschel_strength", "mikamo_lowpass_deg", "mikamo_strength",
         )  # fmt: skip
         for name in ("thompson_dog_gain", "thompson_noise", *non_negative):
             value = getattr(self, name)
@@ -213,8 +219,8 @@ SECTIONS: dict[str, list[str]] = {
         "adaptation_sigma_deg",
     ],
     "2.2 Afterimages": [
-        "b1", "b2", "c1", "c2", "j1", "j2", "H", "alpha_eps", "map_blur_deg",
-        "fovea_sigma_deg", "retina_cell_deg",
+        "b1", "b2", "c1", "c2", "j1", "j2", "H", "bleach_display_gain", "alpha_eps",
+        "map_blur_deg", "fovea_sigma_deg", "retina_cell_deg",
     ],
     "2.3 Mesopic vision": [
         "m1", "m2", "w_P", "w_S", "k_s", "rho_sigma_deg", "sigma_0", "rho_step", "g", "bands",
@@ -239,7 +245,8 @@ OURS = frozenset(
     {
         "plateau_m_over_n", "plateau_K", "adaptation_sigma_deg", "rho_sigma_deg",
         "k_s", "noise_cell_deg", "noise_rate_hz", "map_blur_deg", "fovea_sigma_deg",
-        "retina_cell_deg", "alpha_eps", "Y_min", "radiance_max", "geometry",
+        "retina_cell_deg", "bleach_display_gain", "alpha_eps", "Y_min", "radiance_max",
+        "geometry",
         "ritschel_L_ref", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
         "ritschel_strength", "mikamo_drop_log10", "mikamo_lowpass_deg", "mikamo_strength",
         "mikamo_delta_e_floor",

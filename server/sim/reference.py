@@ -54,17 +54,21 @@ def blur2d(img: np.ndarray, sigma: float) -> np.ndarray:
     return blur_axis(blur_axis(img, taps, -1), taps, -2)
 
 
+def ln_sigma_n(A: float, p: Params) -> float:
+    """ln sigma^n of Eq. 2 with the plateau (ours): sigma^n = I_bar^(n-m) K^m, I_bar = 10^A."""
+    m = p.n * p.plateau_m_over_n
+    return (p.n - m) * A * LN10 + m * math.log(p.plateau_K)
+
+
 def tone(I: np.ndarray, A: float, p: Params) -> np.ndarray:
     """Naka-Rushton response, Eq. 1-2, with the plateau M(I) = I^m / (I^m + K^m) (ours).
 
     sigma^n = I_bar^(n-m) K^m, evaluated in logs so that 1e10 cd/m^2 stays finite; the exponent
     is capped at 80 (R < 1e-34) and no light gives exactly R = 0, so black stays black.
     """
-    m = p.n * p.plateau_m_over_n
-    ln_sigma_n = (p.n - m) * A * LN10 + m * math.log(p.plateau_K)
     I = np.asarray(I, np.float64)
     lnI = np.log(np.where(I > 0, I, 1.0))
-    R = 1.0 / (1.0 + np.exp(np.minimum(ln_sigma_n - p.n * lnI, 80.0)))
+    R = 1.0 / (1.0 + np.exp(np.minimum(ln_sigma_n(A, p) - p.n * lnI, 80.0)))
     return np.where(I > 0, R, 0.0)
 
 
@@ -74,18 +78,27 @@ def rho_of(L_log: np.ndarray, p: Params) -> np.ndarray:
 
 
 def gamut_map(rgb: np.ndarray, w_P) -> np.ndarray:
-    """Bring linear RGB into [0,1]^3 along the line to the grey of equal luminance (no hue flip).
+    """Bring linear RGB into [0,1]^3 within its hue plane (ours): never a hue flip.
 
-    Luminance is clamped to [0,1]; then the largest t in [0,1] with grey + t*(rgb - grey)
-    inside the cube is taken, so a colour keeps its hue and loses only saturation.
+    d = rgb - Y is the colour's chroma direction (w_P . d = 0); the most saturated colour of
+    that hue, its cusp, has luminance Y_c = -min(d) / (max(d) - min(d)). A colour outside the
+    cube moves toward the grey of luminance min(Y, Y_c) (Y clamped to [0, 1]) just far enough
+    to fit: a dark one keeps its luminance and loses saturation; a bright one trades luminance
+    for saturation, as gamut mapping toward the lightness of the cusp does (Morovic's CUSP), so
+    that a bright saturated blue stays blue instead of turning white.
     """
-    Y = np.clip(np.tensordot(np.asarray(w_P), rgb, axes=1), 0.0, 1.0)
+    Y = np.tensordot(np.asarray(w_P), rgb, axes=1)
     d = rgb - Y
+    spread = d.max(axis=0) - d.min(axis=0)  # 0 for a grey: then any anchor gives min(Y, 1)
+    # In [0, 1] but for rounding, which can leave a grey's d all of one sign: clamped.
+    Y_c = np.clip(-d.min(axis=0) / np.maximum(spread, np.finfo(np.float32).tiny), 0.0, 1.0)
+    anchor = np.minimum(np.clip(Y, 0.0, 1.0), Y_c)
+    e = rgb - anchor
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # inf: not taken
-        t_hi = np.where(d > 0, (1.0 - Y) / np.where(d > 0, d, 1.0), np.inf)
-        t_lo = np.where(d < 0, Y / np.where(d < 0, -d, 1.0), np.inf)
+        t_hi = np.where(e > 0, (1.0 - anchor) / np.where(e > 0, e, 1.0), np.inf)
+        t_lo = np.where(e < 0, anchor / np.where(e < 0, -e, 1.0), np.inf)
     t = np.clip(np.minimum(t_hi, t_lo).min(axis=0), 0.0, 1.0)
-    return np.clip(Y + t * d, 0.0, 1.0)
+    return np.clip(anchor + t * e, 0.0, 1.0)
 
 
 # --- stages --------------------------------------------------------------------------------------
@@ -156,20 +169,70 @@ def retina_update(state, down, A, gaze, dt, reset, lay: Layout, p: Params) -> np
     return blur2d(new, lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell)
 
 
+#: Cap on ln(I_adapt / I_now) in `opponent_gain`: the squares of the cone contrasts stay finite in
+#: float32. With the default n the Eq. 11 guard keeps it below 19.7, so it never binds there.
+LN_CONTRAST_MAX = 20.0
+
+
+def opponent_gain(c: np.ndarray, c_inf: np.ndarray, p: Params) -> np.ndarray:
+    """The local adaptation gain of Eq. 11-12 per cone, pointed along the adapting light (ours).
+
+    Eq. 11 gives each cone its own gain alpha^j2; these keep their strength here (the length of
+    the vector of ln alpha^j2) but act along -u, u the linear cone contrast of the light the
+    calcium adapted to against the light now. Per cone, the Naka-Rushton odds R / (1 - R) =
+    (I / sigma)^n, and c, c_inf store 1 - R, so I_adapt / I_now = (odds(1 - c) / odds(1 -
+    c_inf))^(1/n). A gain along -u leaves the additive complement of the adapting light, the
+    linear rebound of subtractive adaptation in the cone-opponent retinal ganglion cells (Zaidi
+    et al. 2012); per-cone gains would compress a blue's large S contrast far more than its small
+    L - M contrast and turn its afterimage orange. A neutral light gives exactly alpha^j2.
+    """
+    eps = p.alpha_eps
+    ln_R_now, ln_R_then = np.log(1.0 - c_inf + eps), np.log(1.0 - c + eps)
+    ln_gain = p.j2 * (ln_R_now - ln_R_then)  # ln alpha^j2, Eq. 11 (guarded)
+    ln_ratio = (ln_R_then - np.log(c + eps) - ln_R_now + np.log(c_inf + eps)) / p.n
+    u = np.expm1(np.minimum(ln_ratio, LN_CONTRAST_MAX))
+    length = np.sqrt((ln_gain**2).sum(axis=0))
+    u_length = np.sqrt((u**2).sum(axis=0))
+    return np.exp(-length * u / np.maximum(u_length, np.finfo(np.float32).tiny))
+
+
+def bleach_response(
+    I: np.ndarray, B: np.ndarray, B_inf: np.ndarray, c: np.ndarray, A: float, p: Params
+) -> np.ndarray:
+    """Eq. 12's bleaching term per cone, shown as the cone's response to an equivalent light.
+
+    x = g j1 (C / C_max) max(B - B_inf, 0), with the display gain g = bleach_display_gain (ours),
+    is the response the paper adds. The light that gives response x at the adaptation floor
+    A_min, I_x = R^-1(x), is added to the cone's input, and the added response R(I + I_x) - R(I)
+    at the current adaptation A is returned (Barlow's "dark light" of bleached pigment). On black
+    at the floor that is x itself; a background as bright as I_x masks it (Sec. 2.2.2), and so
+    does a light-adapted eye. R(I + I_x) - R(I) is computed as (1 - R(I)) R(I + I_x)
+    (1 - (I / (I + I_x))^n), which does not cancel when I_x << I.
+    """
+    x = p.bleach_display_gain * p.j1 * c * np.maximum(B - B_inf, 0.0)
+    x = np.minimum(x, 1.0 - p.alpha_eps)  # a response below 1 (guarded like Eq. 11)
+    with np.errstate(divide="ignore"):
+        ln_odds = np.log(x) - np.log1p(-x)
+    I_x = np.exp((ln_sigma_n(p.A_min, p) + ln_odds) / p.n)  # R^-1(x) at A_min; 0 for x = 0
+    I = np.asarray(I, np.float64)
+    total = I + I_x
+    with np.errstate(divide="ignore", invalid="ignore"):
+        masked = np.where(total > 0, (I / np.where(total > 0, total, 1.0)) ** p.n, 1.0)
+    return (1.0 - tone(I, A, p)) * tone(total, A, p) * (1.0 - masked)
+
+
 def afterimage_maps(state, down, A, gaze, lay: Layout, p: Params) -> np.ndarray:
     """The maps every afterimage model makes for `compose`: a multiplicative gain per cone
-    (here alpha^j2, Eq. 11, guarded) and an additive linear-RGB term (here H times the
-    bleaching term j1 c max(B - B_inf, 0) of Eq. 12)."""
+    (here Eq. 11's, along the adapting light: `opponent_gain`) and an additive linear-RGB term
+    (here H times Eq. 12's bleaching term, as a response: `bleach_response`)."""
     I = retina_input(down, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
-    B_inf = b1 * I / (b1 * I + b2)
-    c_inf = 1.0 - tone(I, A, p)
+    B_inf = b1 * I / (b1 * I + b2)  # Eq. 6
+    c_inf = 1.0 - tone(I, A, p)  # Eq. 10 / C_max
     B, c = state[:3], state[3:]
-    eps = p.alpha_eps
-    alpha = (1.0 - c_inf + eps) / (1.0 - c + eps)
-    gain = alpha**p.j2
-    bleach = p.j1 * c * np.maximum(B - B_inf, 0.0)
+    gain = opponent_gain(c, c_inf, p)
+    bleach = bleach_response(I, B, B_inf, c, A, p)
     return np.concatenate([gain, np.tensordot(np.asarray(p.H), bleach, axes=1)])
 
 

@@ -96,8 +96,15 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
     }
 }
 
-// Gain alpha^j2 (Eq. 11, guarded by alpha_eps so darkness gives 1, not 0/0) per cone, and the
-// bleaching term of Eq. 12, H j1 c max(B - B_inf, 0), as linear RGB, of 8 cells.
+// Cap on ln(I_adapt / I_now) in the gain's direction (reference.LN_CONTRAST_MAX): the squared
+// cone contrasts stay finite in float32.
+#define LN_CONTRAST_MAX 20.0f
+
+// The maps of 8 cells (reference.afterimage_maps). Gain: Eq. 11's alpha^j2 per cone (guarded by
+// alpha_eps so darkness gives 1, not 0/0), its length kept but pointed along -u, u the linear
+// cone contrast of the light the calcium adapted to against the light now (ours:
+// reference.opponent_gain). Add: Eq. 12's bleaching term times the display gain, as the cone's
+// response to its equivalent light (ours: reference.bleach_response), to linear RGB through H.
 inline void maps8(__constant const params_t *P, __global const float *down, float8 *st,
                   __global float *maps, float lsn, int low_w, int low_h, int cell, int grid_w,
                   int grid_h, float gx, float gy, int j, int i) {
@@ -105,14 +112,27 @@ inline void maps8(__constant const params_t *P, __global const float *down, floa
     size_t row = (size_t)i * grid_w;
     cone8_t I = retina_input8(down, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
-    float8 bleach[3];
+    float8 u[3], ln_gain[3], bleach[3];
+    float8 len_g = 0.0f, len_u = 0.0f;
+    float eps = P->alpha_eps, lsn_floor = ln_sigma_n_of(P, P->A_min);
     for (int c = 0; c < 3; ++c) {
-        float8 B = st[c], ca = st[3 + c];
-        float8 c_inf = 1.0f - tone8(P, lsn, In[c]);
-        float8 alpha = (1.0f - c_inf + P->alpha_eps) / (1.0f - ca + P->alpha_eps);
-        store_cell8(maps + c * plane + row, pow8_pos(alpha, P->j2), j, grid_w);
-        bleach[c] = P->j1 * ca * MAX(B - bleach_inf8(P, c, In[c]), 0.0f);
+        float8 ca = st[3 + c], R_now = tone8(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
+        float8 ln_now = log8(R_now + eps), ln_then = log8(1.0f - ca + eps);
+        ln_gain[c] = P->j2 * (ln_now - ln_then);  // ln alpha^j2, Eq. 11
+        float8 ln_ratio = (ln_then - log8(ca + eps) - ln_now + log8(1.0f - R_now + eps)) / P->n;
+        u[c] = exp8(MIN(ln_ratio, LN_CONTRAST_MAX)) - 1.0f;
+        len_g += ln_gain[c] * ln_gain[c];
+        len_u += u[c] * u[c];
+        // Bleaching (Eq. 12) as a response x; its light R^-1(x) at A_min adds to the input.
+        float8 x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_inf8(P, c, In[c]), 0.0f);
+        x = MIN(x, 1.0f - eps);
+        float8 ln_odds = log8(MAX(x, FLT_MIN)) - log8(1.0f - x);
+        float8 total = In[c] + exp8((lsn_floor + ln_odds) / P->n);
+        float8 masked = exp8(P->n * (log8(MAX(In[c], FLT_MIN)) - log8(MAX(total, FLT_MIN))));
+        bleach[c] = x > 0.0f ? (1.0f - R_now) * tone8(P, lsn, total) * (1.0f - masked) : 0.0f;
     }
+    float8 scale = -sqrt(len_g) / MAX(sqrt(len_u), FLT_MIN);
+    for (int c = 0; c < 3; ++c) store_cell8(maps + c * plane + row, exp8(scale * u[c]), j, grid_w);
     rgb8_t add = mat8_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
     store_cell8(maps + 3 * plane + row, add.r, j, grid_w);
     store_cell8(maps + 4 * plane + row, add.g, j, grid_w);

@@ -3,10 +3,10 @@
 // term read at the retinal position x - gaze with the foveal fall-off, gamut, gamma.
 // One work-item makes 8 neighbouring pixels of a row; global size (ceil(W / 8), H).
 
-// Largest t in [0,1] keeping Y + t (rgb - Y) inside the cube: desaturate, never flip hue.
-inline float8 gamut_t(float8 Y, float8 d, float8 t) {
-    float8 lim = (d > 0.0f ? 1.0f - Y : -Y) / d;  // inf or NaN where d = 0: not taken
-    return (d != 0.0f && lim < t) ? lim : t;
+// Largest t in [0,1] keeping a + t (rgb - a) inside the cube, for a grey a: never flip hue.
+inline float8 gamut_t(float8 a, float8 e, float8 t) {
+    float8 lim = (e > 0.0f ? 1.0f - a : -a) / e;  // inf or NaN where e = 0: not taken
+    return (e != 0.0f && lim < t) ? lim : t;
 }
 
 inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
@@ -64,14 +64,18 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     J.r += f * m[3];  // additive afterimage, linear RGB (Eq. 12: H times the bleaching term)
     J.g += f * m[4];
     J.b += f * m[5];
-    // Gamut: toward the grey of equal luminance, just far enough to fit.
-    float8 Y = CLAMP(dot8(P->w_P, J.r, J.g, J.b), 0.0f, 1.0f);
+    // Gamut (reference.gamut_map): toward the grey of luminance min(Y, Y_c), Y_c that of the
+    // hue's cusp, just far enough to fit; bright colours trade luminance for saturation.
+    float8 Y = dot8(P->w_P, J.r, J.g, J.b);
     float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
-    float8 t = MAX(gamut_t(Y, db, gamut_t(Y, dg, gamut_t(Y, dr, (float8)(1.0f)))), 0.0f);
+    float8 d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
+    float8 a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
+    float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
+    float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
     rgb8_t out;
-    out.r = pow8_pos(CLAMP(Y + t * dr, 0.0f, 1.0f), P->gamma);
-    out.g = pow8_pos(CLAMP(Y + t * dg, 0.0f, 1.0f), P->gamma);
-    out.b = pow8_pos(CLAMP(Y + t * db, 0.0f, 1.0f), P->gamma);
+    out.r = pow8_pos(CLAMP(a + t * er, 0.0f, 1.0f), P->gamma);
+    out.g = pow8_pos(CLAMP(a + t * eg, 0.0f, 1.0f), P->gamma);
+    out.b = pow8_pos(CLAMP(a + t * eb, 0.0f, 1.0f), P->gamma);
     return out;
 }
 
