@@ -26,6 +26,7 @@ from gazehdr.sim.layout import (
     acuity_increments,
     adaptation_window,
     gaussian_taps,
+    surround_map,
 )
 from gazehdr.sim.models import Models, each_beside_default
 from gazehdr.sim.reference import bleach_response, gamut_map, opponent_gain
@@ -72,6 +73,12 @@ class OpenCVPipeline:
         cv2, lay = self.cv2, self.lay
         rgb = cv2.resize(scene, (lay.low_w, lay.low_h), interpolation=cv2.INTER_AREA)
         self.lms = cv2.transform(rgb, RGB_TO_LMS.astype(np.float32))
+        # The retina's input, with a border of one cell that holds the surround (what a tap off
+        # the screen reads, at the nearest cell): remap replicates it outwards.
+        surround = surround_map(self.lms.transpose(2, 0, 1), lay, self.p)
+        padded = np.pad(surround.transpose(1, 2, 0), ((1, 1), (1, 1), (0, 0)), mode="edge")
+        padded[1:-1, 1:-1] = self.lms
+        self.lms_padded = padded.astype(np.float32)
         self.lum_p = cv2.transform(rgb, self.w_P[None])
         self.lum_s = cv2.transform(rgb, self.w_S[None])
         L = cv2.log(np.maximum(self._sep(self.lum_p, self.rho_taps), self.p.Y_min)) / math.log(10)
@@ -96,9 +103,9 @@ class OpenCVPipeline:
 
     def retina(self, gaze, dt: float) -> None:
         cv2, lay, p = self.cv2, self.lay, self.p
-        mx = (gaze[0] / lay.cell + self.gx - lay.grid_w / 2) - 0.5
-        my = (gaze[1] / lay.cell + self.gy - lay.grid_h / 2) - 0.5
-        I = cv2.remap(self.lms, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        mx = (gaze[0] / lay.cell + self.gx - lay.grid_w / 2) + 0.5  # + 1: the padding
+        my = (gaze[1] / lay.cell + self.gy - lay.grid_h / 2) + 0.5
+        I = cv2.remap(self.lms_padded, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         b1I = I * self.b1
         B_inf = b1I / (b1I + self.b2)
         c_inf = 1.0 - self._tone(I)
@@ -166,12 +173,17 @@ def _bench_size(
 ) -> dict:
     from gazehdr.scenes import open_scene
 
+    gazes = [
+        (width * (0.3 + 0.4 * (i % 3) / 2), height * (0.4 + 0.2 * (i % 2)))
+        for i in range(frames + 2)
+    ]
     sim = Simulator(width, height, backend="opencl", seed=0)
     scene = open_scene(scene_name).render(0.0, width, height)
-    sim.load_scene(scene)
+    sim.start(scene, gazes[0])
+    sim.step(0.0)  # settled there: the state the OpenCV side starts from
     # A second eye for the live frames, so that `sim` stays in step with the OpenCV side.
     live = Simulator(width, height, backend="opencl", seed=0)
-    live.load_scene(scene)
+    live.start(scene, gazes[0])
     b, lay, p = sim._backend, sim.layout, sim.params
     cvp = OpenCVPipeline(lay, p) if opencv else None
     if cvp is not None:
@@ -180,10 +192,6 @@ def _bench_size(
     fitted = np.ascontiguousarray(b.get("scene").transpose(1, 2, 0))
     times: dict[str, list[float]] = {f"cl.{s}": [] for s in (*STAGES, "step", "live")}
     times.update({f"cv.{s}": [] for s in (*STAGES, "step")})
-    gazes = [
-        (width * (0.3 + 0.4 * (i % 3) / 2), height * (0.4 + 0.2 * (i % 2)))
-        for i in range(frames + 2)
-    ]
     out_dtype = np.float16 if half else np.float32
 
     def timed(key: str, fn) -> None:

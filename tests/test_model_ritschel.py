@@ -100,6 +100,7 @@ def test_kernel_orgb_round_trip(backend: str) -> None:
     the maps are then exactly max(LMS_TO_RGB r, 0), through gamma, oRGB and back."""
     p = Params(c_d=0.0, ritschel_N_sigma_deg=0.0, ritschel_flight_rate=math.pi)
     s = sim(backend, p)
+    s.step(0.0, gaze=GAZE)  # the first step settles the eye; the state is set after it
     rng = np.random.default_rng(1)
     r = rng.uniform(0.0, 1.0, s._backend.get("state").shape)
     s._backend.put("state", r)
@@ -143,8 +144,9 @@ def test_one_frame_is_listing_1(backend: str, dt: float, c_a: float, c_d: float,
     length dt/n, each clamped to [0, 1], per cell and cone, in closed form here. c_a != c_d
     tells the two constants apart. Tolerance: 1e-12 (float64), 2e-6 (float32 kernel)."""
     p = Params(
-        c_a=c_a, c_d=c_d, ritschel_steps=n, ritschel_N_sigma_deg=0.0, ritschel_saccade_sigma_deg=0.0
-    )
+        c_a=c_a, c_d=c_d, ritschel_steps=n, ritschel_N_sigma_deg=0.0,
+        ritschel_saccade_sigma_deg=0.0, surround=0.0,  # a dark room off screen, as cone_input
+    )  # fmt: skip
     s = sim(backend, p)
     rng = np.random.default_rng(7)
     scene = np.exp(rng.uniform(np.log(10.0), np.log(3e4), (H, W, 3))).astype(np.float32)
@@ -258,6 +260,7 @@ def test_diffusion_after_one_second_is_independent_of_frame_rate(backend: str) -
     for fps, n in ((1, 1), (10, 1), (30, 2)):
         p = Params(c_d=0.0, ritschel_N_sigma_deg=n_sigma_deg, ritschel_steps=n)
         s = sim(backend, p)
+        s.step(0.0, gaze=GAZE, eyes_open=False)  # the first step settles; set the state after
         lay = s.layout
         r = np.zeros(s._backend.get("state").shape)
         r[:, lay.grid_h // 2, lay.grid_w // 2] = 1.0

@@ -53,7 +53,23 @@ def test_no_nan_or_inf_out(backend: str, scene: str, models: tuple[str, str]) ->
             check_frame(sim.step(dt, gaze=gaze))
     check_frame(sim.step(1.0, eyes_open=False))
     check_frame(sim.step(1 / 30, gaze=None))
-    for name in ("state", "maps", "G", "rho", "down"):
+    for name in ("state", "maps", "G", "rho", "down", "surround"):
+        assert np.isfinite(sim._backend.get(name)).all(), name
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("scene", list(scenes()))
+def test_sec5_cues_stay_finite(backend: str, scene: str) -> None:
+    """The afterimage boost (blinks, saccades, dt = 0 jumps) and the blind spot, at full
+    strength, on every edge scene."""
+    p = Params(afterimage_boost=1.0, foveal_blind_spot=1.0, tracker_accuracy_deg=0.0)
+    sim = Simulator(W, H, params=p, backend=backend)
+    sim.load_scene(scenes()[scene])
+    for dt in (0.0, 1 / 60, 1.0):
+        for gaze in [(48.0, 27.0), (-1e6, 3e9), (0.0, 0.0)]:
+            check_frame(sim.step(dt, gaze=gaze))
+        check_frame(sim.step(dt, eyes_open=False))
+    for name in ("state", "maps", "G", "surround", "fill"):
         assert np.isfinite(sim._backend.get(name)).all(), name
 
 

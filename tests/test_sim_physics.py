@@ -30,6 +30,25 @@ def state_at_gaze(sim: Simulator) -> np.ndarray:
     return st[:, lay.grid_h // 2, lay.grid_w // 2].astype(np.float64)
 
 
+def test_defaults_are_appendix_a_as_printed() -> None:
+    """The paper's Appendix A, typed from the paper, and A_min = log10(100 cd/m^2) of Sec. 2.4.
+    The tests below read rates and weights from Params, so they alone would pass wrong
+    defaults. (H, the LMS -> RGB matrix, is not in the paper's text we have: not pinned.)"""
+    p = Params()
+    printed = {
+        "gamma": 0.455, "n": 0.7, "a1": 0.75, "a2": 0.2,
+        "b1": (1.2e-3, 1.4e-4, 5.5e-7), "b2": (6.9e-1, 1.4e0, 5.5e0),
+        "c1": 1.0, "c2": 1.0, "j1": 0.03, "j2": 0.15, "m1": 0.0, "m2": -2.0,
+        "w_P": (0.2126, 0.7152, 0.0722), "w_S": (0.0, 0.8451, 0.1459),
+        "sigma_0": 0.75, "rho_step": 0.286, "g": 0.25, "A_min": 2.0, "bands": 8,
+    }  # fmt: skip
+    assert {name: getattr(p, name) for name in printed} == printed
+    ppd = p.geometry.pixels_per_degree()  # sigma_i = 0.75 2^(i/4) px, i = 0..7
+    assert p.sigma_i(ppd) == pytest.approx([0.75 * 2 ** (i / 4) for i in range(8)])
+    # rho_i = 0.286 i in log10 luminance, finest band (i = 7) first, over m1 - m2 = 2
+    assert p.rho_i() == pytest.approx([0.286 * i / 2 for i in range(7, -1, -1)])
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_bleaching_after_flash_matches_eq5_6(backend: str) -> None:
     """A 1/8 s, 1e7 cd/m^2 white flash on a dark field; then darkness (Fig. 4)."""

@@ -322,7 +322,8 @@ def lamp_run(ctx: Context, model: str) -> LookRun:
 
 def _arrays(sim: Simulator) -> dict[str, np.ndarray]:
     b = sim._backend
-    return {name: b.get(name).astype(np.float64) for name in ("state", "down", "G", "rho")}
+    names = ("state", "down", "surround", "G", "rho")
+    return {name: b.get(name).astype(np.float64) for name in names}
 
 
 def without_afterimage(sim: Simulator) -> np.ndarray:
@@ -343,7 +344,9 @@ def recompose(sim: Simulator, *, calcium: bool) -> np.ndarray:
     if not calcium:
         a["state"][3:] = 1.0
         p = p.replace(j2=0.0)
-    maps = afterimage_maps(a["state"], a["down"], sim.adaptation, sim.gaze, sim.layout, p)
+    maps = afterimage_maps(
+        a["state"], a["down"], a["surround"], sim.adaptation, sim.gaze, sim.layout, p
+    )
     return compose(a["G"], a["rho"], maps, sim.adaptation, sim.gaze, 1.0, sim.layout, p)
 
 

@@ -65,7 +65,7 @@ def plateau_m(p: Params) -> float:
 FIELDS: tuple[BlockField, ...] = (
     *map(from_params, ("gamma", "n", "a1", "a2", "b1", "b2", "c2", "j1", "j2", "m1", "m2",
                        "w_P", "w_S", "k_s", "g", "A_min", "bleach_display_gain", "alpha_eps",
-                       "Y_min")),
+                       "Y_min", "surround")),
     BlockField("ln_K_m", "float", 1, lambda p: plateau_m(p) * math.log(p.plateau_K),
                "m ln K of the plateau (ours)"),
     BlockField("n_minus_m", "float", 1, lambda p: p.n - plateau_m(p), "n - m"),

@@ -124,9 +124,14 @@ def acuity_increments(params: Params, ppd: float) -> list[float]:
 
 
 def bilinear(
-    img: np.ndarray, xs: np.ndarray, ys: np.ndarray, border: Sequence[float] | None = None
+    img: np.ndarray,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    border: Sequence[float] | None = None,
+    outside: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Sample planar `img` at continuous coordinates; outside taps clamp, or take `border`."""
+    """Sample planar `img` at continuous coordinates; outside taps clamp, or take `border`, or
+    read `outside` (a map of `img`'s shape) at the clamped tap."""
     c, h, w = img.shape
     u, v = xs - 0.5, ys - 0.5
     x0, y0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
@@ -136,8 +141,11 @@ def bilinear(
         for dx, wx in ((0, 1 - fx), (1, fx)):
             xi, yi = x0 + dx, y0 + dy
             inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-            val = img[:, np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)]
-            if border is not None:
+            yc, xc = np.clip(yi, 0, h - 1), np.clip(xi, 0, w - 1)
+            val = img[:, yc, xc]
+            if outside is not None:
+                val = np.where(inside, val, outside[:, yc, xc])
+            elif border is not None:
                 val = np.where(inside, val, np.asarray(border, np.float64)[:, None, None])
             out += wx * wy * val
     return out
@@ -156,6 +164,110 @@ def adaptation_window(
     y0 = max(0, math.floor((cy - 3 * sig) / lay.cell))
     y1 = min(lay.low_h - 1, math.floor((cy + 3 * sig) / lay.cell))
     return cx, cy, sig, x0, x1, y0, y1
+
+
+# --- the surround: what the retina sees off the screen (Sec. 2.2) -----------------------------
+# Off the screen the retina reads the surround map at the nearest screen cell, always one of the
+# frame's outermost cells. There the map holds the Gaussian average along the frame's edge
+# (around its corners) of the cells on it: the frame's edge goes on past it as it is on
+# average near that point (Params.surround).
+
+
+def edge_loop(w: int, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """The outermost cells of a w×h grid as a closed loop, (x, y) of each loop position: along
+    the top row, down the right column, back along the bottom row, up the left column (one row:
+    out along it and back). Kernels: edge_cell in kernels/sec2_2_afterimages.cl."""
+    k = np.arange(max(2 * (w - 1) + 2 * (h - 1), 1))
+    right, bottom, left = w - 1, (w - 1) + (h - 1), 2 * (w - 1) + (h - 1)
+    x = np.select([k < right, k < bottom, k < left], [k, w - 1, w - 1 - (k - bottom)], 0)
+    y = np.select([k < right, k < bottom, k < left], [0, k - right, h - 1], h - 1 - (k - left))
+    return x, y
+
+
+def edge_position(x: np.ndarray, y: np.ndarray, w: int, h: int) -> np.ndarray:
+    """The loop position (first, where a cell has two) of cells on the edge of a w×h grid."""
+    return np.select(
+        [y == 0, x == w - 1, y == h - 1],
+        [x, (w - 1) + y, (w - 1) + (h - 1) + (w - 1 - x)],
+        2 * (w - 1) + (h - 1) + (h - 1 - y),
+    )
+
+
+def surround_map(lms: np.ndarray, lay: Layout, p: Params) -> np.ndarray:
+    """The surround of planar low-res `lms` (L, M, S first), on its outermost cells (zero
+    inside): `surround` times the Gaussian average along the edge, sigma surround_sigma_deg
+    (kernel: surround_map in kernels/sec2_2_afterimages.cl)."""
+    w, h = lay.low_w, lay.low_h
+    xs, ys = edge_loop(w, h)
+    taps = gaussian_taps(lay.px(p.surround_sigma_deg) / lay.cell)
+    r, k = len(taps) // 2, np.arange(len(xs))
+    edge = np.asarray(lms, np.float64)[:3, ys, xs]
+    mean = sum(float(t) * edge[:, (k + i - r) % len(xs)] for i, t in enumerate(taps))
+    out = np.zeros((3, h, w))
+    out[:, ys, xs] = p.surround * mean[:, edge_position(xs, ys, w, h)]
+    return out
+
+
+# --- settling the retina (Sec. 2.2, 2.4) ------------------------------------------------------
+# A step relaxes the state toward its equilibrium s_inf (Eq. 5, 9: s' = R s + (1 - R) s_inf) and
+# then blurs it (G, Sec. 2.4). Around sharp edges of s_inf the blur and the relaxation balance
+# only at s = G(R s + (1 - R) s_inf), not at s_inf: settled means that fixed point. Both
+# backends find it by Jacobi iterations, s <- (b + G(R s) - d R s) / (1 - d R), b = G((1 - R)
+# s_inf), d the diagonal of G. These give how many.
+
+SETTLE_MIN_DT = 1 / 240  # s; a shorter (or zero) step settles for this one (1 - dR ~ rounding)
+SETTLE_TOL = 1e-7  # what is left of the first error
+SETTLE_MAX_ITERATIONS = 200  # reached only for very slow rates (b2, c2 far below Appendix A)
+
+
+def blur_diagonal(taps: np.ndarray, n: int) -> np.ndarray:
+    """Weight of each element of an n-long axis on itself in the edge-clamped blur `taps`."""
+    r = len(taps) // 2
+    j = np.arange(n)
+    return sum(float(t) * (np.clip(j + k - r, 0, n - 1) == j) for k, t in enumerate(taps))
+
+
+def map_blur_sigma(dt: float, lay: Layout, p: Params) -> float:
+    """Sigma, in retina cells, of the B and C map blur after a step of dt (Sec. 2.4)."""
+    return lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
+
+
+@dataclass(frozen=True)
+class SettlePlan:
+    """The blur of a step of dt, its diagonal along each grid axis, and the iterations."""
+
+    sigma: float  # in retina cells
+    diag_x: np.ndarray  # (grid_w,)
+    diag_y: np.ndarray  # (grid_h,)
+    iterations: int
+
+
+def settle_plan(dt: float, lay: Layout, p: Params) -> SettlePlan:
+    """Each Jacobi iteration shrinks the error by at most (1 - d) R / (1 - d R): largest at the
+    smallest diagonal d and the slowest decay R = exp(-min(b2, c2) dt) (Eq. 5, 9 in the dark)."""
+    sigma = map_blur_sigma(dt, lay, p)
+    taps = gaussian_taps(sigma)
+    dx, dy = blur_diagonal(taps, lay.grid_w), blur_diagonal(taps, lay.grid_h)
+    d, r = float(dx.min() * dy.min()), math.exp(-min(*p.b2, p.c2) * dt)
+    rate = (1 - d) * r / (1 - d * r)
+    n = 1 if rate <= 0 else math.ceil(math.log(SETTLE_TOL) / math.log(rate))
+    return SettlePlan(sigma, dx, dy, min(n, SETTLE_MAX_ITERATIONS))
+
+
+# --- Sec. 5 cues -----------------------------------------------------------------------------
+
+
+def blind_spot_strength(p: Params) -> float:
+    """How much of the foveal blind spot can be shown: `foveal_blind_spot` times the share of
+    the drawn rod-free zone that lies on the true one (two discs of rod_free_radius_deg,
+    tracker_accuracy_deg apart), times the share of a fixation it spends there (it lands one
+    sample late: 1 - 1 / (rate fixation_s)). The paper's tracker (1 deg, 30 Hz) gives 9 %."""
+    r, e = p.rod_free_radius_deg, p.tracker_accuracy_deg
+    if p.foveal_blind_spot == 0 or e >= 2 * r:
+        return 0.0
+    lens = 2 * r * r * math.acos(e / (2 * r)) - 0.5 * e * math.sqrt(4 * r * r - e * e)
+    on_time = max(0.0, 1 - 1 / (p.tracker_rate_hz * p.fixation_s))
+    return p.foveal_blind_spot * lens / (math.pi * r * r) * on_time
 
 
 # --- acuity noise field (Sec. 2.3.3) ---------------------------------------------------------

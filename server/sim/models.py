@@ -79,8 +79,10 @@ class StageBackend(Protocol):
 class ReferenceStageBackend(StageBackend, Protocol):
     """The NumPy reference: stages read and replace its float64 arrays."""
 
-    #: Every map by name, as `get` lists them: "scene" (3, H, W), "down", "rho", "A", "state"
-    #: (the afterimage stage's planes on the retina grid), "maps" (6 planes it writes), "G".
+    #: Every map by name, as `get` lists them: "scene" (3, H, W), "down", "rho", "surround"
+    #: (L, M, S the retina sees off the screen, at the nearest cell: `retina_input` reads it),
+    #: "A", "state" (the afterimage stage's planes on the retina grid), "maps" (6 planes it
+    #: writes), "G".
     a: dict[str, np.ndarray]
 
 

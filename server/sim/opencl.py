@@ -26,7 +26,11 @@ from gazehdr.sim.layout import (
     NoiseFrame,
     acuity_increments,
     adaptation_window,
+    blind_spot_strength,
+    edge_loop,
     gaussian_taps,
+    map_blur_sigma,
+    settle_plan,
 )
 from gazehdr.sim.params import Params
 from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
@@ -37,6 +41,7 @@ KERNEL_FILES = (
     "sec2_2_afterimages.cl",
     "sec2_3_mesopic.cl",
     "sec2_4_display.cl",
+    "sec5_discussion.cl",
 )
 TAPS_CACHE = 32  # blur tap buffers kept per backend
 STATE_PLANES = 8  # retinal state planes allocated; an afterimage model uses up to this many
@@ -112,6 +117,8 @@ class OpenCLBackend:
             "scene": (3, lay.height, lay.width),
             "down": (5, lay.low_h, lay.low_w),
             "rho": (lay.low_h, lay.low_w),
+            "surround": (3, lay.low_h, lay.low_w),
+            "fill": (3, lay.low_h, lay.low_w),
             "A": (1,),
             "state": (6, lay.grid_h, lay.grid_w),
             "maps": (6, lay.grid_h, lay.grid_w),
@@ -126,6 +133,8 @@ class OpenCLBackend:
             "state": STATE_PLANES * grid, "maps": 6 * grid, "G": 3 * full, "v": 3 * full,
             "d_max": 1, "rho_full": full, "grid_a": STATE_PLANES * grid, "low_yp": low,
             "low_blur": low, "low_tmp": low, "fovea": lay.width + lay.height,
+            "surround": 3 * low, "fill": 3 * low, "fill_tmp": 3 * low,
+            "blind_xy": lay.width + lay.height,
         }  # fmt: skip
         if self._bank is None:  # the level-by-level bank's whole-frame levels
             sizes.update({"lvl_a": 3 * full, "lvl_b": 3 * full, "lvl_tmp": 3 * full})
@@ -146,6 +155,9 @@ class OpenCLBackend:
         self._noise_buf: cl.Buffer | None = None
         self._acuity_taps = [self.taps_for(s) for s in acuity_increments(params, lay.ppd)]
         self._rho_taps = self.taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
+        self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
+        self._fill_taps = self.taps_for(lay.px(2 * params.rod_free_radius_deg) / lay.cell)
+        self._settle_buf: dict[str, cl.Buffer] = {}  # made at the first settle
 
     # --- host access (tests, adaptation readout) ----------------------------------------------
 
@@ -293,6 +305,14 @@ class OpenCLBackend:
         )  # fmt: skip
         self._rho_full_stale = True
         self.rho_full()
+        n = len(edge_loop(lay.low_w, lay.low_h)[0])
+        tbuf, r = self._surround_taps
+        self.k["surround_map"](
+            self.queue, (n,), None, self.P, b["down"], b["surround"], tbuf, np.int32(r),
+            np.int32(n), np.int32(lay.low_w), np.int32(lay.low_h),
+        )  # fmt: skip
+        if blind_spot_strength(self.p) > 0:  # reference.fill_map: L, M, S, the down's first three
+            self.blur(b["down"], b["fill"], b["fill_tmp"], self._fill_taps, lay.low_w, lay.low_h, 3)
 
     def adapt(self, gaze, dt: float, reset: bool) -> None:
         lay, b = self.lay, self.buf
@@ -307,15 +327,17 @@ class OpenCLBackend:
 
     def retina(self, gaze, dt: float, reset: bool) -> None:
         lay, b, p = self.lay, self.buf, self.p
-        grid = (-(-lay.grid_w // VEC), lay.grid_h)
         args = self.grid_args(gaze)
-        sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
+        sigma = map_blur_sigma(dt, lay, p)
+        if reset and dt > 0 and sigma > 0:
+            self._settle(gaze, dt)
+            self._maps(gaze, self._screen_window(gaze))
+            return
         blurred = not reset and sigma > 0
         target = b["grid_a"] if blurred else b["state"]
-        decay = [math.exp(-k * dt) for k in (*p.b2, p.c2)]
         self.k["retina_update"](
-            self.queue, grid, None, self.P, b["down"], b["state"], target, b["A"],
-            *args, np.float32(dt), np.int32(reset), *(np.float32(v) for v in decay),
+            self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["state"], target,
+            b["A"], *args, np.float32(dt), np.int32(reset), np.float32(math.exp(-p.c2 * dt)),
         )  # fmt: skip
         # Maps only for the cells the screen shows at this gaze; the rest waits for get("maps")
         # or a compose at another gaze (_full_maps).
@@ -323,12 +345,49 @@ class OpenCLBackend:
         if blurred:
             tbuf, r = self.taps_for(sigma)
             self.k["retina_blur_maps"](
-                self.queue, grid, None, self.P, b["down"], b["grid_a"], b["state"], b["maps"],
-                b["A"], tbuf, np.int32(r), *args, *(np.int32(v) for v in window),
+                self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["grid_a"],
+                b["state"], b["maps"], b["A"], tbuf, np.int32(r), *args,
+                *(np.int32(v) for v in window),
             )  # fmt: skip
             self._maps_partial = tuple(gaze)
         else:
             self._maps(gaze, window)
+
+    def _grid8(self) -> tuple[int, int]:
+        """Global size of the kernels that make 8 neighbouring cells of a grid row each."""
+        return (-(-self.lay.grid_w // VEC), self.lay.grid_h)
+
+    def _settle(self, gaze, dt: float) -> None:
+        """The state that steps of dt leave as it is (layout.settle_plan): Jacobi iterations,
+        each a blur of u = R s and a pointwise update (kernels retina_settle_*)."""
+        lay, b, p = self.lay, self.buf, self.p
+        plan = settle_plan(dt, lay, p)
+        grid_planes = lay.grid_w * lay.grid_h * 4
+        s = self._settle_buf
+        if not s:
+            mf = cl.mem_flags
+            sizes = {"rate": 3, "u": 6, "w": 6, "b": 6}
+            s.update(
+                {n: cl.Buffer(self.ctx, mf.READ_WRITE, k * grid_planes) for n, k in sizes.items()}
+            )
+            s["diag"] = cl.Buffer(self.ctx, mf.READ_WRITE, 4 * (lay.grid_w + lay.grid_h))
+        cl.enqueue_copy(
+            self.queue, s["diag"], np.concatenate([plan.diag_x, plan.diag_y]).astype(np.float32)
+        )
+        decay_c = np.float32(math.exp(-p.c2 * dt))
+        self.k["retina_settle_init"](
+            self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["A"],
+            *self.grid_args(gaze), np.float32(dt), decay_c, b["state"], s["rate"], s["u"], s["b"],
+        )  # fmt: skip
+        taps = self.taps_for(plan.sigma)
+        self.blur(s["b"], s["b"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 6)
+        for k in range(plan.iterations):
+            self.blur(s["u"], s["w"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 6)
+            self.k["retina_settle_step"](
+                self.queue, self._grid8(), None, b["state"], s["u"], s["w"], s["b"], s["rate"],
+                decay_c, s["diag"], np.int32(lay.grid_w), np.int32(lay.grid_h),
+                np.int32(k == plan.iterations - 1),
+            )  # fmt: skip
 
     def _screen_window(self, gaze) -> tuple[int, int, int, int]:
         """Retina cells (j0, i0, j1, i1), inclusive, that compose reads at this gaze."""
@@ -348,7 +407,8 @@ class OpenCLBackend:
         j0, i0, j1, i1 = window
         self.k["afterimage_maps"](
             self.queue, (-(-(j1 - j0 + 1) // VEC), i1 - i0 + 1), None, self.P, b["down"],
-            b["state"], b["maps"], b["A"], *self.grid_args(gaze), np.int32(j0), np.int32(i0),
+            b["surround"], b["state"], b["maps"], b["A"], *self.grid_args(gaze), np.int32(j0),
+            np.int32(i0),
         )  # fmt: skip
         full = window == (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
         self._maps_partial = None if full else tuple(gaze)
@@ -400,11 +460,35 @@ class OpenCLBackend:
             self._noise_buf = cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY, mixed.nbytes)
         cl.enqueue_copy(self.queue, self._noise_buf, mixed)
 
-    def compose(self, gaze, eyes: float, out_dtype=np.float32) -> np.ndarray:
+    def blind_spot(self, gaze) -> None:
+        """Sec. 5: the scotopic foveal blind spot, on G (reference.foveal_blind_spot)."""
+        lay, b = self.lay, self.buf
+        s = lay.px(self.p.rod_free_radius_deg) / math.sqrt(2 * math.log(2))
+        w = self._gaussian_xy(gaze, s)
+        w[: lay.width] *= blind_spot_strength(self.p)
+        cl.enqueue_copy(self.queue, b["blind_xy"], w)
+        self.k["foveal_blind_spot"](
+            self.queue, self.rows8(), None, self.P, b["G"], self.rho_full(), b["fill"],
+            b["blind_xy"], np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
+            np.int32(lay.low_w), np.int32(lay.low_h),
+        )  # fmt: skip
+
+    def _gaussian_xy(self, gaze, sigma: float) -> np.ndarray:
+        """exp(-|x - gaze|^2 / 2 sigma^2) = f(x) f(y) at the pixel centres: W + H factors."""
+        lay = self.lay
+        xs = np.concatenate(
+            [np.arange(lay.width) + 0.5 - gaze[0], np.arange(lay.height) + 0.5 - gaze[1]]
+        )
+        return np.exp(-(xs * xs) / (2.0 * sigma * sigma)).astype(np.float32)
+
+    def compose(
+        self, gaze, eyes: float, out_dtype=np.float32, visibility: float = 1.0
+    ) -> np.ndarray:
         """H×W×3 `v` as float32, or made ready to send without a pass over it in NumPy:
         out_dtype float16 gives H×W×3 half floats (round to nearest even, the same as
         `v.astype(np.float16)`), uint32 gives H×W RGB10_A2 words (`r | g << 10 | b << 20` of
-        round(1023 v), the same as gazehdr.protocol's rgb10a2 encoding)."""
+        round(1023 v), the same as gazehdr.protocol's rgb10a2 encoding). The afterimage maps
+        are seen with `visibility` (Sec. 5's boost) times the foveal fall-off."""
         lay, b = self.lay, self.buf
         kind = np.dtype(out_dtype)
         if kind not in COMPOSE_OUTPUTS:
@@ -413,12 +497,8 @@ class OpenCLBackend:
         rho_full = self.rho_full()
         if self._maps_partial is not None and self._maps_partial != tuple(gaze):
             self._full_maps()
-        # The foveal fall-off exp(-|x - gaze|^2 / 2 sigma^2) = f(x) f(y): W + H factors.
-        sig = lay.px(self.p.fovea_sigma_deg)
-        xs = np.concatenate(
-            [np.arange(lay.width) + 0.5 - gaze[0], np.arange(lay.height) + 0.5 - gaze[1]]
-        )
-        fovea = np.exp(-(xs * xs) / (2.0 * sig * sig)).astype(np.float32)
+        fovea = self._gaussian_xy(gaze, lay.px(self.p.fovea_sigma_deg))  # the foveal fall-off
+        fovea[: lay.width] *= visibility
         cl.enqueue_copy(self.queue, b["fovea"], fovea)
         self.k[kernel](
             self.queue, self.rows8(), None,

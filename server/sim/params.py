@@ -89,6 +89,39 @@ class Params:
     Y_min: float = 1e-6  # cd/m^2 floor inside log10; far below the scotopic range
     radiance_max: float = 1e10  # cd/m^2 cap on input; the sun's disc is about 1.6e9
     geometry: Geometry = field(default_factory=Geometry)
+    # What the retina sees off the screen (Sec. 2.2 locks the retina to the gaze, so part of it
+    # always lies beyond the frame): at the nearest screen point, `surround` times the average
+    # of the frame's edge along it (a Gaussian of surround_sigma_deg; layout.surround_map). The
+    # eye is adapted to the scene (Sec. 2.1) and the frame is a window on it: the least we can
+    # assume of the scene past its edge is that it goes on as it is there (1), without detail
+    # finer than a few degrees, which would be invented, and without light from inside the
+    # frame. A dark room (0) leaves that retina dark-adapted, and every gaze shift then brings
+    # bright bands onto the frame's edges (up to 13 % in v).
+    surround: float = 1.0
+    surround_sigma_deg: float = 2.0
+    # The paper's tracker (Sec. 3: a Tobii REX, about 1 deg, 30 Hz). A caller sets its own: the
+    # foveal blind spot below needs a good one.
+    tracker_accuracy_deg: float = 1.0
+    tracker_rate_hz: float = 30.0
+
+    # --- Sec. 5 observations, ours, off by default ------------------------------------------------
+    # After a blink or a saccade the afterimage looks stronger for a moment: its visibility is
+    # multiplied by 1 + afterimage_boost exp(-t / afterimage_boost_s) (t since the eyes opened,
+    # or since a step whose gaze moved faster than saccade_deg_s: Tobii's I-VT threshold, as
+    # drivers/fixations). 0 = off; the paper gives no size or time course.
+    afterimage_boost: float = 0.0
+    afterimage_boost_s: float = 0.5
+    saccade_deg_s: float = 30.0
+    # Scotopic foveal blind spot: the fovea has no rods (a rod-free zone 1.25 deg across,
+    # Curcio et al. 1990), so in scotopic light a fixated object vanishes into its surround.
+    # Where rho < 1 the scene is filled in with its local mean (sigma: the zone's diameter) by
+    # foveal_blind_spot (1 - rho_c) exp(-r^2 / 2 s^2), s such that it halves at the zone's edge,
+    # times what the tracker lets us show (layout.blind_spot_strength): the zone must land on
+    # the fovea (accuracy against rod_free_radius_deg) and follow it after each saccade
+    # (one sample late within a fixation of fixation_s, Rayner 1998). 0 = off.
+    foveal_blind_spot: float = 0.0
+    rod_free_radius_deg: float = 0.625
+    fixation_s: float = 0.25
 
     # --- baseline afterimage models (docs/baselines/) -------------------------------------------
     # Ritschel & Eisemann 2012: Eq. 3 and Listing 1.
@@ -139,9 +172,11 @@ class Params:
 
     def __post_init__(self) -> None:
         positive = ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps")
+        sec5 = ("tracker_rate_hz", "afterimage_boost_s", "saccade_deg_s", "rod_free_radius_deg",
+                "fixation_s")  # fmt: skip
         acuity = ("acuity_sigma_max_deg", "bilateral_sigma_r", "thompson_noise_hz")
         baselines = ("ritschel_L_ref", "mikamo_gamma", "mikamo_drop_log10", "mikamo_delta_e_floor")
-        for name in positive + acuity + baselines:
+        for name in positive + acuity + baselines + sec5:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"parameter {name} must be a finite positive number, got {value}")
@@ -165,12 +200,15 @@ class Params:
             "bleach_display_gain", "c_a", "c_d", "ritschel_saccade_sigma_deg",
             "ritschel_N_sigma_deg", "ritschel_strength", "mikamo_lowpass_deg", "mikamo_strength",
         )  # fmt: skip
-        for name in ("thompson_dog_gain", "thompson_noise", *non_negative):
+        ours = ("surround", "surround_sigma_deg", "tracker_accuracy_deg", "afterimage_boost")
+        for name in ("thompson_dog_gain", "thompson_noise", *non_negative, *ours):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"parameter {name} must be a finite number >= 0, got {value}")
         if not (math.isfinite(self.thompson_dog_ratio) and self.thompson_dog_ratio >= 1):
             raise ValueError("thompson_dog_ratio must be a finite number >= 1")
+        if not 0 <= self.foveal_blind_spot <= 1:
+            raise ValueError("foveal_blind_spot must lie in [0, 1]")
         if not math.isfinite(self.ritschel_flight_rate):
             raise ValueError("ritschel_flight_rate must be a finite number (rad/s)")
 
@@ -220,11 +258,15 @@ SECTIONS: dict[str, list[str]] = {
     ],
     "2.2 Afterimages": [
         "b1", "b2", "c1", "c2", "j1", "j2", "H", "bleach_display_gain", "alpha_eps",
-        "map_blur_deg", "fovea_sigma_deg", "retina_cell_deg",
+        "map_blur_deg", "fovea_sigma_deg", "retina_cell_deg", "surround", "surround_sigma_deg",
     ],
     "2.3 Mesopic vision": [
         "m1", "m2", "w_P", "w_S", "k_s", "rho_sigma_deg", "sigma_0", "rho_step", "g", "bands",
         "noise_cell_deg", "noise_rate_hz",
+    ],
+    "5 Discussion (off by default)": [
+        "afterimage_boost", "afterimage_boost_s", "saccade_deg_s", "foveal_blind_spot",
+        "rod_free_radius_deg", "fixation_s",
     ],
     "Ritschel & Eisemann 2012": [
         "c_a", "c_d", "ritschel_steps", "ritschel_L_ref", "ritschel_saccade_sigma_deg",
@@ -238,7 +280,9 @@ SECTIONS: dict[str, list[str]] = {
         "acuity_cutoff_response", "acuity_sigma_max_deg", "bilateral_sigma_r",
         "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     ],
-    "Input and viewing": ["Y_min", "radiance_max", "geometry"],
+    "Input and viewing": [
+        "Y_min", "radiance_max", "geometry", "tracker_accuracy_deg", "tracker_rate_hz",
+    ],
 }  # fmt: skip
 #: The values the paper does not give (see their comments in `Params`).
 OURS = frozenset(
@@ -246,7 +290,9 @@ OURS = frozenset(
         "plateau_m_over_n", "plateau_K", "adaptation_sigma_deg", "rho_sigma_deg",
         "k_s", "noise_cell_deg", "noise_rate_hz", "map_blur_deg", "fovea_sigma_deg",
         "retina_cell_deg", "bleach_display_gain", "alpha_eps", "Y_min", "radiance_max",
-        "geometry",
+        "geometry", "surround", "surround_sigma_deg", "tracker_accuracy_deg", "tracker_rate_hz",
+        "afterimage_boost", "afterimage_boost_s", "saccade_deg_s", "foveal_blind_spot",
+        "rod_free_radius_deg", "fixation_s",
         "ritschel_L_ref", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
         "ritschel_strength", "mikamo_drop_log10", "mikamo_lowpass_deg", "mikamo_strength",
         "mikamo_delta_e_floor",

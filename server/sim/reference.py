@@ -6,7 +6,8 @@ written for clarity, in float64. Equation numbers refer to Jacobs et al. 2015.
 Conventions shared with the kernels:
 - maps are planar (channels, rows, columns); pixel i has its centre at coordinate i + 0.5;
 - the low-resolution maps average `cell`×`cell` screen pixels; the retina grid has the same
-  cells and spans twice the screen, centred on the gaze (retinal offset 0 = grid centre);
+  cells and spans twice the screen, centred on the gaze (retinal offset 0 = grid centre); off
+  the screen it sees the surround map at the nearest screen cell (`layout.surround_map`);
 - calcium is stored normalised, c = C / C_max, so c_inf = 1 - R (Eq. 10 divided by C_max).
 """
 
@@ -24,7 +25,11 @@ from gazehdr.sim.layout import (
     acuity_increments,
     adaptation_window,
     bilinear,
+    blind_spot_strength,
     gaussian_taps,
+    map_blur_sigma,
+    settle_plan,
+    surround_map,
 )
 from gazehdr.sim.params import Params
 
@@ -121,6 +126,12 @@ def downsample(scene: np.ndarray, lay: Layout, p: Params, eyes: float) -> np.nda
     return np.concatenate([lms, yp[None], ys[None]])
 
 
+def fill_map(down: np.ndarray, lay: Layout, p: Params) -> np.ndarray:
+    """What fills the foveal blind spot (Sec. 5): L, M, S averaged over a Gaussian as wide
+    (sigma) as the rod-free zone is across, which an object inside the zone barely changes."""
+    return blur2d(down[:3], lay.px(2 * p.rod_free_radius_deg) / lay.cell)
+
+
 def local_rho(down: np.ndarray, lay: Layout, p: Params) -> np.ndarray:
     """rho of Eq. 13 from the locally averaged photopic luminance (sigma = rho_sigma_deg)."""
     yp = blur2d(down[3:4], lay.px(p.rho_sigma_deg) / lay.cell)[0]
@@ -144,29 +155,45 @@ def adapt(A: float, down, rho, gaze, dt: float, reset: bool, lay: Layout, p: Par
     return max(A - p.a2 * dt, target)
 
 
-def retina_input(down, gaze, lay: Layout) -> np.ndarray:
-    """Cone input at every retina cell: the scene at gaze + retinal offset (0 off screen)."""
+def retina_input(down, surround, gaze, lay: Layout) -> np.ndarray:
+    """Cone input at every retina cell: the scene at gaze + retinal offset; taps off the screen
+    read `surround` (L, M, S on the low-res grid) at the nearest screen cell."""
     j = np.arange(lay.grid_w)
     i = np.arange(lay.grid_h)
     sx = gaze[0] + (j + 0.5 - lay.grid_w / 2) * lay.cell
     sy = gaze[1] + (i + 0.5 - lay.grid_h / 2) * lay.cell
     X, Y = np.meshgrid(sx / lay.cell, sy / lay.cell)
-    return bilinear(down[:3], X, Y, border=(0.0, 0.0, 0.0))
+    return bilinear(down[:3], X, Y, outside=surround)
 
 
-def retina_update(state, down, A, gaze, dt, reset, lay: Layout, p: Params) -> np.ndarray:
-    """Bleaching Eq. 5-6 and calcium Eq. 9-10 per cone, then the sqrt(dt)-scaled map blur."""
-    I = retina_input(down, gaze, lay)
+def retina_update(state, down, surround, A, gaze, dt, reset, lay: Layout, p: Params):
+    """Bleaching Eq. 5-6 and calcium Eq. 9-10 per cone, then the sqrt(dt)-scaled map blur.
+    With reset, the equilibrium: s_inf, or for dt > 0 the fixed point of such steps."""
+    I = retina_input(down, surround, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
-    B_inf = b1 * I / (b1 * I + b2)  # Eq. 6
-    c_inf = 1.0 - tone(I, A, p)  # Eq. 10 / C_max
+    s_inf = np.concatenate([b1 * I / (b1 * I + b2), 1.0 - tone(I, A, p)])  # Eq. 6, Eq. 10 / C_max
+    R = np.concatenate([np.exp(-(b1 * I + b2) * dt), np.full(I.shape, math.exp(-p.c2 * dt))])
+    if reset and dt > 0:  # calcium settles as 1 - c (see settle)
+        z = settle(np.concatenate([s_inf[:3], tone(I, A, p)]), R, dt, lay, p)
+        return np.concatenate([z[:3], 1.0 - z[3:]])
     if reset:
-        return np.concatenate([B_inf, c_inf])
-    B = (state[:3] - B_inf) * np.exp(-(b1 * I + b2) * dt) + B_inf  # Eq. 5
-    c = (state[3:] - c_inf) * math.exp(-p.c2 * dt) + c_inf  # Eq. 9
-    new = np.concatenate([np.clip(B, 0, 1), np.clip(c, 0, 1)])
-    return blur2d(new, lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell)
+        return s_inf
+    new = np.clip((state - s_inf) * R + s_inf, 0, 1)  # Eq. 5, 9
+    return blur2d(new, map_blur_sigma(dt, lay, p))
+
+
+def settle(s_inf, R, dt: float, lay: Layout, p: Params) -> np.ndarray:
+    """The state that steps of dt leave as it is, s = G(R s + (1 - R) s_inf), by Jacobi
+    iterations (layout.settle_plan). G keeps a constant, so 1 - s obeys the same equation:
+    calcium settles as 1 - c, small in the dark, where float32 (the kernels) rounds c."""
+    plan = settle_plan(dt, lay, p)
+    d = plan.diag_y[:, None] * plan.diag_x[None, :]
+    b = blur2d((1 - R) * s_inf, plan.sigma)
+    s = s_inf
+    for _ in range(plan.iterations):
+        s = (b + blur2d(R * s, plan.sigma) - d * R * s) / (1 - d * R)
+    return s
 
 
 #: Cap on ln(I_adapt / I_now) in `opponent_gain`: the squares of the cone contrasts stay finite in
@@ -207,7 +234,8 @@ def bleach_response(
     at the current adaptation A is returned (Barlow's "dark light" of bleached pigment). On black
     at the floor that is x itself; a background as bright as I_x masks it (Sec. 2.2.2), and so
     does a light-adapted eye. R(I + I_x) - R(I) is computed as (1 - R(I)) R(I + I_x)
-    (1 - (I / (I + I_x))^n), which does not cancel when I_x << I.
+    (1 - (I / (I + I_x))^n), the last factor as -expm1(-n log1p(I_x / I)): nothing cancels
+    when I_x << I (the kernel has its own log1p8 and one_minus_exp_neg8 for float32).
     """
     x = p.bleach_display_gain * p.j1 * c * np.maximum(B - B_inf, 0.0)
     x = np.minimum(x, 1.0 - p.alpha_eps)  # a response below 1 (guarded like Eq. 11)
@@ -215,17 +243,17 @@ def bleach_response(
         ln_odds = np.log(x) - np.log1p(-x)
     I_x = np.exp((ln_sigma_n(p.A_min, p) + ln_odds) / p.n)  # R^-1(x) at A_min; 0 for x = 0
     I = np.asarray(I, np.float64)
-    total = I + I_x
-    with np.errstate(divide="ignore", invalid="ignore"):
-        masked = np.where(total > 0, (I / np.where(total > 0, total, 1.0)) ** p.n, 1.0)
-    return (1.0 - tone(I, A, p)) * tone(total, A, p) * (1.0 - masked)
+    with np.errstate(divide="ignore", invalid="ignore"):  # I = 0: all of I_x shows
+        ratio = np.where(I_x > 0, I_x / I, 0.0)
+    unmasked = -np.expm1(-p.n * np.log1p(ratio))  # 1 - (I / (I + I_x))^n, no cancelling
+    return (1.0 - tone(I, A, p)) * tone(I + I_x, A, p) * unmasked
 
 
-def afterimage_maps(state, down, A, gaze, lay: Layout, p: Params) -> np.ndarray:
+def afterimage_maps(state, down, surround, A, gaze, lay: Layout, p: Params) -> np.ndarray:
     """The maps every afterimage model makes for `compose`: a multiplicative gain per cone
     (here Eq. 11's, along the adapting light: `opponent_gain`) and an additive linear-RGB term
     (here H times Eq. 12's bleaching term, as a response: `bleach_response`)."""
-    I = retina_input(down, gaze, lay)
+    I = retina_input(down, surround, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
     B_inf = b1 * I / (b1 * I + b2)  # Eq. 6
@@ -272,8 +300,23 @@ def acuity(scene, d: np.ndarray, lay: Layout, p: Params) -> np.ndarray:
     return out
 
 
-def compose(G, rho, maps, A, gaze, eyes: float, lay: Layout, p: Params) -> np.ndarray:
-    """Tone curve with Purkinje (Eq. 13), hue shift, afterimages (Eq. 12), gamut, gamma."""
+def foveal_blind_spot(G, rho, fill, gaze, lay: Layout, p: Params) -> np.ndarray:
+    """Sec. 5: the rod-free fovea in scotopic light; G filled in with `fill` (fill_map) by
+    strength (1 - rho_c) exp(-r^2 / 2 s^2), halved at the rod-free zone's edge."""
+    X, Y = screen_coords(lay)
+    rc = np.clip(bilinear(rho[None], X / lay.cell, Y / lay.cell)[0], 0.0, 1.0)
+    s = lay.px(p.rod_free_radius_deg) / math.sqrt(2 * math.log(2))
+    r2 = (X - gaze[0]) ** 2 + (Y - gaze[1]) ** 2
+    w = blind_spot_strength(p) * np.exp(-r2 / (2 * s * s)) * (1 - rc)
+    rgb = np.tensordot(LMS_TO_RGB, bilinear(fill, X / lay.cell, Y / lay.cell), axes=1)
+    return G + w * (rgb - G)
+
+
+def compose(
+    G, rho, maps, A, gaze, eyes: float, lay: Layout, p: Params, visibility: float = 1.0
+) -> np.ndarray:
+    """Tone curve with Purkinje (Eq. 13), hue shift, afterimages (Eq. 12) seen with
+    `visibility` (Sec. 5's boost) times the foveal fall-off, gamut, gamma."""
     X, Y = screen_coords(lay)
     G = eyes * G
     rc = np.clip(bilinear(rho[None], X / lay.cell, Y / lay.cell)[0], 0.0, 1.0)
@@ -286,7 +329,7 @@ def compose(G, rho, maps, A, gaze, eyes: float, lay: Layout, p: Params) -> np.nd
     gy = (Y - gaze[1]) / lay.cell + lay.grid_h / 2
     m = bilinear(maps, gx, gy, border=(1.0, 1.0, 1.0, 0.0, 0.0, 0.0))
     sig_f = lay.px(p.fovea_sigma_deg)
-    f = np.exp(-((X - gaze[0]) ** 2 + (Y - gaze[1]) ** 2) / (2 * sig_f * sig_f))
+    f = visibility * np.exp(-((X - gaze[0]) ** 2 + (Y - gaze[1]) ** 2) / (2 * sig_f * sig_f))
     lms = np.tensordot(RGB_TO_LMS, J, axes=1) * (1 + f * (m[:3] - 1))
     J = np.tensordot(LMS_TO_RGB, lms, axes=1) + f * m[3:]
     J = gamut_map(J, p.w_P)
@@ -309,6 +352,8 @@ class ReferenceBackend:
             "scene": np.zeros((3, lay.height, lay.width)),
             "down": np.zeros((5, lay.low_h, lay.low_w)),
             "rho": np.zeros((lay.low_h, lay.low_w)),
+            "surround": np.zeros((3, lay.low_h, lay.low_w)),
+            "fill": np.zeros((3, lay.low_h, lay.low_w)),
             "A": np.array([params.A_min]),
             "state": np.zeros((6, lay.grid_h, lay.grid_w)),
             "maps": np.zeros((6, lay.grid_h, lay.grid_w)),
@@ -337,6 +382,9 @@ class ReferenceBackend:
     def prepare(self, eyes: float) -> None:
         self.a["down"] = downsample(self.a["scene"], self.lay, self.p, eyes)
         self.a["rho"] = local_rho(self.a["down"], self.lay, self.p)
+        self.a["surround"] = surround_map(self.a["down"], self.lay, self.p)
+        if blind_spot_strength(self.p) > 0:
+            self.a["fill"] = fill_map(self.a["down"], self.lay, self.p)
 
     def adapt(self, gaze, dt: float, reset: bool) -> None:
         a = self.a
@@ -344,16 +392,21 @@ class ReferenceBackend:
 
     def retina(self, gaze, dt: float, reset: bool) -> None:
         a, lay, p = self.a, self.lay, self.p
-        a["state"] = retina_update(a["state"], a["down"], self.A, gaze, dt, reset, lay, p)
-        a["maps"] = afterimage_maps(a["state"], a["down"], self.A, gaze, lay, p)
+        s, d = a["surround"], a["down"]
+        a["state"] = retina_update(a["state"], d, s, self.A, gaze, dt, reset, lay, p)
+        a["maps"] = afterimage_maps(a["state"], d, s, self.A, gaze, lay, p)
 
     def acuity(self, noise: NoiseFrame) -> None:
         q = acuity_q(self.a["rho"], noise, self.lay, self.p)
         self.a["d"] = acuity_levels(q.astype(np.float32), self.p)
         self.a["G"] = acuity(self.a["scene"], self.a["d"], self.lay, self.p)
 
-    def compose(self, gaze, eyes: float) -> np.ndarray:
+    def blind_spot(self, gaze) -> None:
         a = self.a
-        v = compose(a["G"], a["rho"], a["maps"], self.A, gaze, eyes, self.lay, self.p)
+        a["G"] = foveal_blind_spot(a["G"], a["rho"], a["fill"], gaze, self.lay, self.p)
+
+    def compose(self, gaze, eyes: float, visibility: float = 1.0) -> np.ndarray:
+        a = self.a
+        v = compose(a["G"], a["rho"], a["maps"], self.A, gaze, eyes, self.lay, self.p, visibility)
         a["v"] = v.astype(np.float32)
         return a["v"]

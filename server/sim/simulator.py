@@ -13,9 +13,11 @@ import numpy as np
 
 from gazehdr.sim.layout import (
     OUTPUTS,
+    SETTLE_MIN_DT,
     Layout,
     NoiseField,
     bilinear,
+    blind_spot_strength,
     encode_output,
     fit_to_frame,
     sanitize_radiance,
@@ -66,6 +68,9 @@ class Simulator:
         self._eyes = 1.0
         self._prepared_for: float | None = None
         self._rho: np.ndarray | None = None
+        # Set by reset: the next step settles the eye at its own gaze (and dt) first.
+        self._settle_pending = True
+        self._boost_since = -math.inf  # time of the last blink's end or saccade (Sec. 5)
         self.load_scene(np.zeros((height, width, 3), np.float32))
 
     # --- properties ---------------------------------------------------------------------------
@@ -117,8 +122,11 @@ class Simulator:
     def load_scene(self, rgb: np.ndarray, *, reset: bool = True) -> None:
         """Take H×W×3 radiance in cd/m^2 of any size; NaN -> 0, +Inf and excess -> the cap.
 
-        With `reset=False` only the radiance changes (animated scenes); the eye keeps its state.
+        With `reset=False` only the radiance changes (animated scenes); the eye keeps its state
+        (an eye still to settle settles on the scene it had, at the current gaze, first).
         """
+        if not reset and self._settle_pending:
+            self._settle(SETTLE_MIN_DT)
         clean = sanitize_radiance(rgb, self.params)
         fitted = fit_to_frame(clean, self.width, self.height)
         self._backend.set_scene(np.ascontiguousarray(fitted.transpose(2, 0, 1), np.float32))
@@ -128,10 +136,21 @@ class Simulator:
             self.reset()
 
     def reset(self) -> None:
-        """Back to equilibrium for the current scene and gaze: no start-up afterimages."""
+        """Back to equilibrium, no afterimage: the next step finds the eye as if it had always
+        looked at the current scene from that step's gaze (or the current one, if it gives
+        none), adapted there and with its retina settled for steps of that step's dt."""
         self._prepare()
         self._backend.adapt(self._gaze, 0.0, True)
-        self._afterimage.retina(self._gaze, 0.0, True)
+        self._afterimage.retina(self._gaze, 0.0, True)  # in the meantime, without the map blur
+        self._settle_pending = True
+
+    def _settle(self, dt: float) -> None:
+        """Adapted at the gaze, and the retina at the state that steps of dt leave as it is
+        (the map blur and the relaxation in balance; layout.settle_plan)."""
+        self._prepare()
+        self._backend.adapt(self._gaze, 0.0, True)
+        self._afterimage.retina(self._gaze, max(dt, SETTLE_MIN_DT), True)
+        self._settle_pending = False
 
     def start(
         self,
@@ -140,10 +159,11 @@ class Simulator:
         eyes_open: bool = True,
         continue_from: Simulator | None = None,
     ) -> None:
-        """Look at `rgb` from `gaze`, settled there (the gaze is set before the scene, so no
-        start-up afterimage); with `continue_from`, go on with that eye (`carry_state_from`):
-        how a new simulator takes over after a parameter or model change."""
-        self.step(0.0, gaze=gaze, eyes_open=eyes_open)
+        """Look at `rgb` from `gaze`, settled there; with `continue_from`, go on with that eye
+        (`carry_state_from`): how a new simulator takes over after a parameter or model
+        change."""
+        self._gaze = self._check_gaze(gaze)
+        self._eyes = 1.0 if eyes_open else 0.0
         self.load_scene(rgb, reset=True)
         if continue_from is not None:
             self.carry_state_from(continue_from)
@@ -151,11 +171,19 @@ class Simulator:
     def carry_state_from(self, other: Simulator) -> None:
         """Continue `other`'s eye (after a parameter change): its time and adaptation, and its
         retinal state when both retina grids and afterimage models are the same; else the
-        retina starts settled."""
+        retina starts settled, with that adaptation."""
         self.time = other.time
+        self._boost_since = other._boost_since
         self._backend.put("A", other._backend.get("A"))
         if other.layout == self.layout and other.afterimage == self.afterimage:
             self._backend.put("state", other._backend.get("state"))
+            self._settle_pending = other._settle_pending
+        elif other._settle_pending:
+            self._settle_pending = True
+        else:
+            self._prepare()
+            self._afterimage.retina(self._gaze, SETTLE_MIN_DT, True)
+            self._settle_pending = False
 
     def step(
         self,
@@ -165,6 +193,7 @@ class Simulator:
         output: str = "float32",
     ) -> np.ndarray:
         """Advance by `dt` seconds with the eye at `gaze` (screen px) and return H×W×3 `v`.
+        The first step after `load_scene` or `reset` starts settled at its gaze.
 
         `output` "float16" or "rgb10a2" returns `v` encoded for the viewer (see
         `layout.encode_output`); the OpenCL backend encodes on the device, so the host never
@@ -172,21 +201,32 @@ class Simulator:
         dt = float(dt)
         if not (math.isfinite(dt) and 0.0 <= dt <= MAX_DT):
             raise ValueError(f"dt must be a finite number of seconds in [0, {MAX_DT}], got {dt}")
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        previous, was_open = self._gaze, self._eyes
         if gaze is not None:
             self._gaze = self._check_gaze(gaze)
         self._eyes = 1.0 if eyes_open else 0.0
         self.time += dt
         b = self._backend
+        if self._settle_pending:
+            self._settle(dt)
+        elif self._eyes > was_open or self._saccade(previous, dt):
+            self._boost_since = self.time
         self._prepare()
         b.adapt(self._gaze, dt, False)
         self._afterimage.retina(self._gaze, dt, False)
         if self._eyes:
             self._acuity.acuity(self._noise.at(self.time), self._gaze, self.time)
-        if output not in OUTPUTS:
-            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+            if blind_spot_strength(self.params) > 0:
+                b.blind_spot(self._gaze)
+        p = self.params
+        visibility = 1.0 + p.afterimage_boost * math.exp(
+            -(self.time - self._boost_since) / p.afterimage_boost_s
+        )
         if output != "float32" and b.name == "opencl":
-            return b.compose(self._gaze, self._eyes, out_dtype=_DEVICE_OUTPUT[output])
-        return encode_output(b.compose(self._gaze, self._eyes), output)
+            return b.compose(self._gaze, self._eyes, _DEVICE_OUTPUT[output], visibility)
+        return encode_output(b.compose(self._gaze, self._eyes, visibility=visibility), output)
 
     # --- internals ----------------------------------------------------------------------------
 
@@ -196,6 +236,11 @@ class Simulator:
             self._backend.prepare(self._eyes)
             self._afterimage.prepared()
             self._prepared_for = self._eyes
+
+    def _saccade(self, previous: tuple[float, float], dt: float) -> bool:
+        """Whether the gaze moved faster than saccade_deg_s in this step (any move at dt = 0)."""
+        moved = math.dist(previous, self._gaze) / self.layout.ppd
+        return moved > 0 and moved >= self.params.saccade_deg_s * dt
 
     def _check_gaze(self, gaze: Sequence[float]) -> tuple[float, float]:
         try:

@@ -301,7 +301,7 @@ class MikamoReference(MikamoModel[ReferenceStageBackend]):
 
     def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         a = self.backend.a
-        lms = retina_input(a["down"], gaze, self.lay)
+        lms = retina_input(a["down"], a["surround"], gaze, self.lay)
         a["state"] = self.step(a["state"], lms, self.on_stats(reset), dt, reset)
         add = blur2d(self.afterimage_rgb(a["state"]), self.lowpass_cells)  # the fixed low-pass
         a["maps"] = np.concatenate([np.ones_like(add), add])

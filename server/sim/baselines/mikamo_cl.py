@@ -55,10 +55,11 @@ class MikamoOpenCL(MikamoModel[OpenCLStageBackend]):
         thr, y_max = self.on_stats(reset)
         self.kernel(
             b.queue, (lay.grid_w, lay.grid_h), None,
-            b.P, b.buf["down"], b.buf["state"], b.buf["maps"], self.add, self.consts, self.seq,
-            np.int32(self.n_seq), *b.grid_args(gaze), np.float32(dt), np.int32(reset),
-            np.float32(thr), np.float32(y_max), np.float32(10.0**p.mikamo_drop_log10),
-            np.float32(p.mikamo_gamma), np.float32(p.mikamo_strength),
+            b.P, b.buf["down"], b.buf["surround"], b.buf["state"], b.buf["maps"], self.add,
+            self.consts, self.seq, np.int32(self.n_seq), *b.grid_args(gaze), np.float32(dt),
+            np.int32(reset), np.float32(thr), np.float32(y_max),
+            np.float32(10.0**p.mikamo_drop_log10), np.float32(p.mikamo_gamma),
+            np.float32(p.mikamo_strength),
         )  # fmt: skip
         b.blur(self.add, self.blurred, self.tmp, self.taps, lay.grid_w, lay.grid_h, 3)
         cl.enqueue_copy(

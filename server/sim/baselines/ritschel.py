@@ -109,9 +109,11 @@ def diffusion_sigma(dt: float, lay: Layout, p: Params) -> float:
     return lay.px(p.ritschel_N_sigma_deg) * math.sqrt(max(dt, 0.0) / steps(p)) / lay.cell
 
 
-def effective_input(down: np.ndarray, gaze, lay: Layout, p: Params) -> np.ndarray:
-    """L of Eq. 3 at every retina cell: cone input / L_ref, blurred for micro-saccades."""
-    return blur2d(retina_input(down, gaze, lay) / p.ritschel_L_ref, saccade_sigma(lay, p))
+def effective_input(down: np.ndarray, surround: np.ndarray, gaze, lay: Layout, p: Params):
+    """L of Eq. 3 at every retina cell: cone input (`surround` off the screen) / L_ref,
+    blurred for micro-saccades."""
+    I = retina_input(down, surround, gaze, lay)
+    return blur2d(I / p.ritschel_L_ref, saccade_sigma(lay, p))
 
 
 def r_inf(L: np.ndarray, p: Params) -> np.ndarray:
@@ -164,6 +166,6 @@ class RitschelReference(RitschelStage[ReferenceStageBackend]):
 
     def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         a, lay, p = self.backend.a, self.backend.lay, self.backend.p
-        L = effective_input(a["down"], gaze, lay, p)
+        L = effective_input(a["down"], a["surround"], gaze, lay, p)
         a["state"] = r_inf(L, p) if reset else kinetics(a["state"], L, dt, lay, p)
         a["maps"] = afterimage_maps(a["state"], L, self.flight_angle(dt, reset), p)

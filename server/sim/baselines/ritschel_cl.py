@@ -50,7 +50,8 @@ class RitschelOpenCL(RitschelStage[OpenCLStageBackend]):
         state = b.buf["state"]
         grid = (lay.grid_w, lay.grid_h)
         self.k["ritschel_input"](
-            q, grid, None, b.buf["down"], raw, np.int32(lay.low_w), np.int32(lay.low_h),
+            q, grid, None, b.buf["down"], b.buf["surround"], raw, np.int32(lay.low_w),
+            np.int32(lay.low_h),
             np.int32(lay.cell), np.int32(lay.grid_w), np.int32(lay.grid_h),
             np.float32(gaze[0]), np.float32(gaze[1]), np.float32(1.0 / p.ritschel_L_ref),
         )  # fmt: skip

@@ -172,8 +172,29 @@ inline int xmix8(lerp8_t t, float8 *m) {
     return K;
 }
 
-// The taps x0 + lane of a row of n, 0 outside it: for 8 neighbouring retina cells, which are
-// whole low-res cells apart, so that their bilinear taps are consecutive (border value 0).
+// The cone input (L, M, S) at retina cell (j, i): the low-res scene `down` at gaze + retinal
+// offset, bilinear; a tap off the screen reads the `surround` map at the nearest screen cell
+// (reference.retina_input; 8 cells at once: retina_input8 in sec2_2_afterimages.cl).
+inline float3 retina_lms1(__global const float *down, __global const float *surround, int low_w,
+                          int low_h, float gx, float gy, int cell, int grid_w, int grid_h, int j,
+                          int i) {
+    float u = gx / cell + (j - 0.5f * grid_w), v = gy / cell + (i - 0.5f * grid_h);
+    float fu = floor1(u), fv = floor1(v);
+    int x0 = (int)fu, y0 = (int)fv, plane = low_w * low_h;
+    float3 acc = (float3)(0.0f);
+    for (int dy = 0; dy < 2; ++dy) {
+        for (int dx = 0; dx < 2; ++dx) {
+            int x = x0 + dx, y = y0 + dy;
+            int k = CLAMP(y, 0, low_h - 1) * low_w + CLAMP(x, 0, low_w - 1);
+            int on = x >= 0 && x < low_w && y >= 0 && y < low_h;
+            float3 val = on ? load3(down, plane, k) : load3(surround, plane, k);
+            acc += (dx ? u - fu : 1.0f - (u - fu)) * (dy ? v - fv : 1.0f - (v - fv)) * val;
+        }
+    }
+    return acc;
+}
+
+// The taps x0 + lane of a row of n, 0 outside it (8 consecutive taps, border value 0).
 inline float8 row_taps8(__global const float *row, int x0, int n) {
     if (x0 >= 0 && x0 + VEC <= n) return LOAD8_G(row + x0);
     int8 x = x0 + LANE_I;
@@ -212,6 +233,19 @@ inline float8 log8(float8 x) {
     p = p * u * t + t;
     float8 fe = TO_FLOAT8(e);
     return (p + p) + fe * 0.693359375f - fe * 2.12194440e-4f;
+}
+
+// ln(1 + x) for x >= 0, exact where x is tiny (log8(1 + x) would lose x to rounding): the
+// series to x^4 below 0.01 (within 2e-9 relative there).
+inline float8 log1p8(float8 x) {
+    float8 series = x * (1.0f - x * (0.5f - x * (1.0f / 3.0f - x * 0.25f)));
+    return x < 0.01f ? series : log8(1.0f + x);
+}
+
+// 1 - e^-y for y >= 0, likewise: the series to y^4 below 0.01.
+inline float8 one_minus_exp_neg8(float8 y) {
+    float8 series = y * (1.0f - y * (0.5f - y * (1.0f / 6.0f - y * (1.0f / 24.0f))));
+    return y < 0.01f ? series : 1.0f - exp8(-y);
 }
 
 // x^y for x >= 0.

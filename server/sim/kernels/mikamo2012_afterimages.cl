@@ -38,7 +38,8 @@ inline float2 delta_ab1(__global const float *k, float3 xyz, float Y_min) {
 }
 
 __kernel void mikamo_step(__constant const params_t *P, __global const float *down,
-                          __global float *state, __global float *maps, __global float *add,
+                          __global const float *surround, __global float *state,
+                          __global float *maps, __global float *add,
                           __global const float *k, __global const float4 *seq, int n_seq,
                           int low_w, int low_h, int cell, int grid_w, int grid_h, float gx,
                           float gy, float dt, int reset, float thr, float y_max, float drop,
@@ -46,17 +47,9 @@ __kernel void mikamo_step(__constant const params_t *P, __global const float *do
     int j = get_global_id(0), i = get_global_id(1);
     if (j >= grid_w || i >= grid_h) return;
     int plane = grid_w * grid_h, at = i * grid_w + j;
-    // The scene at gaze + retinal offset, bilinear, 0 off screen (reference.retina_input).
-    lerp1_t tx = lerp1_at(low_w, gx / cell + (j + 0.5f - grid_w / 2), 0);
-    lerp1_t ty = lerp1_at(low_h, gy / cell + (i + 0.5f - grid_h / 2), 0);
-    int low = low_w * low_h;
-    float lms[3];
-    for (int c = 0; c < 3; ++c) {
-        __global const float *d = down + c * low;
-        lms[c] = ty.wa * (tx.wa * d[ty.a * low_w + tx.a] + tx.wb * d[ty.a * low_w + tx.b]) +
-                 ty.wb * (tx.wa * d[ty.b * low_w + tx.a] + tx.wb * d[ty.b * low_w + tx.b]);
-    }
-    float yp = dot3(P->w_P, mat3_mul(P->lms2rgb, (float3)(lms[0], lms[1], lms[2])));
+    // The scene at gaze + retinal offset, the surround off the screen (reference.retina_input).
+    float3 lms = retina_lms1(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    float yp = dot3(P->w_P, mat3_mul(P->lms2rgb, lms));
 
     float Z = 0.0f, age = 0.0f;
     float2 d_lat = (float2)(0.0f);
@@ -80,7 +73,7 @@ __kernel void mikamo_step(__constant const params_t *P, __global const float *do
             age = 0.0f;
         }
     }
-    float st[7] = {lms[0], lms[1], lms[2], Z, d_lat.x, d_lat.y, age};
+    float st[7] = {lms.x, lms.y, lms.z, Z, d_lat.x, d_lat.y, age};
     for (int c = 0; c < 7; ++c) state[c * plane + at] = st[c];
     maps[at] = 1.0f;
     maps[plane + at] = 1.0f;

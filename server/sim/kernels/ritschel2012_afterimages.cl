@@ -4,22 +4,18 @@
 // cell; the maps are the cost (about half of it the oRGB trigonometry), 8 cells per work-item.
 
 // L of Eq. 3 before the micro-saccade blur: the low-res cone input at gaze + retinal offset
-// (bilinear, 0 off screen) over L_ref. Global size (grid_w, grid_h).
-__kernel void ritschel_input(__global const float *down, __global float *L, int low_w, int low_h,
-                             int cell, int grid_w, int grid_h, float gx, float gy,
-                             float inv_L_ref) {
+// (bilinear, the surround off the screen) over L_ref. Global size (grid_w, grid_h).
+__kernel void ritschel_input(__global const float *down, __global const float *surround,
+                             __global float *L, int low_w, int low_h, int cell, int grid_w,
+                             int grid_h, float gx, float gy, float inv_L_ref) {
     int j = get_global_id(0), i = get_global_id(1);
     if (j >= grid_w || i >= grid_h) return;
-    lerp1_t tx = lerp1_at(low_w, gx / cell + (j + 0.5f - 0.5f * grid_w), 0);
-    lerp1_t ty = lerp1_at(low_h, gy / cell + (i + 0.5f - 0.5f * grid_h), 0);
-    int plane = low_w * low_h, cells = grid_w * grid_h;
-    for (int c = 0; c < 3; ++c) {
-        __global const float *ra = down + c * plane + ty.a * low_w;
-        __global const float *rb = down + c * plane + ty.b * low_w;
-        float v = ty.wa * (tx.wa * ra[tx.a] + tx.wb * ra[tx.b]) +
-                  ty.wb * (tx.wa * rb[tx.a] + tx.wb * rb[tx.b]);
-        L[c * cells + i * grid_w + j] = v * inv_L_ref;
-    }
+    float3 v = inv_L_ref *
+               retina_lms1(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    int cells = grid_w * grid_h, at = i * grid_w + j;
+    L[at] = v.x;
+    L[cells + at] = v.y;
+    L[2 * cells + at] = v.z;
 }
 
 // Equilibrium of Eq. 3 for a constant input, r_inf = c_a L / (c_a L + c_d), of a = c_a L

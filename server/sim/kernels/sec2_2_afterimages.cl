@@ -1,35 +1,87 @@
 // Sec. 2.2, afterimages: bleaching (Eq. 4-6) and calcium (Eq. 8-11) per cone on the retina
 // grid, which is centred on the gaze and spans twice the screen. Calcium is stored normalised,
 // c = C / C_max, so c_inf = 1 - R (Eq. 10 over C_max). One work-item makes 8 neighbouring
-// cells of a grid row; global size (ceil(grid_w / 8), grid_h).
+// cells of a grid row; global size (ceil(grid_w / 8), grid_h). Off the screen the retina reads
+// the `surround` map (L, M, S planes of the low-res grid, made by surround_map below) at the
+// nearest screen cell.
 
 typedef struct {
     float8 l, m, s;
 } cone8_t;
 
-// Cone input at 8 retina cells: the low-res scene at gaze + offset (bilinear); the room off
-// screen is dark. Neighbouring cells are whole low-res cells apart (same cell size), so the
-// bilinear weights are the same for all of them and the taps are consecutive.
-inline cone8_t retina_input8(__global const float *down, int low_w, int low_h, float gx, float gy,
-                             int cell, int grid_w, int grid_h, int j, int i) {
+// Taps x0 .. x0 + 7 of row y of one plane of the low-res scene `down`; a tap off the screen
+// reads the `surround` map at the nearest screen cell.
+inline float8 input_taps8(__global const float *down, __global const float *surround, int x0,
+                          int y, int low_w, int low_h) {
+    int row_in = y >= 0 && y < low_h, cols_in = x0 >= 0 && x0 + VEC <= low_w;
+    if (row_in && cols_in) return LOAD8_G(down + y * low_w + x0);
+    __global const float *m = surround + CLAMP(y, 0, low_h - 1) * low_w;
+    int8 x = x0 + LANE_I, xc = CLAMP(x, 0, low_w - 1);
+    float8 s = cols_in ? LOAD8_G(m + x0) : gather8(m, xc);
+    if (!row_in) return s;
+    return (x >= 0 && x < low_w) ? gather8(down + y * low_w, xc) : s;
+}
+
+// Cone input at 8 retina cells: the low-res scene at gaze + offset (bilinear), the surround off
+// it. Neighbouring cells are whole low-res cells apart (same cell size), so the bilinear
+// weights are the same for all of them and the taps are consecutive.
+inline cone8_t retina_input8(__global const float *down, __global const float *surround,
+                             int low_w, int low_h, float gx, float gy, int cell, int grid_w,
+                             int grid_h, int j, int i) {
     float gxc = gx / cell, gyc = gy / cell;
     float fxc = floor1(gxc), fyc = floor1(gyc);
     float fx = gxc - fxc, fy = gyc - fyc;
     int x0 = (int)fxc + j - grid_w / 2, y0 = (int)fyc + i - grid_h / 2;
     int plane = low_w * low_h;
-    float wya = (y0 >= 0 && y0 < low_h) ? 1.0f - fy : 0.0f;
-    float wyb = (y0 + 1 >= 0 && y0 + 1 < low_h) ? fy : 0.0f;
-    int ya = CLAMP(y0, 0, low_h - 1), yb = CLAMP(y0 + 1, 0, low_h - 1);
     float8 v[3];
     for (int c = 0; c < 3; ++c) {
-        __global const float *ra = down + c * plane + ya * low_w;
-        __global const float *rb = down + c * plane + yb * low_w;
-        float8 top = (1.0f - fx) * row_taps8(ra, x0, low_w) + fx * row_taps8(ra, x0 + 1, low_w);
-        float8 bot = (1.0f - fx) * row_taps8(rb, x0, low_w) + fx * row_taps8(rb, x0 + 1, low_w);
-        v[c] = wya * top + wyb * bot;
+        __global const float *d = down + c * plane, *s = surround + c * plane;
+        float8 top = (1.0f - fx) * input_taps8(d, s, x0, y0, low_w, low_h) +
+                     fx * input_taps8(d, s, x0 + 1, y0, low_w, low_h);
+        float8 bot = (1.0f - fx) * input_taps8(d, s, x0, y0 + 1, low_w, low_h) +
+                     fx * input_taps8(d, s, x0 + 1, y0 + 1, low_w, low_h);
+        v[c] = (1.0f - fy) * top + fy * bot;
     }
     cone8_t I = {v[0], v[1], v[2]};
     return I;
+}
+
+// The surround map (reference.surround_map): at each of the frame's outermost low-res cells,
+// P->surround times the Gaussian average of L, M, S along the edge, a closed loop of n cells
+// (layout.edge_loop: edge_cell gives the cell of a loop position, edge_position the first
+// position of a cell). Global size n.
+inline int2 edge_cell(int k, int w, int h) {
+    int right = w - 1, bottom = (w - 1) + (h - 1), left = 2 * (w - 1) + (h - 1);
+    if (k < right) return (int2)(k, 0);
+    if (k < bottom) return (int2)(w - 1, k - right);
+    if (k < left) return (int2)(w - 1 - (k - bottom), h - 1);
+    return (int2)(0, h - 1 - (k - left));
+}
+
+inline int edge_position(int2 c, int w, int h) {
+    if (c.y == 0) return c.x;
+    if (c.x == w - 1) return (w - 1) + c.y;
+    if (c.y == h - 1) return (w - 1) + (h - 1) + (w - 1 - c.x);
+    return 2 * (w - 1) + (h - 1) + (h - 1 - c.y);
+}
+
+__kernel void surround_map(__constant const params_t *P, __global const float *down,
+                           __global float *surround, __constant const float *taps, int radius,
+                           int n, int low_w, int low_h) {
+    int k = get_global_id(0);
+    if (k >= n) return;
+    int2 at = edge_cell(k, low_w, low_h);
+    if (edge_position(at, low_w, low_h) != k) return;  // met twice (a one-cell-wide frame)
+    int plane = low_w * low_h;
+    float3 acc = (float3)(0.0f);
+    for (int t = -radius; t <= radius; ++t) {
+        int2 c = edge_cell(((k + t) % n + n) % n, low_w, low_h);
+        acc += taps[t + radius] * load3(down, plane, c.y * low_w + c.x);
+    }
+    int i = at.y * low_w + at.x;
+    surround[i] = P->surround * acc.x;
+    surround[plane + i] = P->surround * acc.y;
+    surround[2 * plane + i] = P->surround * acc.z;
 }
 
 inline float8 bleach_inf8(__constant const params_t *P, int c, float8 I) {
@@ -44,40 +96,18 @@ inline void store_cell8(__global float *p, float8 v, int j, int n) {
     else store8_part(p + j, v, n - j);
 }
 
-// True when none of the 8 cells' bilinear taps falls on the screen: their input is 0.
-inline int off_screen8(int low_w, int low_h, float gx, float gy, int cell, int grid_w,
-                       int grid_h, int j, int i) {
-    int x0 = (int)floor1(gx / cell) + j - grid_w / 2, y0 = (int)floor1(gy / cell) + i - grid_h / 2;
-    return x0 + VEC < 0 || x0 >= low_w || y0 + 1 < 0 || y0 >= low_h;
-}
-
-// One time step of the state; with reset, the equilibrium for the current input. decay_* are
-// exp(-b2 dt) per cone and exp(-c2 dt): the step where the retina sees nothing (off screen).
+// One time step of the state; with reset, the equilibrium for the current input (s_inf;
+// retina_settle_* make the fixed point of steps of dt from it). decay_c = exp(-c2 dt).
 __kernel void retina_update(__constant const params_t *P, __global const float *down,
-                            __global const float *state, __global float *out,
-                            __global const float *A, int low_w, int low_h, int cell, int grid_w,
-                            int grid_h, float gx, float gy, float dt, int reset, float decay_l,
-                            float decay_m, float decay_s, float decay_c) {
+                            __global const float *surround, __global const float *state,
+                            __global float *out, __global const float *A, int low_w, int low_h,
+                            int cell, int grid_w, int grid_h, float gx, float gy, float dt,
+                            int reset, float decay_c) {
     int j = get_global_id(0) * VEC, i = get_global_id(1);
     if (j >= grid_w) return;
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
-    if (off_screen8(low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i)) {
-        // I = 0: B_inf = 0 and c_inf = 1 (no response), Eq. 5 and 9 with constant factors.
-        float decay_b[3] = {decay_l, decay_m, decay_s};
-        for (int c = 0; c < 3; ++c) {
-            float8 B = 0.0f, ca = 1.0f;
-            if (!reset) {
-                B = CLAMP(load_cell8(state + c * plane + row, j, grid_w) * decay_b[c], 0.0f, 1.0f);
-                ca = (load_cell8(state + (3 + c) * plane + row, j, grid_w) - 1.0f) * decay_c + 1.0f;
-                ca = CLAMP(ca, 0.0f, 1.0f);
-            }
-            store_cell8(out + c * plane + row, B, j, grid_w);
-            store_cell8(out + (3 + c) * plane + row, ca, j, grid_w);
-        }
-        return;
-    }
-    cone8_t I = retina_input8(down, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
     float lsn = ln_sigma_n_of(P, A[0]);
     for (int c = 0; c < 3; ++c) {
@@ -105,12 +135,13 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
 // cone contrast of the light the calcium adapted to against the light now (ours:
 // reference.opponent_gain). Add: Eq. 12's bleaching term times the display gain, as the cone's
 // response to its equivalent light (ours: reference.bleach_response), to linear RGB through H.
-inline void maps8(__constant const params_t *P, __global const float *down, float8 *st,
-                  __global float *maps, float lsn, int low_w, int low_h, int cell, int grid_w,
-                  int grid_h, float gx, float gy, int j, int i) {
+inline void maps8(__constant const params_t *P, __global const float *down,
+                  __global const float *surround, float8 *st, __global float *maps, float lsn,
+                  int low_w, int low_h, int cell, int grid_w, int grid_h, float gx, float gy,
+                  int j, int i) {
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
-    cone8_t I = retina_input8(down, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
     float8 u[3], ln_gain[3], bleach[3];
     float8 len_g = 0.0f, len_u = 0.0f;
@@ -127,9 +158,11 @@ inline void maps8(__constant const params_t *P, __global const float *down, floa
         float8 x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_inf8(P, c, In[c]), 0.0f);
         x = MIN(x, 1.0f - eps);
         float8 ln_odds = log8(MAX(x, FLT_MIN)) - log8(1.0f - x);
-        float8 total = In[c] + exp8((lsn_floor + ln_odds) / P->n);
-        float8 masked = exp8(P->n * (log8(MAX(In[c], FLT_MIN)) - log8(MAX(total, FLT_MIN))));
-        bleach[c] = x > 0.0f ? (1.0f - R_now) * tone8(P, lsn, total) * (1.0f - masked) : 0.0f;
+        float8 I_x = exp8((lsn_floor + ln_odds) / P->n);
+        // 1 - (I / (I + I_x))^n without cancelling where I_x << I (reference.bleach_response)
+        float8 ratio = MIN(I_x / MAX(In[c], FLT_MIN), 1e30f);
+        float8 unmasked = one_minus_exp_neg8(P->n * log1p8(ratio));
+        bleach[c] = x > 0.0f ? (1.0f - R_now) * tone8(P, lsn, In[c] + I_x) * unmasked : 0.0f;
     }
     float8 scale = -sqrt(len_g) / MAX(sqrt(len_u), FLT_MIN);
     for (int c = 0; c < 3; ++c) store_cell8(maps + c * plane + row, exp8(scale * u[c]), j, grid_w);
@@ -142,24 +175,26 @@ inline void maps8(__constant const params_t *P, __global const float *down, floa
 // The maps of the cells from (j0, i0) on (global size: the window that the screen reads at
 // this gaze), from the current state.
 __kernel void afterimage_maps(__constant const params_t *P, __global const float *down,
-                              __global const float *state, __global float *maps,
-                              __global const float *A, int low_w, int low_h, int cell,
-                              int grid_w, int grid_h, float gx, float gy, int j0, int i0) {
+                              __global const float *surround, __global const float *state,
+                              __global float *maps, __global const float *A, int low_w,
+                              int low_h, int cell, int grid_w, int grid_h, float gx, float gy,
+                              int j0, int i0) {
     int j = j0 + get_global_id(0) * VEC, i = i0 + get_global_id(1);
     if (j >= grid_w || i >= grid_h) return;
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
     float8 st[6];
     for (int c = 0; c < 6; ++c) st[c] = load_cell8(state + c * plane + row, j, grid_w);
-    maps8(P, down, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h, gx,
-          gy, j, i);
+    maps8(P, down, surround, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h,
+          gx, gy, j, i);
 }
 
 // The map blur of Sec. 2.4 (separable Gaussian, edges clamped, as blur_h then blur_v) of all
 // six state planes in one pass, src -> state; cells inside the window [j0, j1] x [i0, i1] also
 // get their maps, from the blurred state still in registers.
 __kernel void retina_blur_maps(__constant const params_t *P, __global const float *down,
-                               __global const float *src, __global float *state,
+                               __global const float *surround, __global const float *src,
+                               __global float *state,
                                __global float *maps, __global const float *A,
                                __constant const float *taps, int radius, int low_w, int low_h,
                                int cell, int grid_w, int grid_h, float gx, float gy, int j0,
@@ -200,6 +235,58 @@ __kernel void retina_blur_maps(__constant const params_t *P, __global const floa
         }
     }
     if (i >= i0 && i <= i1 && j + VEC > j0 && j <= j1)
-        maps8(P, down, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h, gx,
-              gy, j, i);
+        maps8(P, down, surround, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w,
+              grid_h, gx, gy, j, i);
+}
+
+// Settling (layout.settle_plan): the state that steps of dt leave as it is, s = G(R s + (1 - R)
+// s_inf), by Jacobi iterations. Calcium settles as 1 - c, the same equation (G keeps a
+// constant), which in the dark is small and so exact in float32 where c, near 1, is not.
+// retina_settle_init writes z = z_inf (B_inf; 1 - c_inf = R(I), Eq. 10), R of the bleaching
+// planes (calcium's is decay_c everywhere), u = R z and b = (1 - R) z_inf, which the host blurs.
+__kernel void retina_settle_init(__constant const params_t *P, __global const float *down,
+                                 __global const float *surround, __global const float *A,
+                                 int low_w, int low_h, int cell, int grid_w, int grid_h,
+                                 float gx, float gy, float dt, float decay_c,
+                                 __global float *state, __global float *rate, __global float *u,
+                                 __global float *b) {
+    int j = get_global_id(0) * VEC, i = get_global_id(1);
+    if (j >= grid_w) return;
+    size_t plane = (size_t)grid_w * grid_h, row = (size_t)i * grid_w;
+    cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    float8 In[3] = {I.l, I.m, I.s};
+    float lsn = ln_sigma_n_of(P, A[0]);
+    for (int c = 0; c < 3; ++c) {
+        float8 B_inf = bleach_inf8(P, c, In[c]), y_inf = tone8(P, lsn, In[c]);
+        float8 R = exp8(-(P->b1[c] * In[c] + P->b2[c]) * dt);  // Eq. 5
+        store_cell8(state + c * plane + row, B_inf, j, grid_w);
+        store_cell8(state + (3 + c) * plane + row, y_inf, j, grid_w);
+        store_cell8(rate + c * plane + row, R, j, grid_w);
+        store_cell8(u + c * plane + row, R * B_inf, j, grid_w);
+        store_cell8(u + (3 + c) * plane + row, decay_c * y_inf, j, grid_w);
+        store_cell8(b + c * plane + row, (1.0f - R) * B_inf, j, grid_w);
+        store_cell8(b + (3 + c) * plane + row, (1.0f - decay_c) * y_inf, j, grid_w);
+    }
+}
+
+// One Jacobi iteration, z <- (b + w - d R z) / (1 - d R) with w = G(u) and d = diag_x[j]
+// diag_y[i], the diagonal of G (`diag` holds both); then u = R z for the next one, or, after
+// the last, the state itself (c = 1 - z).
+__kernel void retina_settle_step(__global float *state, __global float *u,
+                                 __global const float *w, __global const float *b,
+                                 __global const float *rate, float decay_c,
+                                 __global const float *diag, int grid_w, int grid_h, int last) {
+    int j = get_global_id(0) * VEC, i = get_global_id(1);
+    if (j >= grid_w) return;
+    size_t plane = (size_t)grid_w * grid_h, row = (size_t)i * grid_w;
+    float8 d = load_cell8(diag, j, grid_w) * diag[grid_w + i];
+    for (int c = 0; c < 6; ++c) {
+        size_t at = c * plane + row;
+        float8 R = c < 3 ? load_cell8(rate + at, j, grid_w) : (float8)(decay_c);
+        float8 dR = d * R;
+        float8 z = load_cell8(b + at, j, grid_w) + load_cell8(w + at, j, grid_w);
+        z = (z - dR * load_cell8(state + at, j, grid_w)) / (1.0f - dR);
+        store_cell8(state + at, last && c >= 3 ? 1.0f - z : z, j, grid_w);
+        store_cell8(u + at, R * z, j, grid_w);
+    }
 }
