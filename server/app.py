@@ -35,7 +35,13 @@ from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes import Scene
 from gazehdr.scenes.exr import SceneError
-from gazehdr.scenes.library import MAX_UPLOAD_BYTES, SceneLibrary, check_name
+from gazehdr.scenes.library import (
+    MAX_UPLOAD_BYTES,
+    NoSuchSceneError,
+    SceneExistsError,
+    SceneLibrary,
+    check_name,
+)
 from gazehdr.session import Session, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
@@ -167,15 +173,32 @@ def create_app(config: ServerConfig) -> FastAPI:
         return {"scenes": scenes.names()}
 
     @app.put("/api/scenes/{name:path}", status_code=201)
-    async def upload_scene(name: str, request: Request) -> dict[str, str]:
-        """Upload an OpenEXR file as the request body; it is validated before it is kept."""
+    async def upload_scene(name: str, request: Request, overwrite: bool = False) -> dict[str, str]:
+        """Upload an image (OpenEXR, Radiance .hdr, PFM) as the request body; it is validated
+        before it is kept. An existing upload of that name is replaced only with `overwrite`."""
         chunks = await _upload_body(name, request, config.max_upload_bytes)
         try:
-            await asyncio.to_thread(scenes.store, name, chunks)
+            await asyncio.to_thread(scenes.store, name, chunks, overwrite=overwrite)
+        except SceneExistsError as e:
+            raise HTTPException(409, str(e)) from None
         except SceneError as e:
             raise HTTPException(422, str(e)) from None
         hub.broadcast({"type": "scenes", "scenes": scenes.names()})
         return {"name": name}
+
+    @app.get("/api/scenes/{name}")
+    async def describe_scene(name: str) -> dict[str, Any]:
+        """A scene's format, size, layers and scale (cd/m² per unit) with its source."""
+        return await _scene_call(scenes.describe, name)
+
+    @app.patch("/api/scenes/{name}")
+    async def configure_scene(
+        name: str,
+        values: dict[str, Any] = Body(...),  # noqa: B008
+    ) -> dict[str, Any]:
+        """Set a scene's `scale` (cd/m² per unit), estimate `kind` or EXR `layer` (null: the
+        default); every session showing it changes at once."""
+        return await _scene_call(scenes.configure, name, values)
 
     @app.get("/api/recordings")
     async def list_recordings() -> dict[str, list[str]]:
@@ -252,7 +275,8 @@ def create_app(config: ServerConfig) -> FastAPI:
             await ws.close(CLOSE_INTERNAL, "could not start a session")
             return
         hello = {"type": "hello", "protocol": 1, "session": live.session.id}
-        viewer.mailbox.put(None, [{**hello, **live.session.state()}])
+        scene_map = live.session.scene_map  # the last one sent, if any: what this page needs
+        viewer.mailbox.put(None, [{**hello, **live.session.state()}, *filter(None, [scene_map])])
         tasks = [
             asyncio.create_task(viewer.pump()),
             asyncio.create_task(_receive_controls(ws, live, viewer)),
@@ -310,6 +334,14 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     app.mount("/", StaticFiles(directory=web_dir, html=True), name="web")
     return app
+
+
+async def _scene_call(call: Callable[..., dict[str, Any]], name: str, *args: Any) -> dict[str, Any]:
+    """A scene library call off the event loop; an unknown name is 404, bad input 422."""
+    try:
+        return await asyncio.to_thread(call, name, *args)
+    except SceneError as e:
+        raise HTTPException(404 if isinstance(e, NoSuchSceneError) else 422, str(e)) from None
 
 
 async def _upload_body(name: str, request: Request, cap: int) -> list[bytes]:

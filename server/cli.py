@@ -205,7 +205,10 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1)")
     p.add_argument("--port", type=int, default=8000, help="port (default: 8000)")
     p.add_argument(
-        "--scene", default="flash", metavar="SCENE", help="built-in or EXR file (default: flash)"
+        "--scene",
+        default="flash",
+        metavar="SCENE",
+        help="built-in or HDR image file: .exr, .hdr, .pfm (default: flash)",
     )
     p.add_argument(
         "--gaze",
@@ -227,7 +230,14 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--fixed-size", action="store_true", help="never fit the frame to the viewer")
     p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
-    p.add_argument("--scale", type=float, metavar="CD_PER_UNIT", help="cd/m^2 per EXR unit")
+    p.add_argument(
+        "--scale",
+        type=float,
+        metavar="CD_PER_UNIT",
+        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an estimate; "
+        "docs/server.md)",
+    )
+    p.add_argument("--layer", metavar="NAME", help="the EXR layer to show (default: the first)")
     p.add_argument(
         "--token", help="bearer token for the gaze daemon (default: $GAZEHDR_TOKEN or a new one)"
     )
@@ -294,6 +304,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         port=args.port,
         scene=args.scene,
         scale=args.scale,
+        layer=args.layer,
         gaze=args.gaze,
         fps=args.fps,
         size=args.size,
@@ -411,10 +422,35 @@ def _figures(args: argparse.Namespace, extra: list[str]) -> int:
 # --- scenes -----------------------------------------------------------------------------------
 
 
-def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.scenes import builtin_names
+def _configure_scenes(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--data-dir",
+        metavar="DIR",
+        help="where uploaded scenes are (default: $GAZEHDR_DATA_DIR or ~/.local/share/gazehdr)",
+    )
 
-    print("\n".join(builtin_names()))
+
+def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
+    """The built-ins, then each upload with its format, size and scale (and its source)."""
+    from gazehdr.scenes import builtin_names
+    from gazehdr.scenes.decoding import SceneError
+    from gazehdr.scenes.library import SceneLibrary
+
+    library = SceneLibrary(_data_dir(args.data_dir))
+    for name in builtin_names():
+        print(f"{name:24} built-in  cd/m² as drawn")
+    for name in sorted(library.uploads()):
+        try:
+            d = library.describe(name)
+        except SceneError as e:
+            print(f"{name:24} upload    unreadable: {e}")
+            continue
+        size = f"{d['width']}×{d['height']}"
+        layer = f" layer {d['layer']}" if d["layer"] else ""
+        print(
+            f"{name:24} upload    {d['format']} {size}{layer} · {d['scale']:.4g} cd/m² per unit "
+            f"({d['scale_source']}: {d['scale_note']})"
+        )
     return 0
 
 
@@ -487,7 +523,9 @@ COMMANDS: dict[str, Command] = {
         "  gazehdr figures --out figs\n"
         "  gazehdr figures --out figs --only 4,5 --size 640x360",
     ),
-    "scenes": Command("list the built-in scenes", _scenes),
+    "scenes": Command(
+        "list the scenes: built-ins and uploads, with their scale", _scenes, _configure_scenes
+    ),
 }
 
 

@@ -78,6 +78,7 @@ class Eye:
             sim.start(frame, self.pane_gaze(gaze), eyes_open, continue_from=previous)
             self.sims.append(sim)
         self._loaded = scene.state_at(t)
+        self.loads = 0  # scene loads since built: what the panes see changed
 
     def rebuilt(self, gaze: tuple[float, float], eyes_open: bool, **changes: Any) -> Eye:
         """A new eye with `changes` (size, params, panes) continuing this one; this one is left
@@ -142,6 +143,7 @@ class Eye:
 
     def _load(self, reset: bool) -> None:
         t = self.time
+        self.loads += 1
         self._loaded = self.scene.state_at(t)
         frame = self.scene.render(t, *self.pane_size)
         for sim in self.sims:

@@ -28,7 +28,7 @@ from gazehdr.metrics import Metrics
 from gazehdr.protocol import Control, ProtocolError
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.library import SceneLibrary
-from gazehdr.session import Frame, Session, SessionSettings
+from gazehdr.session import Frame, Note, Session, SessionSettings
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
@@ -47,12 +47,12 @@ class Mailbox:
     """The newest frame and the notes (never dropped, but bounded) for one viewer."""
 
     frame: Frame | None = None
-    notes: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[Note] = field(default_factory=list)
     dropped: int = 0
     closed: bool = False  # the session ended: send what is left, then stop
     ready: asyncio.Event = field(default_factory=asyncio.Event)
 
-    def put(self, frame: Frame | None, notes: list[dict[str, Any]] = ()) -> int:
+    def put(self, frame: Frame | None, notes: list[Note] = ()) -> int:
         """Store; returns how many unsent frames this replaced (0 or 1)."""
         replaced = 0
         if frame is not None:
@@ -63,7 +63,7 @@ class Mailbox:
         self.ready.set()
         return replaced
 
-    async def take(self) -> tuple[Frame | None, list[dict[str, Any]]]:
+    async def take(self) -> tuple[Frame | None, list[Note]]:
         await self.ready.wait()
         self.ready.clear()
         frame, notes = self.frame, self.notes
@@ -110,8 +110,8 @@ class Viewer:
         while True:
             await self._wait_for_credit()
             frame, notes = await self.mailbox.take()
-            for note in notes:
-                await self._send_json(note)
+            for note in notes:  # a scene map is binary, the rest JSON
+                await (self._send_bytes(note) if isinstance(note, bytes) else self._send_json(note))
             if self.mailbox.closed:
                 return
             if frame is None:
@@ -150,9 +150,7 @@ class LiveSession:
         # A step may still be writing on its thread when the session ends and the log closes.
         self._log_lock = threading.Lock()
 
-    def _tick(
-        self, dt: float, controls: list[tuple[Control, float]]
-    ) -> tuple[Frame, list[dict[str, Any]]]:
+    def _tick(self, dt: float, controls: list[tuple[Control, float]]) -> tuple[Frame, list[Note]]:
         """One step, on the worker thread, with what it journaled published and appended to the
         log. A log that cannot be written stops recording, not the session; the viewers are
         told."""

@@ -83,6 +83,49 @@ class FrameHeader:
         )  # fmt: skip
 
 
+#: The scene map: what the pane's simulator sees, for the viewer's inspection tools.
+SCENE_MAGIC = b"GZHS"
+_SCENE_HEADER = struct.Struct("<4sHHIHHhHI")
+SCENE_HEADER_BYTES = 24
+
+
+@dataclass(frozen=True)
+class SceneMap:
+    """The radiance (cd/m^2, H×W×3) and mesopic ρ (H×W) of one pane, as the simulator holds
+    them; `seq` counts the session's maps. On the wire the radiance is float16 times
+    2^`exponent`, the exponent chosen so the brightest value fits (docs/protocol.md)."""
+
+    seq: int
+    radiance: np.ndarray
+    rho: np.ndarray
+
+    def pack(self) -> bytes:
+        h, w = self.rho.shape
+        top = float(np.max(self.radiance, initial=0.0))
+        exponent = int(np.clip(math.ceil(math.log2(top / _HALF_MAX)), -30, 60)) if top > 0 else 0
+        halves = np.ldexp(self.radiance.astype(np.float64), -exponent).astype("<f2")
+        head = _SCENE_HEADER.pack(
+            SCENE_MAGIC, 1, SCENE_HEADER_BYTES, self.seq & 0xFFFFFFFF, w, h, exponent, 0, 0
+        )
+        return head + halves.tobytes() + self.rho.astype("<f4").tobytes()
+
+
+_HALF_MAX = float(np.finfo(np.float16).max)
+
+
+def decode_scene_map(data: bytes) -> SceneMap:
+    """The inverse of `SceneMap.pack` (tests and tools); radiance as float32."""
+    if len(data) < SCENE_HEADER_BYTES or data[:4] != SCENE_MAGIC:
+        raise ProtocolError("not a gazehdr scene map (bad magic or too short)")
+    _, version, header_bytes, seq, w, h, exponent, _, _ = _SCENE_HEADER.unpack_from(data)
+    if version != 1:
+        raise ProtocolError(f"scene map version {version}, this reader knows 1")
+    halves = np.frombuffer(data, "<f2", count=w * h * 3, offset=header_bytes)
+    radiance = np.ldexp(halves.astype(np.float32), exponent).reshape(h, w, 3)
+    rho = np.frombuffer(data, "<f4", count=w * h, offset=header_bytes + 6 * w * h)
+    return SceneMap(seq, radiance, rho.reshape(h, w))
+
+
 def encode_pixels(v: np.ndarray, encoding: Encoding) -> bytes:
     """H×W×3 display values in [0, 1] → the payload bytes of `encoding`."""
     return payload(encode_output(v, SIM_OUTPUT[encoding]))
@@ -169,6 +212,14 @@ class ParamChange:
 
 
 @dataclass(frozen=True)
+class SceneSettings:
+    """Settings of the session's current scene (`scale`, `kind`, `layer`; None: the default),
+    kept by the server's scene library for every session showing it."""
+
+    values: dict[str, Any]
+
+
+@dataclass(frozen=True)
 class Reset:
     pass
 
@@ -180,7 +231,9 @@ class Ack:
     frame: int
 
 
-Control = Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | Reset | Ack
+Control = Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | SceneSettings | Reset | Ack
+SCENE_SETTINGS = {"scale": ((int, float), "a number"), "kind": (str, "a string"),
+                  "layer": (str, "a string")}  # fmt: skip
 CHOICES = ("scene", "gaze_source")
 MODEL_PARTS = ("afterimage", "acuity")
 
@@ -219,6 +272,17 @@ def _model_change(msg: dict[str, Any]) -> ModelChange:
     return ModelChange(_model_pick(msg), split)
 
 
+def _scene_settings(msg: dict[str, Any]) -> SceneSettings:
+    """`{"type": "scene_settings", "scale"?: N | null, "kind"?: K | null, "layer"?: L | null}`."""
+    values = {k: msg[k] for k in SCENE_SETTINGS if k in msg}
+    if not values:
+        raise ProtocolError("'scene_settings' needs 'scale', 'kind' or 'layer'", msg["type"])
+    for key, value in values.items():
+        if value is not None:
+            _field(msg, key, *SCENE_SETTINGS[key])
+    return SceneSettings(values)
+
+
 def parse_control(data: str | bytes) -> Control:
     """One text message from the viewer → a typed control, or `ProtocolError` saying why not."""
     try:
@@ -243,9 +307,11 @@ def parse_control(data: str | bytes) -> Control:
         return _model_change(msg)
     if kind == "params":
         return ParamChange(_field(msg, "values", dict, "an object of parameter values"))
+    if kind == "scene_settings":
+        return _scene_settings(msg)
     if kind == "reset":
         return Reset()
     if kind == "ack":
         return Ack(_field(msg, "frame", int, "an integer"))
-    known = "viewport, gaze, eyes, scene, model, gaze_source, params, reset, ack"
+    known = "viewport, gaze, eyes, scene, model, gaze_source, params, scene_settings, reset, ack"
     raise ProtocolError(f"unknown message type {kind!r}; known: {known}", kind)

@@ -18,8 +18,7 @@ from gazehdr.drivers import registry
 from gazehdr.drivers.daemon import run_daemon
 from gazehdr.gaze import is_tracker_source
 from gazehdr.protocol import Encoding
-from gazehdr.scenes import builtin_names
-from gazehdr.scenes.exr import ExrScene
+from gazehdr.scenes import builtin_names, open_scene
 from gazehdr.session import GAZE_SOURCES, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.layout import check_frame_size
@@ -51,6 +50,7 @@ def build_config(
     split: str | None = None,
     record: bool = False,
     lsl_outlet: str | None = None,
+    layer: str | None = None,
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
     if lsl_outlet is not None:
@@ -74,9 +74,9 @@ def build_config(
             raise ValueError(f"parameter preset {params_file}: {e}") from None
     loaded = {}
     if scene not in builtin_names():
-        exr = ExrScene.open(scene, scale=scale)  # fails now, with the file's own error
-        loaded[exr.name] = exr
-        scene = exr.name
+        opened = open_scene(scene, scale=scale, layer=layer)  # fails now, with the file's error
+        loaded[opened.name] = opened
+        scene = opened.name
     settings = SessionSettings(
         width=size[0],
         height=size[1],

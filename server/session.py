@@ -51,11 +51,15 @@ from gazehdr.protocol import (
     ParamChange,
     ProtocolError,
     Reset,
+    SceneMap,
+    SceneSettings,
     Viewport,
     payload,
 )
 from gazehdr.recordings import RecordingLibrary
-from gazehdr.scenes.library import SceneLibrary
+from gazehdr.scenes.estimate import KINDS, kind_luminance
+from gazehdr.scenes.image import ImageScene
+from gazehdr.scenes.library import BUILTIN_INFO, SceneLibrary
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
@@ -69,6 +73,13 @@ GAZE_SOURCES = ("mouse", *NAMED_TRACKS, REMOTE)
 MAX_FRAME_DT = 1.0
 SYNTHETIC_LOOP_S = 600.0  # a named track (the synthetic scan path) repeats after this long
 SIZE_STEP = 8  # frame sides are multiples of this when fitted to a viewport
+#: The estimate's scene kinds, as the panel offers them.
+SCENE_KINDS = {
+    name: {"ev": k.ev, "what": k.what, "luminance": kind_luminance(name)}
+    for name, k in KINDS.items()
+}
+#: What a session tells its viewers: JSON notes, and binary scene maps (`SceneMap`).
+Note = dict[str, Any] | bytes
 
 
 @dataclass(frozen=True)
@@ -138,6 +149,7 @@ class Session:
         self.trackers = trackers or Trackers()
         self.recordings = recordings or RecordingLibrary(None)
         self.scene_name = settings.scene
+        self._scene_version = scenes.version(settings.scene)
         self.frame = 0
         #: The viewer's pointer; its caller writes it (from any thread: readings are swapped).
         self.pointer = PointerGaze()
@@ -153,6 +165,9 @@ class Session:
             backend=settings.backend, seed=settings.seed, gaze=self.gaze,
             eyes_open=self.reading.eyes_open,
         )  # fmt: skip
+        # The last scene map sent (for viewers that join) and what it showed.
+        self.scene_map: bytes | None = None
+        self._mapped: tuple[Eye, int] | None = None
         # The journal: records not yet taken, the time the next ones carry (ns, the end of the
         # coming step), and what it last said of the gaze and eyes.
         self._journal: list[sessionlog.Record] | None = [] if settings.record else None
@@ -201,6 +216,8 @@ class Session:
         return {
             "scene": self.scene_name,
             "scenes": self.scenes.names(),
+            "scene_info": self._scene_info(),
+            "scene_kinds": SCENE_KINDS,
             "model": _names(self.model),
             "split": None if self.split is None else _names(self.split),
             "models": {"afterimage": list(AFTERIMAGE_MODELS), "acuity": list(ACUITY_MODELS)},
@@ -257,15 +274,14 @@ class Session:
 
     # --- the step -----------------------------------------------------------------------------
 
-    def tick(
-        self, dt: float, controls: list[tuple[Control, float]]
-    ) -> tuple[Frame, list[dict[str, Any]]]:
+    def tick(self, dt: float, controls: list[tuple[Control, float]]) -> tuple[Frame, list[Note]]:
         """Apply `controls` (each with its arrival time), step by `dt` s, encode the frame.
 
         Returns the frame and the messages for the viewers: a `state` when something they
-        show changed, an `error` for each control refused (the session goes on unchanged).
+        show changed, an `error` for each control refused (the session goes on unchanged), and
+        a scene map when what the eye looks at changed.
         """
-        notes: list[dict[str, Any]] = []
+        notes: list[Note] = []
         changed = False
         dt = min(max(dt, 0.0), MAX_FRAME_DT)
         self._now_ns = round((self.sim.time + dt) * 1e9)
@@ -275,9 +291,18 @@ class Session:
             except (ValueError, TypeError, OSError) as e:  # ProtocolError is a ValueError
                 notes.append({"type": "error", "message": str(e), "in": _type_of(control)})
         changed |= self._bind_remote()
+        try:
+            changed |= self._follow_library()
+        except (ValueError, OSError) as e:  # the upload went away or became unreadable
+            notes.append({"type": "error", "message": str(e), "in": "scene"})
         if changed:
             notes.append({"type": "state", **self.state()})
-        return self._advance(dt), notes
+        frame = self._advance(dt)
+        if self._mapped != (self.eye, self.eye.loads):
+            self._mapped = (self.eye, self.eye.loads)
+            self.scene_map = SceneMap(self.frame, *self.sim.scene_maps()).pack()
+            notes.append(self.scene_map)
+        return frame, notes
 
     def apply(self, control: Control) -> bool:
         """One control message; True when the viewers' `state` changed. (The pointer and the
@@ -307,6 +332,9 @@ class Session:
             return self._set_models(control.model, control.split)
         if isinstance(control, Choose):
             return self._choose(control.what, control.name)
+        if isinstance(control, SceneSettings):
+            self.scenes.configure(self.scene_name, control.values)
+            return False  # applied by _follow_library, as any change of the library's is
         raise ProtocolError(f"unhandled control {control!r}")
 
     # --- internals ----------------------------------------------------------------------------
@@ -330,6 +358,19 @@ class Session:
         known = ", ".join([*GAZE_SOURCES, REMOTE_PREFIX + "TRACKER", "replay:NAME"])
         raise ValueError(f"unknown gaze source {name!r}; available: {known}")
 
+    def _follow_library(self) -> bool:
+        """A change of the scene's settings (or file) in the library: seen from now on."""
+        version = self.scenes.version(self.scene_name)
+        if version == self._scene_version:
+            return False
+        self._scene_version = version
+        self.eye.look_at(self.scenes.refresh(self.scene_name, self.eye.scene))
+        return True
+
+    def _scene_info(self) -> dict[str, Any]:
+        scene = self.eye.scene
+        return scene.describe() if isinstance(scene, ImageScene) else dict(BUILTIN_INFO)
+
     def _bind_remote(self) -> bool:
         """`remote` follows the tracker once exactly one is connected (see gazehdr.gaze)."""
         if self.gaze_source != REMOTE or (feed := self.trackers.sole_connected()) is None:
@@ -343,6 +384,7 @@ class Session:
             scene = self.scenes.open(name)
             self.eye.look_at(scene)
             self.scene_name = name
+            self._scene_version = self.scenes.version(name)
             self._log(sessionlog.SceneChange(self._now_ns, name))
             return True
         self._input = self._open_gaze(name, self.sim.time, self.reading)
@@ -483,6 +525,7 @@ def _type_of(control: Control) -> str:
         return control.what
     return {
         Viewport: "viewport", ModelChange: "model", ParamChange: "params", Reset: "reset",
+        SceneSettings: "scene_settings",
     }.get(type(control), "unknown")  # fmt: skip
 
 

@@ -13,7 +13,9 @@ import OpenEXR
 import pytest
 
 from gazehdr.scenes import open_scene
-from gazehdr.scenes.exr import DEFAULT_SCALE, MAX_PIXELS, ExrScene, SceneError, write_exr
+from gazehdr.scenes.decoding import MAX_PIXELS, SceneError
+from gazehdr.scenes.exr import write_exr
+from gazehdr.scenes.image import ImageScene, decode
 from gazehdr.scenes.procedural import (
     BUILTIN,
     COLORCHECKER_SRGB8,
@@ -108,20 +110,20 @@ def test_every_listed_compression_is_tested() -> None:
 def test_round_trip(tmp_path: Path, compression: OpenEXR.Compression, half: bool) -> None:
     img = hdr_image()
     write_exr(tmp_path / "img.exr", img, half=half, compression=compression)
-    scene = ExrScene.open(tmp_path / "img.exr")
+    rgb = decode(tmp_path / "img.exr").rgb
     expected = img.astype(np.float16).astype(np.float32) if half else img
-    assert scene.pixels.dtype == np.float32 and scene.pixels.shape == img.shape
-    assert scene.pixels.flags.c_contiguous
+    assert rgb.dtype == np.float32 and rgb.shape == img.shape
+    assert rgb.flags.c_contiguous
     tol = LOSSY.get(compression.name.removesuffix("_COMPRESSION"), 0.0)
-    np.testing.assert_allclose(scene.pixels, expected, rtol=tol, atol=0)
+    np.testing.assert_allclose(rgb, expected, rtol=tol, atol=0)
 
 
 def test_scene_fields_and_render(tmp_path: Path) -> None:
     img = hdr_image()
-    write_exr(tmp_path / "sunset.exr", img)
+    write_exr(tmp_path / "sunset.exr", img, white_luminance=1.0)
     scene = open_scene(str(tmp_path / "sunset.exr"))
-    assert isinstance(scene, ExrScene)
-    assert (scene.name, scene.animated, scene.scale) == ("sunset", False, DEFAULT_SCALE)
+    assert isinstance(scene, ImageScene)
+    assert (scene.name, scene.animated, scene.scale.value) == ("sunset", False, 1.0)
     frame = scene.render(3.0, 1920, 1080)  # the size asked for is the simulator's business
     np.testing.assert_array_equal(frame, img)
 
@@ -132,16 +134,16 @@ def test_tiled_and_offset_data_window(tmp_path: Path) -> None:
     tiles.xSize = tiles.ySize = 16
     header = {"type": OpenEXR.tiledimage, "tiles": tiles, "compression": OpenEXR.ZIP_COMPRESSION}
     OpenEXR.File(header, {"RGB": img}).write(str(tmp_path / "tiled.exr"))
-    np.testing.assert_array_equal(ExrScene.open(tmp_path / "tiled.exr").pixels, img)
+    np.testing.assert_array_equal(decode(tmp_path / "tiled.exr").rgb, img)
     window = (np.array([10, 20], np.int32), np.array([49, 43], np.int32))
     path = write_channels(tmp_path / "offset.exr", {"RGB": img}, dataWindow=window)
-    np.testing.assert_array_equal(ExrScene.open(path).pixels, img)
+    np.testing.assert_array_equal(decode(path).rgb, img)
 
 
 def test_rgba_ignores_alpha(tmp_path: Path) -> None:
     rgba = np.concatenate([hdr_image(), np.full((24, 40, 1), 0.25, np.float32)], axis=-1)
     path = write_channels(tmp_path / "rgba.exr", {"RGBA": rgba})
-    np.testing.assert_array_equal(ExrScene.open(path).pixels, rgba[..., :3])
+    np.testing.assert_array_equal(decode(path).rgb, rgba[..., :3])
 
 
 def test_mixed_half_and_float_channels(tmp_path: Path) -> None:
@@ -149,7 +151,7 @@ def test_mixed_half_and_float_channels(tmp_path: Path) -> None:
     # (The package writes strided arrays wrongly: hand it contiguous planes.)
     g, b = np.ascontiguousarray(img[..., 1]), np.ascontiguousarray(img[..., 2])
     channels = {"R": img[..., 0].astype(np.float16), "G": g, "B": b}
-    pixels = ExrScene.open(write_channels(tmp_path / "mixed.exr", channels)).pixels
+    pixels = decode(write_channels(tmp_path / "mixed.exr", channels)).rgb
     np.testing.assert_array_equal(pixels[..., 1:], img[..., 1:])
     np.testing.assert_array_equal(pixels[..., 0], img[..., 0].astype(np.float16))
 
@@ -157,7 +159,7 @@ def test_mixed_half_and_float_channels(tmp_path: Path) -> None:
 @pytest.mark.parametrize("dtype", [np.float16, np.float32])
 def test_luminance_only_is_grey(tmp_path: Path, dtype: type) -> None:
     y = hdr_image()[..., 0].astype(dtype)
-    pixels = ExrScene.open(write_channels(tmp_path / "y.exr", {"Y": y})).pixels
+    pixels = decode(write_channels(tmp_path / "y.exr", {"Y": y})).rgb
     for k in range(3):
         np.testing.assert_array_equal(pixels[..., k], y.astype(np.float32))
 
@@ -172,7 +174,7 @@ def test_luminance_chroma_full_resolution(tmp_path: Path) -> None:
     rgb = hdr_image().astype(np.float64)
     y, ry, by = _luminance_chroma(rgb)
     channels = {"Y": y.astype(np.float32), "RY": ry.astype(np.float32), "BY": by.astype(np.float32)}
-    pixels = ExrScene.open(write_channels(tmp_path / "yc.exr", channels)).pixels
+    pixels = decode(write_channels(tmp_path / "yc.exr", channels)).rgb
     np.testing.assert_allclose(pixels, rgb, rtol=1e-5)
 
 
@@ -186,7 +188,7 @@ def test_luminance_chroma_subsampled(tmp_path: Path) -> None:
         ("RY", np.full((3, 4), ry[0]), 2),
         ("Y", lum * y[0], 1),
     ]
-    pixels = ExrScene.open(raw_exr(tmp_path / "yc.exr", 8, 6, planes)).pixels
+    pixels = decode(raw_exr(tmp_path / "yc.exr", 8, 6, planes)).rgb
     stored_y = (lum * y[0]).astype(np.float16).astype(np.float64)
     np.testing.assert_allclose(pixels, stored_y[..., None] * rgb / y[0], rtol=3e-3)
 
@@ -200,7 +202,7 @@ def test_chromaticities_are_converted_to_rec709(tmp_path: Path) -> None:
         ("R", np.array([[1.0, *lum[1:]]]), 1),
     ]
     chroma = b"chromaticities\0chromaticities\0" + struct.pack("<i8f", 32, *AP0)
-    pixels = ExrScene.open(raw_exr(tmp_path / "aces.exr", 4, 1, planes, chroma)).pixels
+    pixels = decode(raw_exr(tmp_path / "aces.exr", 4, 1, planes, chroma)).rgb
     np.testing.assert_allclose(pixels[0, 0], AP0_TO_REC709[:, 0], atol=1e-4)
     for k in range(1, 4):
         np.testing.assert_allclose(pixels[0, k], np.float16(lum[k]), rtol=1e-5)
@@ -210,7 +212,7 @@ def test_nan_and_inf_pass_through(tmp_path: Path) -> None:
     img = hdr_image()
     img[0, 0] = [np.nan, np.inf, -np.inf]
     write_exr(tmp_path / "bad.exr", img)
-    pixels = ExrScene.open(tmp_path / "bad.exr").pixels
+    pixels = decode(tmp_path / "bad.exr").rgb
     assert np.isnan(pixels[0, 0, 0]) and pixels[0, 0, 1] == np.inf and pixels[0, 0, 2] == -np.inf
     np.testing.assert_array_equal(pixels[1:], img[1:])
 
@@ -221,34 +223,56 @@ def test_nan_and_inf_pass_through(tmp_path: Path) -> None:
 def test_white_luminance_scales_and_explicit_scale_overrides(tmp_path: Path) -> None:
     img = hdr_image()
     path = write_channels(tmp_path / "w.exr", {"RGB": img}, whiteLuminance=250.0)
-    from_file = ExrScene.open(path)
-    assert from_file.scale == 250.0
+    from_file = ImageScene.open(path)
+    assert (from_file.scale.value, from_file.scale.source) == (250.0, "file")
     np.testing.assert_allclose(from_file.pixels, img * 250, rtol=1e-6)
-    explicit = ExrScene.open(path, scale=2.0)
-    assert explicit.scale == 2.0
+    explicit = ImageScene.open(path, scale=2.0)
+    assert (explicit.scale.value, explicit.scale.source) == (2.0, "user")
     np.testing.assert_allclose(explicit.pixels, img * 2, rtol=1e-6)
     np.testing.assert_allclose(open_scene(str(path), scale=3.0).render(0, 1, 1), img * 3, rtol=1e-6)
 
 
-def test_scale_without_white_luminance(tmp_path: Path) -> None:
+def test_scale_without_white_luminance_is_an_estimate(tmp_path: Path) -> None:
+    """A relative file: the median luminance goes to the kind's metered luminance (EV 15 for
+    daylight: 2^15 · 12.5 / 100 = 4096 cd/m²), and says so; the user's scale replaces it, and
+    going back (None) restores it without reading the file again."""
     img = hdr_image()
     write_exr(tmp_path / "plain.exr", img)
-    assert ExrScene.open(tmp_path / "plain.exr").scale == DEFAULT_SCALE == 1.0
-    np.testing.assert_allclose(ExrScene.open(tmp_path / "plain.exr", scale=0.5).pixels, img / 2)
+    scene = ImageScene.open(tmp_path / "plain.exr")
+    median = np.median(img @ np.array([0.2126, 0.7152, 0.0722], np.float32))
+    assert scene.scale.source == "estimate" and scene.scale.kind == "daylight"
+    assert scene.scale.value == pytest.approx(4096.0 / median, rel=1e-5)
+    assert "estimate" in scene.scale.note and "EV 15" in scene.scale.note
+    scene.set_scale(0.5)
+    assert (scene.scale.value, scene.scale.source) == (0.5, "user")
+    np.testing.assert_allclose(scene.render(0, 1, 1), img / 2)
+    scene.set_scale(None, "interior")  # EV 6: 8 cd/m²
+    assert scene.scale.value == pytest.approx(8.0 / median, rel=1e-5)
+    assert ImageScene.open(tmp_path / "plain.exr", kind="moonlight").scale.kind == "moonlight"
+
+
+def test_estimate_kind_from_the_name(tmp_path: Path) -> None:
+    write_exr(tmp_path / "night.exr", hdr_image())
+    write_exr(tmp_path / "Kitchen-interior_2k.exr", hdr_image())
+    assert ImageScene.open(tmp_path / "night.exr").scale.kind == "street"
+    assert ImageScene.open(tmp_path / "Kitchen-interior_2k.exr").scale.kind == "interior"
+    with pytest.raises(ValueError, match="unknown scene kind 'cave'; one of daylight"):
+        ImageScene.open(tmp_path / "night.exr", kind="cave")
 
 
 @pytest.mark.parametrize("scale", [0.0, -1.0, math.nan, math.inf])
 def test_bad_scale(tmp_path: Path, scale: float) -> None:
     write_exr(tmp_path / "s.exr", hdr_image())
     with pytest.raises(SceneError, match="scale"):
-        ExrScene.open(tmp_path / "s.exr", scale=scale)
+        ImageScene.open(tmp_path / "s.exr", scale=scale)
 
 
-def test_bad_white_luminance(tmp_path: Path) -> None:
+def test_bad_white_luminance_is_ignored_and_said(tmp_path: Path) -> None:
     path = write_channels(tmp_path / "w.exr", {"RGB": hdr_image()}, whiteLuminance=-5.0)
-    with pytest.raises(SceneError, match=r"w\.exr.*whiteLuminance"):
-        ExrScene.open(path)
-    assert ExrScene.open(path, scale=1.0).scale == 1.0  # an explicit scale gets past it
+    scene = ImageScene.open(path)
+    assert scene.scale.source == "estimate"
+    assert scene.describe()["notes"] == ["whiteLuminance -5.0 ignored: not a positive number"]
+    assert ImageScene.open(path, scale=1.0).scale.value == 1.0
 
 
 # --- EXR: size cap -----------------------------------------------------------------------------
@@ -256,9 +280,9 @@ def test_bad_white_luminance(tmp_path: Path) -> None:
 
 def test_pixel_cap(tmp_path: Path) -> None:
     write_exr(tmp_path / "small.exr", hdr_image(10, 20))
-    assert ExrScene.open(tmp_path / "small.exr", max_pixels=200).pixels.shape == (10, 20, 3)
+    assert decode(tmp_path / "small.exr", max_pixels=200).rgb.shape == (10, 20, 3)
     with pytest.raises(SceneError, match=r"small\.exr.*20×10.*200 pixels.*limit of 199"):
-        ExrScene.open(tmp_path / "small.exr", max_pixels=199)
+        ImageScene.open(tmp_path / "small.exr", max_pixels=199)
     assert MAX_PIXELS == 8192 * 8192
 
 
@@ -282,7 +306,7 @@ def test_huge_header_refused_before_pixels_are_read(
 
     monkeypatch.setattr(OpenEXR, "File", spy)
     with pytest.raises(SceneError, match=r"huge\.exr.*100000×100000.*10,000,000,000 pixels"):
-        ExrScene.open(huge)
+        ImageScene.open(huge)
     assert reads == [True]
 
 
@@ -298,7 +322,7 @@ def _valid_exr(tmp_path: Path) -> bytes:
     ("content", "reason"),
     [
         (lambda d: b"", "empty"),
-        (lambda d: np.random.default_rng(7).bytes(4096), "not an OpenEXR file"),
+        (lambda d: np.random.default_rng(7).bytes(4096), "not an HDR image this viewer reads"),
         (lambda d: d[:4], "truncated"),
         (lambda d: d[:60], "truncated"),
         (lambda d: d[: len(d) // 2], "truncated"),
@@ -310,7 +334,7 @@ def test_bad_file(tmp_path: Path, content: Callable[[bytes], bytes], reason: str
     path = tmp_path / "broken file.exr"
     path.write_bytes(content(_valid_exr(tmp_path)))
     with pytest.raises(SceneError, match=reason) as info:
-        ExrScene.open(path)
+        ImageScene.open(path)
     assert str(path) in str(info.value)
 
 
@@ -320,25 +344,25 @@ def test_every_truncation_is_a_scene_error(tmp_path: Path) -> None:
     for n in range(0, len(data), max(1, len(data) // 50)):
         path.write_bytes(data[:n])
         with pytest.raises(SceneError, match=r"cut\.exr"):
-            ExrScene.open(path)
+            ImageScene.open(path)
 
 
 def test_missing_file_and_directory(tmp_path: Path) -> None:
     with pytest.raises(SceneError, match=r"nothere\.exr: no such file"):
-        ExrScene.open(tmp_path / "nothere.exr")
+        ImageScene.open(tmp_path / "nothere.exr")
     (tmp_path / "dir.exr").mkdir()
-    with pytest.raises(SceneError, match=r"dir\.exr: cannot read"):
-        ExrScene.open(tmp_path / "dir.exr")
+    with pytest.raises(SceneError, match=r"dir\.exr: is a directory"):
+        ImageScene.open(tmp_path / "dir.exr")
 
 
 def test_no_usable_channels(tmp_path: Path) -> None:
     path = write_channels(tmp_path / "depth.exr", {"Z": np.ones((4, 4), np.float32)})
     with pytest.raises(SceneError, match=r"depth\.exr: no usable channels.*found Z"):
-        ExrScene.open(path)
+        ImageScene.open(path)
     ids = np.ones((4, 4), np.uint32)
     path = write_channels(tmp_path / "ids.exr", {"R": ids, "G": ids, "B": ids})
     with pytest.raises(SceneError, match=r"ids\.exr: channel R holds uint32"):
-        ExrScene.open(path)
+        ImageScene.open(path)
 
 
 # --- EXR: writing ------------------------------------------------------------------------------
@@ -356,7 +380,7 @@ def test_write_exr_checks_and_leaves_no_temporary(tmp_path: Path) -> None:
     write_exr(tmp_path / "a.exr", hdr_image(), compression="PIZ")
     write_exr(tmp_path / "a.exr", hdr_image() * 2, compression="none")  # replaces it
     assert os.listdir(tmp_path) == ["a.exr"]
-    np.testing.assert_array_equal(ExrScene.open(tmp_path / "a.exr").pixels, hdr_image() * 2)
+    np.testing.assert_array_equal(decode(tmp_path / "a.exr").rgb, hdr_image() * 2)
 
 
 # --- procedural scenes -------------------------------------------------------------------------

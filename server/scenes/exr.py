@@ -1,26 +1,25 @@
-"""OpenEXR scenes: loading radiance in absolute units, and writing float frames.
+"""OpenEXR: reading a file's radiance (any part and layer), and writing float frames.
 
-Scale. Pixel values are multiplied by one scene scale to give cd/m^2, chosen in this order:
+Layers. A file may hold several parts (multi-part) and, in each, several layers (channels
+named `LAYER.R`, `LAYER.G`, ...). A layer is usable when it has `R`, `G`, `B`, else luminance
+`Y` (with `RY`/`BY` chroma when both are present: OpenEXR's luminance/chroma encoding, chroma
+upsampled linearly, no saturation fix-up), else nothing. Layers are named `LAYER` (the
+unnamed one is ""), prefixed `PART/` in a multi-part file; without a choice the first part's
+unnamed layer is read, else the first usable one. `A` and any other channel are ignored.
+HALF and FLOAT are read; UINT is refused (it holds ids, not radiance). The image is the part's
+data window; the display window is ignored.
 
-1. an explicit ``scale`` argument, when given (it overrides the file, so a user can correct a
-   wrong header);
-2. the file's standard ``whiteLuminance`` attribute (the luminance of RGB = 1, 1, 1);
-3. ``DEFAULT_SCALE`` = 1.0: pixel values are taken to be cd/m^2 already.
+Scale. The standard `whiteLuminance` attribute (cd/m^2 of RGB = 1, 1, 1) is reported; the
+scene applies it (`gazehdr.scenes.image`).
 
-Channels. Of the first part: ``R``, ``G``, ``B`` (``A`` and any other channel or layer is
-ignored); else luminance ``Y``, with ``RY``/``BY`` chroma when both are present (OpenEXR's
-luminance/chroma encoding, subsampled chroma upsampled linearly, no saturation fix-up), else grey.
-HALF and FLOAT are read; UINT is refused (it holds ids, not radiance). The image is the data
-window; the display window is ignored.
-
-Colour. A ``chromaticities`` attribute other than Rec.709 is honoured: pixels go through XYZ
+Colour. A `chromaticities` attribute other than Rec.709 is honoured: pixels go through XYZ
 into linear Rec.709 with a Bradford adaptation from the file's white to D65, so neutrals stay
 neutral (ACES AP0 files, for instance, come out right).
 
-Bad files. Anything unreadable raises ``SceneError`` naming the file and the fault: missing,
-empty, not an EXR, corrupted or truncated header or pixels, no usable channels, too large. The
-pixel count (all parts, as the library reads them all) is checked against ``max_pixels`` from the
-header alone, before any pixel data is allocated.
+Bad files. Anything unreadable raises `SceneError` naming the file and the fault: missing,
+empty, not an EXR, corrupted or truncated header or pixels, no usable channels, an unknown
+layer, too large. The pixel count (all parts, as the library reads them all) is checked
+against `max_pixels` from the header alone, before any pixel data is allocated.
 
 NaN and Inf in a file are passed through unchanged: the simulator sanitises its input.
 """
@@ -38,69 +37,43 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-#: Scene scale when neither the caller nor the file gives one: pixel values are cd/m^2.
-DEFAULT_SCALE = 1.0
-#: Largest image accepted by default: 64 Mi pixels (8192 × 8192), 768 MiB as float32 RGB.
-MAX_PIXELS = 64 * 1024 * 1024
-
-_MAGIC = b"\x76\x2f\x31\x01"
-#: Rec.709 / sRGB primaries and D65 white as OpenEXR writes them: xy of R, G, B, white.
-_REC709 = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
-_BRADFORD = np.array(
-    [[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367], [0.0389, -0.0685, 1.0296]]
+from gazehdr.scenes.decoding import (
+    MAX_PIXELS,
+    REC709,
+    Decoded,
+    SceneError,
+    check_primaries,
+    check_size,
+    into_rec709,
+    read_head,
+    rgb_to_xyz,
 )
+
+MAGIC = b"\x76\x2f\x31\x01"
 _HALF_MAX = float(np.finfo(np.float16).max)
 
 
-class SceneError(ValueError):
-    """A scene file that cannot be used; the message names the file and what is wrong."""
+@dataclass(frozen=True)
+class _Layer:
+    name: str  # as the user picks it: "LAYER" or "PART/LAYER"
+    part: int
+    prefix: str  # channel name prefix, "" or "LAYER."
+    channels: tuple[str, ...]  # R, G, B or Y[, RY, BY], without the prefix
 
 
-@dataclass(eq=False)
-class ExrScene:
-    """A static scene from an EXR file, in cd/m^2 (`scale` is the factor that was applied)."""
-
-    name: str
-    pixels: np.ndarray
-    scale: float = DEFAULT_SCALE
-    animated: bool = False
-
-    @classmethod
-    def open(
-        cls,
-        path: str | os.PathLike[str],
-        scale: float | None = None,
-        *,
-        max_pixels: int = MAX_PIXELS,
-    ) -> ExrScene:
-        """Load `path` (see the module docstring for the scale order and what is accepted)."""
-        path = Path(path)
-        if scale is not None and not (math.isfinite(scale) and scale > 0):
-            raise SceneError(f"{path}: scale must be a positive finite number, got {scale!r}")
-        _check_magic(path)
-        header, total_pixels = _read_header(path)
-        width, height = _data_size(path, header)
-        if total_pixels > max_pixels:
-            raise SceneError(
-                f"{path}: image of {width}×{height} ({total_pixels:,} pixels) is larger than the "
-                f"limit of {max_pixels:,} pixels"
-            )
-        if scale is None:
-            scale = _file_scale(path, header)
-        rgb = _read_rgb(path, header, width, height)
-        rgb *= np.float32(scale)
-        return cls(name=path.stem, pixels=np.ascontiguousarray(rgb), scale=float(scale))
-
-    def render(self, t: float, width: int, height: int) -> np.ndarray:
-        """The loaded pixels whatever `t`, `width`, `height`: the simulator fits them. The same
-        array every call, not a copy: copy it before modifying it."""
-        return self.pixels
-
-    def state_at(self, t: float) -> object:
-        return None
-
-    def next_change(self, t: float) -> float | None:
-        return None
+def read_exr(path: Path, layer: str | None = None, *, max_pixels: int = MAX_PIXELS) -> Decoded:
+    """The radiance of `layer` (default: see the module docstring), unscaled."""
+    _check_magic(path)
+    headers = _read_headers(path)
+    total = sum(_box_area(h.get("dataWindow")) for h in headers)
+    layers = _layers(headers)
+    chosen = _choose(path, headers, layers, layer)
+    header = headers[chosen.part]
+    width, height = _data_size(path, header)
+    check_size(path, width, height, total, max_pixels)
+    white, notes = _white_luminance(path, header if "whiteLuminance" in header else headers[0])
+    rgb = _read_rgb(path, header, chosen, width, height)
+    return Decoded(rgb, "exr", white, tuple(l.name for l in layers), chosen.name, notes)
 
 
 def write_exr(
@@ -109,11 +82,14 @@ def write_exr(
     *,
     half: bool = False,
     compression: OpenEXR.Compression | str = OpenEXR.ZIP_COMPRESSION,
+    white_luminance: float | None = None,
 ) -> None:
     """Write an H×W×3 linear RGB image as a scanline EXR, replacing `path` atomically.
 
     `half` stores 16-bit floats (finite values above 65504 are refused rather than turned into
     Inf). `compression` is an `OpenEXR.Compression` or its name ("zip", "piz", "none", ...).
+    `white_luminance` (cd/m^2 per unit) is stored as the standard attribute, so a reader
+    knows the values' absolute scale.
     """
     path = Path(path)
     rgb = np.asarray(rgb)
@@ -128,6 +104,8 @@ def write_exr(
             )
     pixels = np.ascontiguousarray(rgb, dtype=np.float16 if half else np.float32)
     header = {"compression": _compression(compression), "type": OpenEXR.scanlineimage}
+    if white_luminance is not None:
+        header["whiteLuminance"] = float(white_luminance)
     # A unique name beside the target (so the rename is atomic), created by the library so
     # that the file gets the usual permissions.
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
@@ -156,21 +134,15 @@ def _compression(c: OpenEXR.Compression | str) -> OpenEXR.Compression:
 
 def _check_magic(path: Path) -> None:
     """Fail early, with a plain message, on what is not an EXR file at all."""
-    try:
-        with path.open("rb") as f:
-            magic = f.read(len(_MAGIC))
-    except FileNotFoundError:
-        raise SceneError(f"{path}: no such file") from None
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read: {e.strerror or e}") from None
+    magic = read_head(path, len(MAGIC))
     if not magic:
         raise SceneError(f"{path}: empty file, not an EXR image")
-    if magic != _MAGIC:
+    if magic != MAGIC:
         raise SceneError(f"{path}: not an OpenEXR file (bad magic number)")
 
 
-def _read_header(path: Path) -> tuple[dict, int]:
-    """The first part's header and the pixel count of all parts, without reading pixels."""
+def _read_headers(path: Path) -> list[dict]:
+    """Every part's header, without reading pixels."""
     try:
         f = OpenEXR.File(str(path), header_only=True)
         headers = [part.header for part in f.parts]
@@ -178,8 +150,42 @@ def _read_header(path: Path) -> tuple[dict, int]:
         raise SceneError(f"{path}: corrupted or truncated EXR header ({e})") from None
     if not headers:
         raise SceneError(f"{path}: EXR file has no image parts")
-    total = sum(_box_area(h.get("dataWindow")) for h in headers)
-    return headers[0], total
+    return headers
+
+
+def _layers(headers: list[dict]) -> list[_Layer]:
+    """The usable layers of every part, in file order, each part's unnamed layer first."""
+    found = []
+    for i, header in enumerate(headers):
+        names = [c.name for c in header.get("channels", [])]
+        prefixes = sorted({n.rpartition(".")[0] for n in names}, key=lambda p: (p != "", p))
+        part = str(header.get("name") or f"part{i}") if len(headers) > 1 else ""
+        for prefix in prefixes:
+            dot = f"{prefix}." if prefix else ""
+            own = {n.removeprefix(dot) for n in names if n.rpartition(".")[0] == prefix}
+            if {"R", "G", "B"} <= own:
+                channels: tuple[str, ...] = ("R", "G", "B")
+            elif "Y" in own:
+                channels = ("Y", "RY", "BY") if {"RY", "BY"} <= own else ("Y",)
+            else:
+                continue
+            name = "/".join(n for n in (part, prefix) if n) if part else prefix
+            found.append(_Layer(name, i, dot, channels))
+    return found
+
+
+def _choose(path: Path, headers: list[dict], layers: list[_Layer], layer: str | None) -> _Layer:
+    if not layers:
+        names = sorted({c.name for h in headers for c in h.get("channels", [])})
+        found = ", ".join(names) or "none"
+        raise SceneError(f"{path}: no usable channels (need R, G, B or Y; found {found})")
+    if layer is None:
+        return layers[0]
+    for candidate in layers:
+        if candidate.name == layer:
+            return candidate
+    names = ", ".join(repr(l.name) for l in layers)
+    raise SceneError(f"{path}: no layer {layer!r}; the file has {names}")
 
 
 def _box_area(window: object) -> int:
@@ -197,39 +203,29 @@ def _data_size(path: Path, header: dict) -> tuple[int, int]:
         (x0, y0), (x1, y1) = header["dataWindow"]
     except (KeyError, TypeError, ValueError):
         raise SceneError(f"{path}: EXR header has no valid dataWindow") from None
-    width, height = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
-    if width <= 0 or height <= 0:
-        raise SceneError(f"{path}: empty data window {width}×{height}")
-    return width, height
+    return int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
 
 
-def _file_scale(path: Path, header: dict) -> float:
+def _white_luminance(path: Path, header: dict) -> tuple[float | None, tuple[str, ...]]:
+    """The header's whiteLuminance, or None with a note when it is absent or unusable."""
     white = header.get("whiteLuminance")
     if white is None:
-        return DEFAULT_SCALE
+        return None, ()
     if not (isinstance(white, (int, float)) and math.isfinite(white) and white > 0):
-        raise SceneError(
-            f"{path}: whiteLuminance {white!r} is not a positive number; give an explicit scale"
-        )
-    return float(white)
+        return None, (f"whiteLuminance {white!r} ignored: not a positive number",)
+    return float(white), ()
 
 
-def _read_rgb(path: Path, header: dict, width: int, height: int) -> np.ndarray:
-    """Linear Rec.709 RGB, unscaled, as float32 H×W×3."""
+def _read_rgb(path: Path, header: dict, layer: _Layer, width: int, height: int) -> np.ndarray:
+    """Linear Rec.709 RGB of `layer`, unscaled, as float32 H×W×3."""
     sampling = {c.name: (c.ySampling, c.xSampling) for c in header.get("channels", [])}
-    if {"R", "G", "B"} <= sampling.keys():
-        wanted = ["R", "G", "B"]
-    elif "Y" in sampling:
-        wanted = ["Y", "RY", "BY"] if {"RY", "BY"} <= sampling.keys() else ["Y"]
-    else:
-        found = ", ".join(sorted(sampling)) or "none"
-        raise SceneError(f"{path}: no usable channels (need R, G, B or Y; found {found})")
+    wanted = [layer.prefix + c for c in layer.channels]
     # On a decoding failure the library prints a warning and returns a file with no parts: keep
     # the warning off stdout and put it in the error instead.
     warning = io.StringIO()
     try:
         with contextlib.redirect_stdout(warning):
-            channels = OpenEXR.File(str(path), separate_channels=True).channels(0)
+            channels = OpenEXR.File(str(path), separate_channels=True).channels(layer.part)
         planes = {n: channels[n].pixels for n in wanted}
     except Exception as e:
         reason = warning.getvalue().strip().removeprefix("Warning: ") or str(e)
@@ -242,36 +238,20 @@ def _read_rgb(path: Path, header: dict, width: int, height: int) -> np.ndarray:
             raise SceneError(f"{path}: corrupted or truncated EXR pixel data (channel {n})")
         if p.dtype.kind != "f":
             raise SceneError(f"{path}: channel {n} holds {p.dtype} values, not HALF or FLOAT")
-        full[n] = _upsample(p.astype(np.float32), steps, (height, width))
-    primaries = _primaries(path, header)
+        full[n.removeprefix(layer.prefix)] = _upsample(p.astype(np.float32), steps, (height, width))
+    primaries = check_primaries(path, header.get("chromaticities", REC709))
     if "R" in full:
         rgb = np.stack([full["R"], full["G"], full["B"]], axis=-1)
     elif "RY" in full:
         # OpenEXR's luminance/chroma encoding: RY = (R - Y)/Y, BY = (B - Y)/Y.
-        yw = _rgb_to_xyz(primaries)[1]
+        yw = rgb_to_xyz(primaries)[1]
         y = full["Y"]
         r = (full["RY"] + 1) * y
         b = (full["BY"] + 1) * y
         rgb = np.stack([r, (y - r * yw[0] - b * yw[2]) / yw[1], b], axis=-1)
     else:
         return np.repeat(full["Y"][..., None], 3, axis=-1)
-    if not np.allclose(primaries, _REC709, atol=1e-4):
-        rgb = rgb @ _to_rec709(primaries).T.astype(np.float32)
-    return rgb.astype(np.float32, copy=False)
-
-
-def _primaries(path: Path, header: dict) -> tuple[float, ...]:
-    """The file's chromaticities (Rec.709 when absent), refused when they define no RGB space."""
-    primaries = header.get("chromaticities", _REC709)
-    try:
-        primaries = tuple(float(c) for c in primaries)
-        with np.errstate(all="ignore"):
-            usable = len(primaries) == 8 and np.isfinite(_to_rec709(primaries)).all()
-    except (TypeError, ValueError, np.linalg.LinAlgError):
-        usable = False
-    if not usable:
-        raise SceneError(f"{path}: invalid chromaticities {primaries!r}")
-    return primaries
+    return into_rec709(rgb.astype(np.float32, copy=False), primaries)
 
 
 def _upsample(plane: np.ndarray, steps: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
@@ -288,19 +268,3 @@ def _upsample(plane: np.ndarray, steps: tuple[int, int], shape: tuple[int, int])
         a0, a1 = np.take(plane, i0, axis=axis), np.take(plane, i1, axis=axis)
         plane = a0 + (a1 - a0) * frac
     return plane
-
-
-def _rgb_to_xyz(primaries: tuple[float, ...]) -> np.ndarray:
-    """The RGB→XYZ matrix of primaries (xy of R, G, B, white), white → Y = 1."""
-    xy = np.asarray(primaries, dtype=np.float64).reshape(4, 2)
-    xyz = np.column_stack([xy[:, 0] / xy[:, 1], np.ones(4), (1 - xy.sum(axis=1)) / xy[:, 1]])
-    m = xyz[:3].T
-    return m * np.linalg.solve(m, xyz[3])
-
-
-def _to_rec709(primaries: tuple[float, ...]) -> np.ndarray:
-    """File RGB → Rec.709 RGB, with a Bradford adaptation of the file's white to D65."""
-    src, dst = _rgb_to_xyz(primaries), _rgb_to_xyz(_REC709)
-    lms_src, lms_dst = _BRADFORD @ src.sum(axis=1), _BRADFORD @ dst.sum(axis=1)
-    adapt = np.linalg.solve(_BRADFORD, np.diag(lms_dst / lms_src) @ _BRADFORD)
-    return np.linalg.solve(dst, adapt @ src)

@@ -1,22 +1,48 @@
-"""The scenes a server offers: the built-ins, EXR files given at start, and uploads.
+"""The scenes a server offers: the built-ins, image files given at start, and uploads.
 
-Uploads live in `DATA_DIR/scenes/NAME.exr`. Names are checked against one pattern before any
-path is built, so nothing is ever read or written outside that folder, and a file is only
-moved into place after it opened as a valid scene.
+Uploads live in `DATA_DIR/scenes/NAME.exr` (or `.hdr`, `.pfm`: the format the file's bytes
+are), with their settings beside them in `NAME.json` (`scale`, the estimate's `kind`, the EXR
+`layer`). Names are checked against one pattern before any path is built, so nothing is ever
+read or written outside that folder; a file is moved into place only after it opened as a
+valid scene, and never over an existing upload unless asked to (`overwrite`).
+
+Settings apply to every session showing the scene: each change bumps the name's `version`,
+which sessions compare with theirs at every step (`refresh`), so a new scale is applied to
+the pixels already loaded, without reading the file again.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import re
+import threading
 import uuid
 from pathlib import Path
+from typing import Any
 
 from gazehdr.scenes import Scene, builtin_names, open_scene
-from gazehdr.scenes.exr import ExrScene, SceneError
+from gazehdr.scenes.decoding import SceneError
+from gazehdr.scenes.estimate import check_kind
+from gazehdr.scenes.image import SUFFIXES, ImageScene, check_scale, file_format, identity
 
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 MAX_UPLOAD_BYTES = 256 * 1024 * 1024  # an upload is held in memory until validated
+#: What a built-in (procedural) scene says of its scale: it is drawn in cd/m^2.
+BUILTIN_INFO = {
+    "format": "built-in", "scale": 1.0, "scale_source": "built-in",
+    "scale_note": "drawn in cd/m² by gazehdr", "kind": None, "layers": [""], "layer": "",
+}  # fmt: skip
+SETTINGS = ("scale", "kind", "layer")
+
+
+class SceneExistsError(SceneError):
+    """An upload under a name already taken by an upload."""
+
+
+class NoSuchSceneError(SceneError):
+    """A name that is no scene of this library."""
 
 
 def check_name(name: str) -> str:
@@ -29,48 +55,175 @@ def check_name(name: str) -> str:
     return name
 
 
+def check_settings(values: dict[str, Any]) -> dict[str, Any]:
+    """`scale` (positive, or None), `kind` (an estimate kind, or None), `layer` (str or None)."""
+    unknown = sorted(set(values) - set(SETTINGS))
+    if unknown:
+        names = ", ".join(unknown)
+        raise SceneError(f"unknown scene setting(s) {names}; known: scale, kind, layer")
+    out = dict(values)
+    if "scale" in out:
+        out["scale"] = check_scale(out["scale"])
+    if out.get("kind") is not None:
+        try:
+            check_kind(out["kind"])
+        except ValueError as e:
+            raise SceneError(str(e)) from None
+    if out.get("layer") is not None and not isinstance(out["layer"], str):
+        raise SceneError("layer must be a layer name (a string) or null")
+    return out
+
+
 class SceneLibrary:
     def __init__(self, data_dir: Path | None = None, loaded: dict[str, Scene] | None = None):
         """`loaded`: scenes opened at start (files named on the command line), shared by all
-        sessions; they are read-only."""
+        sessions; their settings change in memory only."""
         self.upload_dir = data_dir / "scenes" if data_dir else None
         self.loaded = dict(loaded or {})
+        self._versions: dict[str, int] = {}
+        self._lock = threading.Lock()
 
     def names(self) -> list[str]:
-        uploads = sorted(p.stem for p in self.upload_dir.glob("*.exr")) if self.upload_dir else []
-        return sorted({*builtin_names(), *self.loaded, *uploads})
+        return sorted({*builtin_names(), *self.loaded, *self.uploads()})
+
+    def uploads(self) -> dict[str, Path]:
+        """Uploaded scenes by name (one file each)."""
+        if not self.upload_dir or not self.upload_dir.is_dir():
+            return {}
+        return {
+            p.stem: p
+            for suffix in SUFFIXES.values()
+            for p in self.upload_dir.glob(f"*{suffix}")
+            if NAME.fullmatch(p.stem)
+        }
+
+    def version(self, name: str) -> int:
+        """Bumped by every change of the scene's file or settings."""
+        return self._versions.get(name, 0)
 
     def open(self, name: str) -> Scene:
         if name in builtin_names():
             return open_scene(name)
         if name in self.loaded:
             return self.loaded[name]
-        path = self._upload_path(check_name(name))
-        if path is None or not path.is_file():
-            raise SceneError(f"no scene named {name!r}; available: {', '.join(self.names())}")
-        return ExrScene.open(path)
-
-    def store(self, name: str, chunks: list[bytes]) -> Path:
-        """Validate an uploaded EXR and move it into place; nothing is kept if it is bad."""
-        path = self._upload_path(check_name(name))
+        path = self.uploads().get(check_name(name))
         if path is None:
+            raise NoSuchSceneError(f"no scene named {name!r}; available: {', '.join(self.names())}")
+        s = self.settings(name)
+        return ImageScene.open(path, s.get("scale"), layer=s.get("layer"), kind=s.get("kind"))
+
+    def refresh(self, name: str, scene: Scene) -> Scene:
+        """`scene` (opened as `name`) with the settings now in force: the same object with a
+        new scale, or the file opened again when its layer or the file itself changed."""
+        if name in self.loaded or not isinstance(scene, ImageScene):
+            return scene
+        s = self.settings(name)
+        layer = s.get("layer")
+        path = self.uploads().get(name)
+        replaced = path is None or scene.source != identity(path)
+        if replaced or layer not in (None, scene.decoded.layer):
+            return self.open(name)  # another layer, or the upload was replaced
+        scene.set_scale(s.get("scale"), s.get("kind"))
+        return scene
+
+    def describe(self, name: str) -> dict[str, Any]:
+        """What `GET /api/scenes/NAME` and `gazehdr scenes` show: format, size, scale, source."""
+        scene = self.open(name)
+        where = "upload"
+        if name in builtin_names() or name in self.loaded:
+            where = "built-in" if name in builtin_names() else "configured"
+        info = scene.describe() if isinstance(scene, ImageScene) else dict(BUILTIN_INFO)
+        return {"name": name, "origin": where, **info}
+
+    def settings(self, name: str) -> dict[str, Any]:
+        """An upload's saved settings (empty for other scenes and unreadable files)."""
+        path = self._sidecar(name)
+        try:
+            values = json.loads(path.read_text()) if path else {}
+            return check_settings(values if isinstance(values, dict) else {})
+        except (OSError, ValueError):
+            return {}
+
+    def configure(self, name: str, values: dict[str, Any]) -> dict[str, Any]:
+        """Change a scene's `scale`, `kind` or `layer` (None: back to the default) for every
+        session; an upload keeps them. Returns the scene's description."""
+        values = check_settings(values)
+        if name in builtin_names():
+            raise SceneError(f"{name!r} is a built-in scene: it is drawn in cd/m², no scale to set")
+        if name in self.loaded:
+            scene = self.loaded[name]
+            if "layer" in values:
+                raise SceneError(f"{name!r} was opened at start: its layer is serve --layer's")
+            if isinstance(scene, ImageScene):
+                merged = {"scale": None, "kind": None, **values}
+                scene.set_scale(merged["scale"], merged["kind"])
+        else:
+            path = self.uploads().get(check_name(name))
+            if path is None:
+                raise NoSuchSceneError(f"no scene named {name!r}; see GET /api/scenes")
+            merged = {**self.settings(name), **values}
+            if "scale" in values and values["scale"] is not None:
+                merged.pop("kind", None)  # a number given: no estimate to keep
+            ImageScene.open(
+                path, merged.get("scale"), layer=merged.get("layer"), kind=merged.get("kind")
+            )  # fmt: skip  (refuses a bad layer now)
+            self._write_settings(name, {k: v for k, v in merged.items() if v is not None})
+        self._bump(name)
+        return self.describe(name)
+
+    def store(self, name: str, chunks: list[bytes], *, overwrite: bool = False) -> Path:
+        """Validate an uploaded image and move it into place; nothing is kept if it is bad.
+        An upload of the same name is replaced only with `overwrite` (its settings go)."""
+        if self.upload_dir is None:
             raise SceneError("this server has no data directory for uploads")
+        check_name(name)
         if name in builtin_names() or name in self.loaded:
             raise SceneError(f"scene name {name!r} is taken by a built-in or configured scene")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".upload-{uuid.uuid4().hex}.exr")
+        existing = self.uploads().get(name)
+        if existing is not None and not overwrite:
+            raise SceneExistsError(
+                f"scene {name!r} exists already; replace it with overwrite (PUT "
+                f"/api/scenes/{name}?overwrite=true) or choose another name"
+            )
+        self.upload_dir.mkdir(parents=True, exist_ok=True)
+        tmp = self.upload_dir / f".upload-{uuid.uuid4().hex}.tmp"
         try:
             with open(tmp, "wb") as f:
                 for chunk in chunks:
                     f.write(chunk)
             try:
-                ExrScene.open(tmp)
+                kind = file_format(tmp)
+                ImageScene.open(tmp)
             except SceneError as e:
                 raise SceneError(str(e).replace(str(tmp), f"upload {name!r}")) from None
-            os.replace(tmp, path)
+            path = self.upload_dir / f"{name}{SUFFIXES[kind]}"
+            with self._lock:
+                os.replace(tmp, path)
+                if existing is not None and existing != path:
+                    existing.unlink(missing_ok=True)
+                if existing is not None:
+                    (self._sidecar(name) or path).unlink(missing_ok=True)
         finally:
             tmp.unlink(missing_ok=True)
+        self._bump(name)
         return path
 
-    def _upload_path(self, name: str) -> Path | None:
-        return self.upload_dir / f"{name}.exr" if self.upload_dir else None
+    # --- internals ---------------------------------------------------------------------------
+
+    def _bump(self, name: str) -> None:
+        with self._lock:
+            self._versions[name] = self._versions.get(name, 0) + 1
+
+    def _sidecar(self, name: str) -> Path | None:
+        return self.upload_dir / f"{name}.json" if self.upload_dir else None
+
+    def _write_settings(self, name: str, values: dict[str, Any]) -> None:
+        path = self._sidecar(name)
+        assert path is not None  # an upload exists, so there is an upload folder
+        tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+        try:
+            tmp.write_text(json.dumps(values))
+            os.replace(tmp, path)
+        finally:
+            with contextlib.suppress(OSError):
+                tmp.unlink()

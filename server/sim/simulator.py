@@ -117,6 +117,16 @@ class Simulator:
         x, y = (np.array([c / self.layout.cell]) for c in self._gaze)
         return float(bilinear(self._rho, x, y)[0, 0])
 
+    def scene_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """What the eye looks at, for inspection: the radiance as loaded (H×W×3 cd/m^2, fitted
+        to the frame) and rho (Eq. 13, unclamped) at every pixel, as `rho_at_gaze` samples it."""
+        self._prepare()
+        radiance = self._backend.get("scene").transpose(1, 2, 0)
+        rho = self._backend.get("rho")[None].astype(np.float64)
+        ys, xs = np.mgrid[: self.height, : self.width] + 0.5
+        cell = self.layout.cell
+        return np.ascontiguousarray(radiance, np.float32), bilinear(rho, xs / cell, ys / cell)[0]
+
     # --- control ------------------------------------------------------------------------------
 
     def load_scene(self, rgb: np.ndarray, *, reset: bool = True) -> None:
