@@ -30,7 +30,7 @@ from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.gaze import TrackerFeed
 from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from gazehdr.metrics import Counter, Metrics
-from gazehdr.protocol import Ack, ProtocolError, parse_control
+from gazehdr.protocol import Ack, ProtocolError, SceneMaps, parse_control
 from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes import Scene
@@ -275,8 +275,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             await ws.close(CLOSE_INTERNAL, "could not start a session")
             return
         hello = {"type": "hello", "protocol": 1, "session": live.session.id}
-        scene_map = live.session.scene_map  # the last one sent, if any: what this page needs
-        viewer.mailbox.put(None, [{**hello, **live.session.state()}, *filter(None, [scene_map])])
+        viewer.mailbox.put(None, [{**hello, **live.session.state()}])
         tasks = [
             asyncio.create_task(viewer.pump()),
             asyncio.create_task(_receive_controls(ws, live, viewer)),
@@ -306,6 +305,9 @@ def create_app(config: ServerConfig) -> FastAPI:
                 control = parse_control(text)
                 if isinstance(control, Ack):
                     viewer.ack()
+                    continue
+                if isinstance(control, SceneMaps):
+                    viewer.want_maps(control.send, live.session.scene_map)
                     continue
                 live.submit(control)
             except ProtocolError as e:

@@ -87,6 +87,13 @@ class Viewer:
         self.window: int | None = None
         self.sent = self.acks = 0
         self._credit = asyncio.Event()
+        self.maps = False  # whether it asked for scene maps (binary notes)
+
+    def want_maps(self, send: bool, latest: bytes | None) -> None:
+        """Scene maps on or off; on, the latest one comes at once (the page has none yet)."""
+        self.maps = send
+        if send and latest is not None:
+            self.mailbox.put(None, [latest])
 
     def ack(self) -> None:
         self.acks = min(self.acks + 1, self.sent)
@@ -111,7 +118,10 @@ class Viewer:
             await self._wait_for_credit()
             frame, notes = await self.mailbox.take()
             for note in notes:  # a scene map is binary, the rest JSON
-                await (self._send_bytes(note) if isinstance(note, bytes) else self._send_json(note))
+                if not isinstance(note, bytes):
+                    await self._send_json(note)
+                elif self.maps:
+                    await self._send_bytes(note)
             if self.mailbox.closed:
                 return
             if frame is None:

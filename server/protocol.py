@@ -225,13 +225,24 @@ class Reset:
 
 
 @dataclass(frozen=True)
+class SceneMaps:
+    """Whether this viewer wants the binary scene maps (off until asked: a client that takes
+    every binary message for a frame keeps working). Handled per viewer."""
+
+    send: bool
+
+
+@dataclass(frozen=True)
 class Ack:
     """The viewer took frame `frame`: flow control, handled per viewer, not by the session."""
 
     frame: int
 
 
-Control = Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | SceneSettings | Reset | Ack
+Control = (
+    Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | SceneSettings | SceneMaps
+    | Reset | Ack
+)  # fmt: skip
 SCENE_SETTINGS = {"scale": ((int, float), "a number"), "kind": (str, "a string"),
                   "layer": (str, "a string")}  # fmt: skip
 CHOICES = ("scene", "gaze_source")
@@ -309,9 +320,14 @@ def parse_control(data: str | bytes) -> Control:
         return ParamChange(_field(msg, "values", dict, "an object of parameter values"))
     if kind == "scene_settings":
         return _scene_settings(msg)
+    if kind == "scene_maps":
+        return SceneMaps(_field(msg, "send", bool, "true or false"))
     if kind == "reset":
         return Reset()
     if kind == "ack":
         return Ack(_field(msg, "frame", int, "an integer"))
-    known = "viewport, gaze, eyes, scene, model, gaze_source, params, scene_settings, reset, ack"
+    known = (
+        "viewport, gaze, eyes, scene, model, gaze_source, params, scene_settings, scene_maps, "
+        "reset, ack"
+    )
     raise ProtocolError(f"unknown message type {kind!r}; known: {known}", kind)

@@ -63,7 +63,7 @@ from gazehdr.scenes.library import BUILTIN_INFO, SceneLibrary
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
-from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
+from gazehdr.sim.params import OURS, SECTIONS, check_remote_change, param_info
 
 #: Tracks a session follows by name alone (a recording is `replay:NAME`, from the server's
 #: recordings).
@@ -78,6 +78,7 @@ SCENE_KINDS = {
     name: {"ev": k.ev, "what": k.what, "luminance": kind_luminance(name)}
     for name, k in KINDS.items()
 }
+PARAM_INFO_JSON = param_info()
 #: What a session tells its viewers: JSON notes, and binary scene maps (`SceneMap`).
 Note = dict[str, Any] | bytes
 
@@ -237,6 +238,7 @@ class Session:
             "defaults": Params().to_dict(),
             "sections": SECTIONS,
             "ours": sorted(OURS),
+            "param_info": PARAM_INFO_JSON,
         }
 
     def log_header(self) -> sessionlog.SessionHeader:

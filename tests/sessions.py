@@ -18,6 +18,8 @@ def tick(
     session: Session, dt: float, controls: list[tuple[Control, float]]
 ) -> tuple[Frame, list[dict[str, Any]]]:
     """One step after `controls` arrived: as `LiveSession.submit` routes them, the viewer's
-    pointer and eyes go to the session's pointer, everything else is a control of the step."""
+    pointer and eyes go to the session's pointer, everything else is a control of the step.
+    The JSON notes only: scene maps (bytes) are left out."""
     queued = [(c, at) for c, at in controls if not session.pointer.take(c, at)]
-    return session.tick(dt, queued)
+    frame, notes = session.tick(dt, queued)
+    return frame, [n for n in notes if isinstance(n, dict)]

@@ -140,7 +140,7 @@ def test_exr_upload(live_server, tmp_path) -> None:
 
     cases = [
         ("broken", b"\x76\x2f\x31\x01" + b"\x00" * 64, 422, "upload 'broken'"),
-        ("text", b"hello", 422, "not an OpenEXR file"),
+        ("text", b"hello", 422, "not an HDR image this viewer reads"),
         ("huge", b"\x00" * 200_001, 413, "limit"),
         ("..%2F..%2Fescape", good.read_bytes(), 400, "not allowed"),
         ("a%2Fb", good.read_bytes(), 400, "not allowed"),

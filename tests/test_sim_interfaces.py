@@ -185,14 +185,16 @@ class OnlyDeclared:
 
 
 def test_the_protocols_declare_members_and_the_proxy_keeps_to_them() -> None:
-    assert {"name", "lay", "p", "get", "retina", "acuity", "a"} == declared(ReferenceStageBackend)
+    assert {"name", "lay", "p", "get", "put", "retina", "acuity", "a"} == declared(
+        ReferenceStageBackend
+    )
     assert {"ctx", "queue", "P", "buf", "kernels", "taps_for", "blur", "rho_full", "rows8",
             "grid_args"} == declared(OpenCLStageBackend) - declared(StageBackend)  # fmt: skip
     params = Params()
     backend = ReferenceBackend(Layout.for_frame(32, 32, params), params)
     proxy = OnlyDeclared(backend, ReferenceStageBackend)
     assert proxy.a is backend.a and proxy.lay is backend.lay
-    for name in ("put", "set_scene", "_private", "__dict__"):
+    for name in ("set_scene", "_private", "__dict__"):
         with pytest.raises(AttributeError, match=re.escape(f"backend.{name}: Reference")):
             getattr(proxy, name)
     with pytest.raises(AttributeError, match=re.escape("set backend.a;")):
@@ -259,3 +261,23 @@ def test_stage_constructors_are_typed_with_a_backend_protocol(kind: str, path: s
     hint = get_type_hints(init)["backend"]
     hint = hint.__bound__ if isinstance(hint, TypeVar) else hint  # a base shared by backends
     assert hint in (StageBackend, PROTOCOLS[kind]), f"{path}: backend is typed {hint}"
+
+
+def test_every_parameter_has_a_symbol_unit_and_meaning() -> None:
+    """The panel shows each parameter with these (server/sim/params.py, PARAM_INFO); one
+    added without them, or a stale entry, fails here."""
+    import dataclasses
+
+    from gazehdr.sim.params import OURS, PARAM_INFO, param_info
+
+    names = [f.name for f in dataclasses.fields(Params)]
+    assert sorted(PARAM_INFO) == sorted(names)
+    for name, info in PARAM_INFO.items():
+        assert info.symbol.strip() and info.unit.strip(), name
+        assert 10 <= len(info.meaning) <= 70 and "\n" not in info.meaning, (name, info.meaning)
+    sent = param_info()
+    assert {n for n, i in sent.items() if i["ours"]} == set(OURS)
+    assert sent["A_min"] == {
+        "symbol": "A_min", "unit": "log10 cd/m²", "ours": False,
+        "meaning": "adaptation floor: 2 = 100 cd/m² (Sec. 2.4)",
+    }  # fmt: skip

@@ -79,6 +79,41 @@ export function decodeFrame(buffer) {
   return { header, pixels: new Typed(source, offset, bytes / Typed.BYTES_PER_ELEMENT) };
 }
 
+export const SCENE_MAGIC = 'GZHS';
+const SCENE_HEADER_BYTES_V1 = 24;
+
+/** The binary message's kind: 'frame' (GZHF), 'scene' (GZHS, a scene map) or null. */
+export function binaryKind(buffer) {
+  if (!(buffer instanceof ArrayBuffer) || buffer.byteLength < 4) return null;
+  const m = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
+  return m === MAGIC ? 'frame' : m === SCENE_MAGIC ? 'scene' : null;
+}
+
+/**
+ * A scene map (docs/protocol.md): one pane's radiance (cd/m², RGB interleaved, from float16
+ * times 2^exponent) and mesopic ρ per pixel, both width·height, top row first.
+ */
+export function decodeSceneMap(buffer) {
+  if (binaryKind(buffer) !== 'scene' || buffer.byteLength < SCENE_HEADER_BYTES_V1) {
+    throw new ProtocolError('not a scene map');
+  }
+  const dv = new DataView(buffer);
+  const version = dv.getUint16(4, true);
+  const headerBytes = dv.getUint16(6, true);
+  if (version !== 1) throw new ProtocolError(`scene map version ${version}`);
+  const width = dv.getUint16(12, true);
+  const height = dv.getUint16(14, true);
+  const exponent = dv.getInt16(16, true);
+  const n = width * height;
+  if (buffer.byteLength < headerBytes + n * 10) throw new ProtocolError('scene map too short');
+  const halves = new Uint16Array(buffer.slice(headerBytes, headerBytes + n * 6));
+  const radiance = new Float32Array(n * 3);
+  const factor = 2 ** exponent;
+  for (let i = 0; i < radiance.length; i++) radiance[i] = halfToFloat(halves[i]) * factor;
+  const rho = new Float32Array(buffer.slice(headerBytes + n * 6, headerBytes + n * 10));
+  return { seq: dv.getUint32(8, true), width, height, exponent, radiance, rho };
+}
+
 /** IEEE 754 half (as a u16) to a number; for debugging and tests. */
 export function halfToFloat(h) {
   const sign = h & 0x8000 ? -1 : 1;
@@ -110,6 +145,9 @@ export const messages = {
   }),
   gazeSource: (name) => ({ type: 'gaze_source', name }),
   params: (values) => ({ type: 'params', values }),
+  /** The current scene's `scale` (cd/m² per unit), estimate `kind`, `layer`; null: default. */
+  sceneSettings: (values) => ({ type: 'scene_settings', ...values }),
+  sceneMaps: (send) => ({ type: 'scene_maps', send: Boolean(send) }),
   reset: () => ({ type: 'reset' }),
   ack: (frame) => ({ type: 'ack', frame }),
 };

@@ -67,6 +67,10 @@ class StageBackend(Protocol):
         """A copy of map `name` on the host, e.g. "down" (L, M, S, Y_P, Y_S per cell) or "rho"."""
         ...
 
+    def put(self, name: str, value: np.ndarray) -> None:
+        """Replace map `name` from the host (the `none` afterimage stage's constant maps)."""
+        ...
+
     def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
         """Sec. 2.2 on the backend's own state and maps (the `jacobs` stage)."""
         ...
@@ -147,6 +151,30 @@ class JacobsAfterimage:
         self.backend.retina(gaze, dt, reset)
 
 
+class NoAfterimage:
+    """No afterimage of either kind: gains 1, nothing added, so the frame is the tone curve at
+    the eye's (global) adaptation. The viewer's "plain" comparison pane runs it with acuity
+    `none` (docs/server.md)."""
+
+    state_channels = 1  # the backends keep at least one plane; it is never read
+
+    def __init__(self, backend: StageBackend, seed: int) -> None:
+        self.backend = backend
+        self._written = False
+
+    def prepared(self) -> None:
+        pass
+
+    def retina(self, gaze: Gaze, dt: float, reset: bool) -> None:
+        if self._written and not reset:  # the maps never change
+            return
+        b = self.backend
+        maps = np.zeros((6, b.lay.grid_h, b.lay.grid_w))
+        maps[:3] = 1.0
+        b.put("maps", maps)
+        self._written = True
+
+
 class StochasticAcuity:
     """Sec. 2.3.3: the Gaussian bank with bands kept where rho + g X exceeds their threshold."""
 
@@ -169,6 +197,7 @@ AFTERIMAGE_MODELS: dict[str, dict[str, str]] = {
         "reference": "gazehdr.sim.baselines.mikamo:MikamoReference",
         "opencl": "gazehdr.sim.baselines.mikamo_cl:MikamoOpenCL",
     },
+    "none": {"reference": f"{_HERE}:NoAfterimage", "opencl": f"{_HERE}:NoAfterimage"},
 }
 ACUITY_MODELS: dict[str, dict[str, str]] = {
     "stochastic": {"reference": f"{_HERE}:StochasticAcuity", "opencl": f"{_HERE}:StochasticAcuity"},

@@ -12,7 +12,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
@@ -314,3 +314,90 @@ def check_remote_change(current: Params, values: dict[str, Any]) -> None:
                 f"{name} names a file on the server and cannot be set remotely; "
                 "start the server with --params PRESET.json instead"
             )
+
+
+class ParamInfo(NamedTuple):
+    """What the viewer's panel and the docs say of a parameter."""
+
+    symbol: str  # the paper's (or the baseline paper's) symbol; ours where it has none
+    unit: str  # "—" for a plain number
+    meaning: str  # one line
+
+
+_DEG, _HZ, _LOG = "deg", "Hz", "log10 units"
+#: Every parameter's symbol, unit and meaning (tests/test_sim_interfaces.py checks the set).
+PARAM_INFO: dict[str, ParamInfo] = {
+    "gamma": ParamInfo("γ", "—", "display gamma compensation, v = J^γ"),
+    "n": ParamInfo("n", "—", "Naka-Rushton exponent of the photoreceptor response (Eq. 1)"),
+    "a1": ParamInfo("a₁", "log10 units/s", "adaptation speed towards brighter light (Eq. 3)"),
+    "a2": ParamInfo("a₂", "log10 units/s", "adaptation speed towards darker light (Eq. 3)"),
+    "b1": ParamInfo("b₁", "1/(cd/m²·s)", "L, M, S photopigment bleaching rates (Eq. 4-6)"),
+    "b2": ParamInfo("b₂", "1/s", "L, M, S photopigment regeneration rates (Eq. 4-6)"),
+    "c1": ParamInfo("c₁", "1/s", "calcium influx rate (Eq. 8-10); cancels in C/C_max"),
+    "c2": ParamInfo("c₂", "1/s", "calcium efflux rate (Eq. 8-10)"),
+    "j1": ParamInfo("j₁", "—", "strength of the bleaching afterimage (Eq. 7, 12)"),
+    "j2": ParamInfo("j₂", "—", "strength of the local-adaptation afterimage (Eq. 12)"),
+    "m1": ParamInfo("m₁", _LOG, "log luminance above which vision is photopic (Eq. 13)"),
+    "m2": ParamInfo("m₂", _LOG, "log luminance below which vision is scotopic (Eq. 13)"),
+    "w_P": ParamInfo("w_P", "—", "RGB weights of photopic luminance"),
+    "w_S": ParamInfo("w_S", "—", "RGB weights of scotopic luminance"),
+    "sigma_0": ParamInfo("σ₀", "px", "finest acuity blur; σ_i = σ₀·2^(i/4) at 64 px/deg"),
+    "rho_step": ParamInfo("ρ step", "—", "ρ threshold between acuity bands, ρ_i = step·i"),
+    "g": ParamInfo("g", "—", "variance of the stochastic acuity noise (Eq. 15)"),
+    "H": ParamInfo("H", "—", "LMS bleaching levels → RGB afterimage colour"),
+    "A_min": ParamInfo("A_min", "log10 cd/m²", "adaptation floor: 2 = 100 cd/m² (Sec. 2.4)"),
+    "plateau_m_over_n": ParamInfo("m/n", "—", "plateau exponent of Eq. 2 over n (partial)"),
+    "plateau_K": ParamInfo("K", "cd/m²", "plateau half point of Eq. 2: an office white"),
+    "bands": ParamInfo("bands", "—", "number of acuity bands (i = 0..7)"),
+    "adaptation_sigma_deg": ParamInfo("σ_A", _DEG, "size of the patch the eye adapts to"),
+    "rho_sigma_deg": ParamInfo("σ_ρ", _DEG, "local average for ρ's luminance L (Eq. 13)"),
+    "k_s": ParamInfo("k_s", "—", "scotopic tint of a neutral grey (dull purple)"),
+    "noise_cell_deg": ParamInfo("noise cell", _DEG, "grid spacing of the acuity noise"),
+    "noise_rate_hz": ParamInfo("noise rate", _HZ, "new acuity noise this often"),
+    "map_blur_deg": ParamInfo("σ_map", _DEG, "afterimage map blur after 1 s (∝ √dt)"),
+    "fovea_sigma_deg": ParamInfo("σ_fovea", _DEG, "afterimage visibility fall-off from the gaze"),
+    "retina_cell_deg": ParamInfo("cell", _DEG, "size of a retina cell of the afterimage state"),
+    "bleach_display_gain": ParamInfo("gain_B", "—", "display gain of Eq. 12's bleaching term"),
+    "alpha_eps": ParamInfo("ε_α", "—", "guard of Eq. 11's α against 0/0"),
+    "Y_min": ParamInfo("Y_min", "cd/m²", "luminance floor inside logarithms"),
+    "radiance_max": ParamInfo("Y_max", "cd/m²", "cap on input radiance (the sun: 1.6e9)"),
+    "geometry": ParamInfo("geometry", "m, px", "screen size, resolution and viewing distance"),
+    "surround": ParamInfo("surround", "—", "light off the screen, times the frame's edge"),
+    "surround_sigma_deg": ParamInfo("σ_surround", _DEG, "blur of the edge seen off the screen"),
+    "tracker_accuracy_deg": ParamInfo("accuracy", _DEG, "the eye tracker's accuracy"),
+    "tracker_rate_hz": ParamInfo("rate", _HZ, "the eye tracker's sample rate"),
+    "afterimage_boost": ParamInfo("boost", "—", "afterimage boost after a blink or saccade"),
+    "afterimage_boost_s": ParamInfo("τ_boost", "s", "time constant of that boost"),
+    "saccade_deg_s": ParamInfo("v_saccade", "deg/s", "gaze speed that counts as a saccade"),
+    "foveal_blind_spot": ParamInfo("blind spot", "—", "scotopic foveal fill-in (0 = off)"),
+    "rod_free_radius_deg": ParamInfo("r_rod-free", _DEG, "radius of the rod-free fovea"),
+    "fixation_s": ParamInfo("T_fix", "s", "typical fixation, for the blind spot's lag"),
+    "c_a": ParamInfo("c_a", "1/s", "Ritschel: opsin activation constant (Sec. 3.1)"),
+    "c_d": ParamInfo("c_d", "1/s", "Ritschel: opsin deactivation constant (Sec. 3.1)"),
+    "ritschel_steps": ParamInfo("n", "—", "Ritschel: explicit steps per frame (Listing 1)"),
+    "ritschel_L_ref": ParamInfo("L_ref", "cd/m²", "Ritschel: luminance that half-bleaches"),
+    "ritschel_saccade_sigma_deg": ParamInfo("σ_s", _DEG, "Ritschel: micro-saccade blur"),
+    "ritschel_N_sigma_deg": ParamInfo("N_σ", _DEG, "Ritschel: diffusion blur after 1 s"),
+    "ritschel_strength": ParamInfo("strength", "—", "Ritschel: scale of the afterimage"),
+    "ritschel_flight_rate": ParamInfo("flight", "rad/s", "Ritschel: flight of colours (0 = off)"),
+    "mikamo_top_fraction": ParamInfo("top", "—", "Mikamo: brightest fraction that can trigger"),
+    "mikamo_gamma": ParamInfo("γ", "—", "Mikamo: Z = (L_on/L_on,max)^γ (Sec. 4)"),
+    "mikamo_reference_xy": ParamInfo("xy_ref", "—", "Mikamo: Padgham's light chromaticity"),
+    "mikamo_drop_log10": ParamInfo("drop", _LOG, "Mikamo: fall in one step that triggers"),
+    "mikamo_lowpass_deg": ParamInfo("σ_low", _DEG, "Mikamo: low-pass of the afterimage"),
+    "mikamo_delta_e_floor": ParamInfo("ΔE_min", "ΔE", "Mikamo: floor of Eq. 1's divisor"),
+    "mikamo_strength": ParamInfo("strength", "—", "Mikamo: scale of the afterimage"),
+    "mikamo_sequence": ParamInfo("sequence", "file", "Mikamo: colour sequence CSV (server-side)"),
+    "acuity_cutoff_response": ParamInfo("R_c", "—", "contrast passed at the acuity limit"),
+    "acuity_sigma_max_deg": ParamInfo("σ_max", _DEG, "cap on the baselines' blur"),
+    "bilateral_sigma_r": ParamInfo("σ_r", _LOG, "Jensen: range sigma of the bilateral filter"),
+    "thompson_dog_ratio": ParamInfo("k_DoG", "—", "Thompson: ratio of the DoG's two sigmas"),
+    "thompson_dog_gain": ParamInfo("g_DoG", "—", "Thompson: gain of the edge band"),
+    "thompson_noise": ParamInfo("σ_noise", "—", "Thompson: noise at full scotopic vision"),
+    "thompson_noise_hz": ParamInfo("f_noise", _HZ, "Thompson: new noise this often"),
+}  # fmt: skip
+
+
+def param_info() -> dict[str, dict[str, Any]]:
+    """PARAM_INFO as JSON for the viewers, with `ours` (a value the paper does not give)."""
+    return {name: {**i._asdict(), "ours": name in OURS} for name, i in PARAM_INFO.items()}
