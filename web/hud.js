@@ -60,10 +60,66 @@ function luminance(a) {
   return y >= 1e4 || y < 1e-2 ? y.toExponential(1) : String(Number(y.toPrecision(3)));
 }
 
+/** A small plot of the eye's adaptation A (red, log10 cd/m², its own range) and ρ (blue,
+ * 0 to 1 between the dashed lines: scotopic below, photopic above) at the gaze over the
+ * last `seconds` of simulation time, from the frame headers. */
+export class Plot {
+  constructor(canvas, seconds = 10) {
+    this.canvas = canvas;
+    this.seconds = seconds;
+    this.samples = []; // [time, A, rho]
+  }
+
+  record(header) {
+    const s = this.samples;
+    if (s.length && header.time <= s[s.length - 1][0]) s.length = 0; // a new session's clock
+    s.push([header.time, header.adaptation, header.rho]);
+    while (s.length && s[0][0] < header.time - this.seconds) s.shift();
+  }
+
+  draw() {
+    const c = this.canvas;
+    const ctx = c.getContext('2d');
+    ctx.clearRect(0, 0, c.width, c.height);
+    const s = this.samples;
+    if (s.length < 2) return;
+    const t1 = s[s.length - 1][0];
+    const x = (t) => c.width * (1 - (t1 - t) / this.seconds);
+    const as = s.map((v) => v[1]);
+    const lo = Math.min(...as) - 0.1;
+    const hi = Math.max(...as) + 0.1;
+    const h = c.height - 12;
+    const line = (values, toY, colour) => {
+      ctx.strokeStyle = colour;
+      ctx.beginPath();
+      values.forEach((v, i) => ctx[i ? 'lineTo' : 'moveTo'](x(s[i][0]), toY(v)));
+      ctx.stroke();
+    };
+    const rhoY = (r) => h - (Math.min(Math.max(r, -0.25), 1.25) + 0.25) / 1.5 * h;
+    ctx.setLineDash([2, 3]);
+    ctx.strokeStyle = '#555';
+    for (const r of [0, 1]) {
+      ctx.beginPath();
+      ctx.moveTo(0, rhoY(r));
+      ctx.lineTo(c.width, rhoY(r));
+      ctx.stroke();
+    }
+    ctx.setLineDash([]);
+    line(as, (a) => h - ((a - lo) / (hi - lo)) * h, '#ff6060');
+    line(s.map((v) => v[2]), rhoY, '#60a0ff');
+    ctx.fillStyle = '#aaa';
+    ctx.font = '10px ui-monospace, monospace';
+    ctx.fillText(`A ${lo.toFixed(1)}…${hi.toFixed(1)} · ρ · last ${this.seconds} s`, 0, c.height - 1);
+  }
+}
+
 export class Hud {
-  /** `markers`: gaze rings for the frame (or left pane) and the right pane. */
+  /** `element`: the HUD (its text and plot); `markers`: gaze rings for the frame (or left
+   * pane) and the right pane. */
   constructor(element, markers) {
     this.element = element;
+    this.text = element.querySelector('.text');
+    this.plot = new Plot(element.querySelector('.plot'));
     this.markers = markers;
     this.visible = true;
   }
@@ -110,7 +166,8 @@ export class Hud {
     );
     lines.push(`scene ${info.scene ?? '–'} · source ${info.gazeSource ?? '–'}`);
     lines.push(`tracker ${info.tracker}`);
-    this.element.textContent = lines.join('\n');
+    this.text.textContent = lines.join('\n');
+    this.plot.draw();
   }
 
   /** Place the gaze ring at the header's gaze (frame fractions) inside the drawn rectangle;

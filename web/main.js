@@ -1,9 +1,10 @@
 // Wiring: the /ws/view connection (with reconnect), input (pointer = gaze, keys), and the draw
 // loop. The server does the simulation; this page displays, dithers and reports.
 
-import { decodeFrame, messages, parseText } from './protocol.js';
+import { binaryKind, decodeFrame, messages, parseText } from './protocol.js';
 import { Renderer } from './renderer.js';
 import { Hud, RateMeter, Ring, SplitOverlay } from './hud.js';
+import { Inspector } from './inspect.js';
 import { Panel } from './panel.js';
 
 const BACKOFF_MIN_MS = 500;
@@ -18,7 +19,9 @@ const hud = new Hud(document.getElementById('hud'), [
   document.getElementById('marker-right'),
 ]);
 const splitOverlay = new SplitOverlay(document.getElementById('split-overlay'));
+const inspector = new Inspector(document.getElementById('inspector'), document.getElementById('falsecolour'));
 const toasts = document.getElementById('toasts');
+const statusLine = document.getElementById('status');
 
 function toast(text, ms = 4000) {
   const t = document.createElement('div');
@@ -77,14 +80,16 @@ class Connection {
     this.opened = false;
     const ws = new WebSocket(this.url());
     ws.binaryType = 'arraybuffer';
+    this.openedAt = performance.now();
     ws.onopen = () => {
       this.status = 'open';
       this.opened = true;
       stats.connects += 1;
       sendViewport();
+      this.send(messages.sceneMaps(true)); // for the inspector and the false colour
       if (eyesClosed) this.send(messages.eyes(false));
     };
-    ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(ev.data) : onFrame(ev.data));
+    ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(ev.data) : onBinary(ev.data));
     ws.onclose = (ev) => this.closed(ws, ev);
     this.ws = ws;
   }
@@ -129,7 +134,30 @@ class Connection {
 
 const conn = new Connection();
 const send = (msg) => conn.send(msg);
-const panel = new Panel(document.getElementById('panel'), send, toast);
+const view = {
+  falseColour(on = !inspector.falseColour) {
+    inspector.setFalseColour(on);
+    panel.showView(inspector.falseColour, inspector.visible);
+  },
+  inspector(on = !inspector.visible) {
+    inspector.toggle(on);
+    panel.showView(inspector.falseColour, inspector.visible);
+  },
+};
+const panel = new Panel(document.getElementById('panel'), send, toast, view);
+
+/** What the page waits for, until the first frame: the first frame of a new session takes
+ * the server a moment (its OpenCL kernels are built on first use). */
+function showStatus(now) {
+  let text = '';
+  if (!lastHeader) {
+    const s = ((now - (conn.openedAt ?? now)) / 1000).toFixed(1);
+    if (!conn.opened) text = `connecting to the server… ${conn.describe(now)}`;
+    else if (!conn.helloSeen) text = `the server is preparing the simulation (it builds its kernels on first use)… ${s} s`;
+    else text = `waiting for the first frame… ${s} s`;
+  }
+  if (statusLine.textContent !== text) statusLine.textContent = text;
+}
 
 // ---- messages from the server -----------------------------------------------------------
 
@@ -139,6 +167,18 @@ let lastPayload = null;
 const gazeSentAt = new Float64Array(SEQ_RING);
 let gazeSeq = 0;
 let latencySeq = 0; // newest seq already counted, so each gaze gives one latency sample
+
+function onBinary(buffer) {
+  if (binaryKind(buffer) !== 'scene') return onFrame(buffer);
+  try {
+    inspector.setMap(buffer, state.params?.w_P);
+    api.sceneMap = buffer;
+    api.sceneMaps += 1;
+  } catch (err) {
+    stats.errors += 1;
+    console.warn('bad scene map:', err.message);
+  }
+}
 
 function onFrame(buffer) {
   let frame;
@@ -162,6 +202,7 @@ function onFrame(buffer) {
   }
   lastHeader = h;
   lastPayload = buffer;
+  hud.plot.record(h);
   pending = frame;
   api.lastHeader = h;
   api.lastPayload = buffer;
@@ -220,17 +261,24 @@ window.addEventListener('resize', () => {
   viewportTimer = setTimeout(sendViewport, VIEWPORT_DEBOUNCE_MS);
 });
 
+let hover = null; // where the pointer is over the picture, for the inspector
+
 window.addEventListener('pointermove', (ev) => {
   if (ev.target instanceof Element && ev.target.closest('#panel')) return; // using the panel
   pointer = { x: ev.clientX, y: ev.clientY };
+  hover = pointer;
 });
+
+/** Client px → fractions of the drawn frame (outside [0, 1] over the bars). */
+function frameFraction(p) {
+  const box = canvas.getBoundingClientRect();
+  const r = renderer.cssRect();
+  return [(p.x - box.left - r.x) / r.width, (p.y - box.top - r.y) / r.height];
+}
 
 function flushGaze() {
   if (!pointer) return;
-  const box = canvas.getBoundingClientRect();
-  const r = renderer.cssRect();
-  const fx = (pointer.x - box.left - r.x) / r.width;
-  const fy = (pointer.y - box.top - r.y) / r.height;
+  const [fx, fy] = frameFraction(pointer);
   if (!Number.isFinite(fx) || !Number.isFinite(fy)) return;
   const seq = gazeSeq + 1;
   // Not connected yet: keep the position, so the first gaze goes out as soon as it can.
@@ -248,15 +296,30 @@ function setEyes(open) {
   send(messages.eyes(open));
 }
 
-const typing = (ev) => ev.target instanceof HTMLElement && ev.target.closest('input, select, textarea');
+/** Keys go to a text field being typed in; everywhere else (a checkbox or a select that kept
+ * the focus too) they are the viewer's. */
+const TEXT_INPUTS = new Set(['text', 'number', 'search', 'email', 'url', 'password']);
+const typing = (ev) =>
+  ev.target instanceof HTMLElement &&
+  (ev.target.isContentEditable || ev.target.tagName === 'TEXTAREA' || (ev.target.tagName === 'INPUT' && TEXT_INPUTS.has(ev.target.type)));
+const KEYS = new Set(['h', 'p', 'f', 'r', 'i', 'c', 'escape']);
 
+// Capture: before a focused select's type-ahead or a checkbox's Space can take the key.
 window.addEventListener('keydown', (ev) => {
+  if (ev.key === 'Escape' && panel.visible) {
+    ev.preventDefault();
+    document.activeElement?.blur?.();
+    panel.toggle(false);
+    return;
+  }
   if (typing(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
   if (ev.code === 'Space') {
     ev.preventDefault();
     setEyes(false);
     return;
   }
+  if (!KEYS.has(ev.key.toLowerCase())) return;
+  ev.preventDefault();
   if (ev.repeat) return;
   switch (ev.key.toLowerCase()) {
     case 'h':
@@ -272,10 +335,35 @@ window.addEventListener('keydown', (ev) => {
     case 'r':
       send(messages.reset());
       break;
+    case 'i':
+      view.inspector();
+      break;
+    case 'c':
+      view.falseColour();
+      break;
   }
-});
+}, true);
 window.addEventListener('keyup', (ev) => {
-  if (ev.code === 'Space') setEyes(true);
+  if (ev.code !== 'Space' || typing(ev)) return;
+  ev.preventDefault(); // a focused checkbox would toggle
+  setEyes(true);
+}, true);
+
+// Drag and drop anywhere: the file is uploaded under its own name.
+const dropHint = document.getElementById('drop');
+window.addEventListener('dragover', (ev) => {
+  if (!ev.dataTransfer?.types.includes('Files')) return;
+  ev.preventDefault();
+  dropHint.hidden = false;
+});
+window.addEventListener('dragleave', (ev) => {
+  if (!ev.relatedTarget) dropHint.hidden = true;
+});
+window.addEventListener('drop', (ev) => {
+  ev.preventDefault();
+  dropHint.hidden = true;
+  const file = ev.dataTransfer?.files?.[0];
+  if (file) panel.upload(file, file.name);
 });
 // A released key may never arrive (focus lost while held): open the eyes.
 window.addEventListener('blur', () => setEyes(true));
@@ -330,14 +418,21 @@ function tick(now) {
   const rect = renderer.cssRect();
   hud.placeMarker(lastHeader, rect);
   splitOverlay.place(lastHeader, rect, state.model, state.split);
+  inspector.place(lastHeader, rect);
   if (now - hudAt >= HUD_INTERVAL_MS) {
     hudAt = now;
     hud.update(hudInfo(now));
+    showStatus(now);
+    const [fx, fy] = hover ? frameFraction(hover) : [NaN, NaN];
+    inspector.update(fx, fy, lastHeader, lastPayload, state);
   }
 }
 
 // For tests and debugging; keep it small.
-const api = { state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers };
+const api = {
+  state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers, inspector,
+  sceneMap: null, sceneMaps: 0, panel, view,
+}; // prettier-ignore
 window.gazehdr = api;
 
 conn.open();

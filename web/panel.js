@@ -1,5 +1,6 @@
-// Side panel: scene / models (and split view) / gaze source, the model's parameters grouped by paper section,
-// presets and EXR upload. It only builds messages; main.js sends them.
+// Side panel: scene (and its scale in cd/m² per unit) / view / models (and split view) / gaze
+// source, the model's parameters grouped by paper section with symbol, unit and meaning,
+// presets and upload. It only builds messages; main.js sends them. Escape or × closes it.
 
 import { messages } from './protocol.js';
 
@@ -25,10 +26,11 @@ export class Panel {
    * @param {(msg: object) => void} send
    * @param {(text: string) => void} toast
    */
-  constructor(root, send, toast) {
+  constructor(root, send, toast, view) {
     this.root = root;
     this.send = send;
     this.toast = toast;
+    this.view = view; // {falseColour(on), inspector(on)}: what the page shows
     this.visible = false;
     this.layoutKey = null; // rebuild parameter inputs only when the set of names changes
     this.inputs = new Map(); // name -> {update(value)}
@@ -44,6 +46,30 @@ export class Panel {
 
   build() {
     this.sceneSelect = el('select', { id: 'scene-select' });
+    this.sceneInfo = el('div', { class: 'scene-info', id: 'scene-info' });
+    this.scaleInput = el('input', { type: 'number', id: 'scale-input', step: 'any', min: 0, title: 'cd/m² per unit of the file' });
+    this.kindSelect = el('select', { id: 'kind-select', title: 'the estimate\'s scene kind (exposure table)' });
+    this.layerSelect = el('select', { id: 'layer-select' });
+    const scaleDefault = el('button', { type: 'button', textContent: 'default', title: 'the file\'s scale, else the estimate' });
+    this.scaleInput.addEventListener('change', () => {
+      const v = Number(this.scaleInput.value);
+      if (!(v > 0) || !Number.isFinite(v)) return this.scaleInput.classList.add('invalid');
+      this.scaleInput.classList.remove('invalid');
+      this.send(messages.sceneSettings({ scale: v }));
+    });
+    this.kindSelect.addEventListener('change', () => this.send(messages.sceneSettings({ scale: null, kind: this.kindSelect.value })));
+    this.layerSelect.addEventListener('change', () => this.send(messages.sceneSettings({ layer: this.layerSelect.value })));
+    scaleDefault.addEventListener('click', () => this.send(messages.sceneSettings({ scale: null, kind: null })));
+    this.falseColourBox = el('input', { type: 'checkbox', id: 'falsecolour-toggle' });
+    this.inspectorBox = el('input', { type: 'checkbox', id: 'inspector-toggle' });
+    this.falseColourBox.addEventListener('change', () => this.view.falseColour(this.falseColourBox.checked));
+    this.inspectorBox.addEventListener('change', () => this.view.inspector(this.inspectorBox.checked));
+    const plain = el('button', { type: 'button', id: 'plain-compare', textContent: 'Compare: plain tone curve' });
+    plain.title = 'split view: the right pane without afterimages or acuity loss';
+    plain.addEventListener('click', () => {
+      const left = { afterimage: this.afterimageSelect.value, acuity: this.acuitySelect.value };
+      this.send(messages.model(left, { afterimage: 'none', acuity: 'none' }));
+    });
     this.afterimageSelect = el('select', { id: 'afterimage-select' });
     this.acuitySelect = el('select', { id: 'acuity-select' });
     this.splitBox = el('input', { type: 'checkbox', id: 'split-toggle' });
@@ -68,29 +94,42 @@ export class Panel {
     const reset = el('button', { type: 'button', textContent: 'Reset eye' });
     reset.addEventListener('click', () => this.send(messages.reset()));
 
-    this.fileInput = el('input', { type: 'file', accept: '.exr' });
+    this.fileInput = el('input', { type: 'file', accept: '.exr,.hdr,.pic,.pfm' });
     this.uploadName = el('input', { type: 'text', placeholder: 'scene name', size: 12 });
     this.fileInput.addEventListener('change', () => {
       const f = this.fileInput.files[0];
       if (f && !this.uploadName.value) this.uploadName.value = sceneName(f.name);
     });
-    const upload = el('button', { type: 'button', textContent: 'Upload EXR' });
-    upload.addEventListener('click', () => this.upload());
+    const upload = el('button', { type: 'button', textContent: 'Upload' });
+    upload.addEventListener('click', () => {
+      const file = this.fileInput.files[0];
+      if (!file) return this.toast('choose an image file first (.exr, .hdr, .pfm)');
+      this.upload(file, this.uploadName.value || file.name);
+    });
+    const close = el('button', { type: 'button', class: 'close', id: 'panel-close', textContent: '×', title: 'close (Esc)' });
+    close.addEventListener('click', () => this.toggle(false));
 
     this.params = el('div', { class: 'params' });
     this.root.append(
-      el('h2', {}, 'gazehdr'),
+      el('h2', {}, 'gazehdr', close),
       el('label', {}, 'scene ', this.sceneSelect),
+      this.sceneInfo,
+      el('div', { class: 'row' }, el('label', {}, 'cd/m² per unit ', this.scaleInput), scaleDefault),
+      el('label', {}, 'estimate for ', this.kindSelect),
+      el('label', { id: 'layer-row' }, 'layer ', this.layerSelect),
+      el('label', {}, this.falseColourBox, ' false colour (C)'),
+      el('label', {}, this.inspectorBox, ' inspector: readout, histogram (I)'),
       el('label', {}, 'afterimage ', this.afterimageSelect),
       el('label', {}, 'acuity ', this.acuitySelect),
       el('label', {}, this.splitBox, ' split view: right pane'),
       el('div', { class: 'row split-models' }, this.splitAfterimageSelect, this.splitAcuitySelect),
       el('label', {}, 'gaze ', this.sourceSelect),
+      el('div', { class: 'row' }, plain),
       el('div', { class: 'row' }, preset, reset),
       el('div', { class: 'row' }, this.fileInput),
       el('div', { class: 'row' }, this.uploadName, upload),
       this.params,
-      el('p', { class: 'hint' }, 'H HUD · P panel · F fullscreen · R reset · hold Space: eyes closed'),
+      el('p', { class: 'hint' }, 'H HUD · P panel · Esc close · I inspector · C false colour · F fullscreen · R reset · hold Space: eyes closed · drop a file anywhere to upload'),
     );
   }
 
@@ -101,9 +140,27 @@ export class Panel {
     this.send(messages.model(pick(this.afterimageSelect, this.acuitySelect), split));
   }
 
+  /** The view toggles as the page has them (keys change them too). */
+  showView(falseColour, inspector) {
+    this.falseColourBox.checked = falseColour;
+    this.inspectorBox.checked = inspector;
+  }
+
   /** Refresh from a hello/state message. */
   update(state) {
     fillSelect(this.sceneSelect, state.scenes, state.scene);
+    const info = state.scene_info;
+    if (info) {
+      const size = info.width ? ` ${info.width}×${info.height}` : '';
+      this.sceneInfo.textContent = `${info.format}${size} · ${Number(info.scale.toPrecision(4))} cd/m² per unit: ${info.scale_note}`;
+      this.sceneInfo.title = [...(info.notes ?? [])].join('\n');
+      const fixed = info.scale_source === 'built-in';
+      for (const c of [this.scaleInput, this.kindSelect]) c.disabled = fixed;
+      if (document.activeElement !== this.scaleInput) this.scaleInput.value = String(Number(info.scale.toPrecision(6)));
+      fillSelect(this.kindSelect, Object.keys(state.scene_kinds ?? {}), info.kind ?? '');
+      fillSelect(this.layerSelect, info.layers, info.layer);
+      this.layerSelect.parentElement.hidden = (info.layers ?? []).length < 2;
+    }
     const models = state.models ?? {};
     const model = state.model ?? {};
     fillSelect(this.afterimageSelect, models.afterimage, model.afterimage);
@@ -121,12 +178,12 @@ export class Panel {
     const key = JSON.stringify([Object.keys(params).sort(), state.sections]);
     if (key !== this.layoutKey) {
       this.layoutKey = key;
-      this.buildParams(params, state.sections ?? {}, new Set(state.ours ?? []));
+      this.buildParams(params, state.sections ?? {}, state.param_info ?? {});
     }
     for (const [name, value] of Object.entries(params)) this.inputs.get(name)?.update(value);
   }
 
-  buildParams(params, sections, ours) {
+  buildParams(params, sections, info) {
     this.params.replaceChildren();
     this.inputs.clear();
     const placed = new Set();
@@ -138,16 +195,18 @@ export class Panel {
       for (const name of names) {
         if (!(name in params) || placed.has(name)) continue;
         placed.add(name);
-        fieldset.append(this.paramRow(name, params[name], ours.has(name)));
+        fieldset.append(this.paramRow(name, params[name], info[name] ?? {}));
       }
       this.params.append(fieldset);
     }
   }
 
-  paramRow(name, value, isOurs) {
-    const label = el('span', { class: 'name', title: isOurs ? 'ours: not given by the paper' : 'paper' }, name);
-    if (isOurs) label.append(el('sup', { class: 'ours' }, 'ours'));
-    const row = el('div', { class: 'param' }, label);
+  paramRow(name, value, info) {
+    const label = el('span', { class: 'name', title: info.ours ? 'ours: not given by the paper' : 'the paper\'s' });
+    label.append(el('span', { class: 'symbol' }, info.symbol ?? ''), name);
+    if (info.ours) label.append(el('sup', { class: 'ours' }, 'ours'));
+    label.append(el('span', { class: 'unit' }, info.unit && info.unit !== '—' ? `[${info.unit}]` : ''));
+    const row = el('div', { class: 'param' }, label, el('span', { class: 'meaning' }, info.meaning ?? ''));
     if (READ_ONLY.has(name) || !(typeof value === 'number' || typeof value === 'boolean' || isNumberVector(value))) {
       const code = el('code', { class: 'readonly' });
       row.append(code);
@@ -186,17 +245,22 @@ export class Panel {
     return row;
   }
 
-  async upload() {
-    const file = this.fileInput.files[0];
-    const name = sceneName(this.uploadName.value || file?.name || '');
-    if (!file) return this.toast('choose an EXR file first');
+  /** Upload `file` as scene `name`; an existing one is replaced only if the user agrees. */
+  async upload(file, name) {
+    name = sceneName(name);
     if (!name) return this.toast('give the scene a name');
-    try {
-      const res = await fetch(`/api/scenes/${encodeURIComponent(name)}`, {
+    const put = (overwrite) =>
+      fetch(`/api/scenes/${encodeURIComponent(name)}${overwrite ? '?overwrite=true' : ''}`, {
         method: 'PUT',
         headers: { 'Content-Type': 'application/octet-stream' },
         body: file,
       });
+    try {
+      let res = await put(false);
+      if (res.status === 409) {
+        if (!window.confirm(`A scene named “${name}” exists. Replace it?`)) return this.toast(`not uploaded: “${name}” kept`);
+        res = await put(true);
+      }
       if (!res.ok) {
         let detail = await res.text();
         try {
@@ -216,7 +280,7 @@ export class Panel {
 /** A file name to a scene name: base name, safe characters only. */
 function sceneName(filename) {
   return filename
-    .replace(/\.exr$/i, '')
+    .replace(/\.(exr|hdr|pic|pfm)$/i, '')
     .replace(/[^A-Za-z0-9_.-]+/g, '-')
     .replace(/^[-.]+|[-.]+$/g, '')
     .slice(0, 64);
