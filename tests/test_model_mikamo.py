@@ -456,3 +456,17 @@ def test_deterministic(backend: str) -> None:
     a, b = (run_script(make(backend)) for _ in range(2))
     for (sa, ma), (sb, mb) in zip(a, b, strict=True):
         assert np.array_equal(sa, sb) and np.array_equal(ma, mb)
+
+
+def test_letterbox_bars_are_not_part_of_the_top_fraction() -> None:
+    """A wide image letterboxed in a pane: 80 % of the cells are black bars. The mask's top 5 %
+    is of the scene's light, so only the lamp (5 % of the image) can leave an afterimage; with
+    the bars counted the whole wall did, an olive blob over the bars (issue 14)."""
+    from gazehdr.sim.baselines.mikamo import scene_stats
+
+    yp = np.zeros((50, 40))
+    yp[20:30] = 50.0  # the image: a wall at 50 cd/m² ...
+    yp[20:30, :2] = 5e4  # ... with a lamp, 5 % of it
+    threshold, top = scene_stats(yp, Params())
+    assert 50.0 < threshold <= 5e4 and top == 5e4
+    assert scene_stats(np.zeros((4, 4)), Params())[0] == 0.0  # all dark: no light, no mask

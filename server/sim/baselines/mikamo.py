@@ -227,9 +227,13 @@ def check_params(p: Params) -> None:
 
 def scene_stats(yp: np.ndarray, p: Params) -> tuple[float, float]:
     """Mask threshold (the top fraction's quantile, less MASK_SLACK) and maximum of the low-res
-    Y_P of I_on."""
+    Y_P of I_on. The quantile is over the cells that have light (Y_P > Y_min): the black bars
+    of a letterboxed image are no part of the scene, and counted in they made the image's
+    ordinary content "the top 5 %", whose afterimage then covered the bars (an olive blob, the
+    colour of Padgham's sequence) whenever the gaze moved there."""
     yp = np.asarray(yp, np.float64)
-    thr = np.quantile(yp, 1.0 - p.mikamo_top_fraction) * (1.0 - MASK_SLACK)
+    lit = yp[yp > p.Y_min]
+    thr = np.quantile(lit if lit.size else yp, 1.0 - p.mikamo_top_fraction) * (1.0 - MASK_SLACK)
     return float(thr), float(yp.max())
 
 
