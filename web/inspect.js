@@ -28,7 +28,7 @@ export function colourOf(t) {
   return STOPS[i].map((a, c) => Math.round(a + (STOPS[i + 1][c] - a) * f));
 }
 
-const sci = (v) => (!Number.isFinite(v) ? '–' : v === 0 ? '0' : Math.abs(v) >= 1e4 || Math.abs(v) < 1e-2 ? v.toExponential(3) : v.toPrecision(4));
+const sci = (v) => (!Number.isFinite(v) ? '–' : v === 0 ? '0' : Math.abs(v) >= 1e4 || Math.abs(v) < 1e-2 ? v.toExponential(3) : String(Number(v.toPrecision(4))));
 const toUnit = (logY) => (logY - LOG_RANGE[0]) / (LOG_RANGE[1] - LOG_RANGE[0]);
 
 /** The display value `v` of frame pixel (x, y) from a frame message. */

@@ -100,7 +100,7 @@ export class Panel {
       const f = this.fileInput.files[0];
       if (f && !this.uploadName.value) this.uploadName.value = sceneName(f.name);
     });
-    const upload = el('button', { type: 'button', textContent: 'Upload' });
+    const upload = el('button', { type: 'button', id: 'upload-button', textContent: 'Upload' });
     upload.addEventListener('click', () => {
       const file = this.fileInput.files[0];
       if (!file) return this.toast('choose an image file first (.exr, .hdr, .pfm)');
