@@ -1,0 +1,151 @@
+"""Radiance .hdr and PFM (server/scenes/hdr.py), EXR layers, uploads and `gazehdr scenes`.
+
+Test files are written by OpenCV, or byte by byte from the formats' specifications, never by
+gazehdr's own code."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import OpenEXR
+import pytest
+
+from gazehdr.scenes.decoding import SceneError
+from gazehdr.scenes.image import ImageScene, decode
+from gazehdr.scenes.library import SceneExistsError, SceneLibrary
+
+
+def _rgbe(path: Path, rgb: np.ndarray, header: str = "") -> tuple[bytes, np.ndarray]:
+    """An RGBE file by OpenCV; returns its pixel bytes (flat scanlines) and what they hold."""
+    cv2.imwrite(str(path), rgb[..., ::-1])
+    held = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[..., ::-1]
+    data = path.read_bytes()
+    body = data[data.index(b"\n\n") + 2 :]
+    pixels = body[body.index(b"\n") + 1 :]
+    path.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n" + header.encode() + b"\n" + body)
+    return pixels, held
+
+
+IMG = np.arange(4 * 6 * 3, dtype=np.float32).reshape(4, 6, 3) + 1.0
+
+
+@pytest.mark.parametrize(
+    ("line", "turn"),
+    [
+        ("-Y 4 +X 6", lambda a: a),
+        ("+Y 4 +X 6", lambda a: a[::-1]),
+        ("-Y 4 -X 6", lambda a: a[:, ::-1]),
+        ("+Y 4 -X 6", lambda a: a[::-1, ::-1]),
+        ("+X 4 -Y 6", lambda a: a.transpose(1, 0, 2)),
+        ("-X 4 -Y 6", lambda a: a.transpose(1, 0, 2)[:, ::-1]),
+        ("+X 4 +Y 6", lambda a: a.transpose(1, 0, 2)[::-1]),
+        ("-X 4 +Y 6", lambda a: a.transpose(1, 0, 2)[::-1, ::-1]),
+    ],
+)
+def test_rgbe_orientations(tmp_path: Path, line: str, turn) -> None:
+    """The scanlines as stored (a 4×6 array, first axis first) under each resolution line:
+    +Y rows go bottom up, -X columns right to left, X first stores columns (Radiance's
+    convention). The image read is the stored array turned accordingly."""
+    path = tmp_path / "o.hdr"
+    _, held = _rgbe(path, IMG)
+    data = path.read_bytes().replace(b"-Y 4 +X 6", line.encode())
+    path.write_bytes(data)
+    np.testing.assert_array_equal(decode(path).rgb, turn(held))
+
+
+def test_rgbe_exposure_colorcorr_primaries(tmp_path: Path) -> None:
+    path = tmp_path / "e.hdr"
+    _, held = _rgbe(path, IMG, "EXPOSURE=2\nEXPOSURE=4\nCOLORCORR=1 2 1\n")
+    got = decode(path)
+    np.testing.assert_allclose(got.rgb, held / 8 / np.array([1, 2, 1]), rtol=1e-6)
+    assert "divided out" in got.notes[0]
+    rec2020 = "PRIMARIES=0.708 0.292 0.170 0.797 0.131 0.046 0.3127 0.3290\n"
+    _rgbe(path, np.ones((4, 6, 3), np.float32), rec2020)
+    np.testing.assert_allclose(decode(path).rgb, 1.0, rtol=1e-3)  # white stays white
+    _rgbe(path, IMG, "EXPOSURE=-1\n")
+    with pytest.raises(SceneError, match="EXPOSURE must be positive"):
+        decode(path)
+    _rgbe(path, IMG, "FORMAT=32-bit_rle_xyze\n")  # the later FORMAT line wins: XYZ
+    assert "XYZE" in decode(path).notes[0]
+
+
+@pytest.mark.parametrize(
+    ("mangle", "message"),
+    [
+        (lambda d: d[:-7], "truncated RGBE pixel data"),
+        (lambda d: d.replace(b"-Y 4 +X 6", b"-Y 4 +Y 6"), "resolution line"),
+        (lambda d: d.replace(b"\n\n", b"\n"), "no blank line"),
+        (lambda d: d.replace(b"-Y 4 +X 6", b"-Y 99999 +X 99999"), "limit of"),
+        (lambda d: d.replace(b"FORMAT=32-bit_rle_rgbe", b"FORMAT=png"), "FORMAT 'png'"),
+    ],
+)
+def test_bad_rgbe(tmp_path: Path, mangle, message: str) -> None:
+    path = tmp_path / "bad.hdr"
+    _rgbe(path, IMG)
+    path.write_bytes(mangle(path.read_bytes()))
+    with pytest.raises(SceneError, match=message):
+        decode(path)
+
+
+def test_pfm_by_the_specification(tmp_path: Path) -> None:
+    """Rows bottom to top; a positive scale is big-endian; grey is repeated."""
+    path = tmp_path / "g.pfm"
+    path.write_bytes(b"Pf\n2 2\n1.0\n" + np.array([1, 2, 3, 4], ">f4").tobytes())
+    np.testing.assert_array_equal(decode(path).rgb[..., 0], [[3, 4], [1, 2]])
+    cv2.imwrite(str(path), IMG[..., ::-1])
+    np.testing.assert_array_equal(decode(path).rgb, IMG)
+    path.write_bytes(path.read_bytes()[:-4])
+    with pytest.raises(SceneError, match="truncated PFM"):
+        decode(path)
+    path.write_bytes(b"PF\n100000 100000\n-1\n")
+    with pytest.raises(SceneError, match="limit of"):  # refused before reading pixels
+        decode(path)
+
+
+def test_exr_layers_and_parts(tmp_path: Path) -> None:
+    rgb = np.ones((4, 5, 3), np.float32)
+
+    def part(name: str, channels: dict) -> OpenEXR.Part:
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        return OpenEXR.Part({**header, "name": name}, channels)
+
+    path = tmp_path / "layers.exr"
+    diffuse = {f"diffuse.{c}": rgb[..., 0] * 2 for c in "RGB"}
+    OpenEXR.File(
+        [part("beauty", {"RGB": rgb, **diffuse}), part("depth", {"Y": rgb[..., 0] * 7})]
+    ).write(str(path))
+    first = decode(path)
+    assert first.layers == ("beauty", "beauty/diffuse", "depth") and first.layer == "beauty"
+    assert decode(path, "beauty/diffuse").rgb.max() == 2 and decode(path, "depth").rgb.min() == 7
+    with pytest.raises(SceneError, match="no layer 'specular'; the file has 'beauty'"):
+        decode(path, "specular")
+
+
+def test_library_settings_overwrite_and_the_cli(tmp_path: Path) -> None:
+    pfm = tmp_path / "in.pfm"
+    cv2.imwrite(str(pfm), IMG[..., ::-1])
+    library = SceneLibrary(tmp_path / "data")
+    library.store("pic", [pfm.read_bytes()])
+    with pytest.raises(
+        SceneExistsError, match=r"overwrite \(PUT /api/scenes/pic\?overwrite=true\)"
+    ):
+        library.store("pic", [pfm.read_bytes()])
+    scene = library.open("pic")
+    assert isinstance(scene, ImageScene) and scene.scale.source == "estimate"
+    version = library.version("pic")
+    library.configure("pic", {"scale": 42.0})
+    assert library.version("pic") > version
+    assert library.refresh("pic", scene) is scene and scene.scale.value == 42.0  # not re-read
+    library.store("pic", [pfm.read_bytes()[:-4] + b"\0\0\0\0"], overwrite=True)
+    assert library.refresh("pic", scene) is not scene  # the file was replaced: read anew
+    assert library.describe("pic")["scale_source"] == "estimate"  # its settings went with it
+    library.configure("pic", {"scale": 7.0})
+    out = subprocess.run(
+        [sys.executable, "-m", "gazehdr", "scenes", "--data-dir", str(tmp_path / "data")],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    assert "flash" in out and "pic" in out and "pfm 6×4 · 7 cd/m² per unit (user" in out
