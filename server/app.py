@@ -307,7 +307,7 @@ def create_app(config: ServerConfig) -> FastAPI:
                     viewer.ack()
                     continue
                 if isinstance(control, SceneMaps):
-                    viewer.want_maps(control.send, live.session.scene_map)
+                    viewer.want_maps(control.send, live.scene_map)
                     continue
                 live.submit(control)
             except ProtocolError as e:

@@ -157,6 +157,8 @@ class LiveSession:
         self.closing: asyncio.TimerHandle | None = None
         self.log = log
         self.outlet = outlet
+        #: The last scene map sent to the viewers that inspect (a viewer that starts to gets it).
+        self.scene_map: bytes | None = None
         # A step may still be writing on its thread when the session ends and the log closes.
         self._log_lock = threading.Lock()
 
@@ -165,6 +167,11 @@ class LiveSession:
         log. A log that cannot be written stops recording, not the session; the viewers are
         told."""
         frame, notes = self.session.tick(dt, controls)
+        if any(v.maps for v in self.viewers):  # made only for viewers that inspect
+            scene_map = self.session.scene_map()
+            if scene_map is not self.scene_map:
+                self.scene_map = scene_map
+                notes.append(scene_map)
         records = self.session.take_journal()
         with self._log_lock:
             if self.outlet is not None:

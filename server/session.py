@@ -166,8 +166,8 @@ class Session:
             backend=settings.backend, seed=settings.seed, gaze=self.gaze,
             eyes_open=self.reading.eyes_open,
         )  # fmt: skip
-        # The last scene map sent (for viewers that join) and what it showed.
-        self.scene_map: bytes | None = None
+        # The last scene map made, and what it showed (`scene_map`).
+        self._scene_map: bytes | None = None
         self._mapped: tuple[Eye, int] | None = None
         # The journal: records not yet taken, the time the next ones carry (ns, the end of the
         # coming step), and what it last said of the gaze and eyes.
@@ -299,12 +299,16 @@ class Session:
             notes.append({"type": "error", "message": str(e), "in": "scene"})
         if changed:
             notes.append({"type": "state", **self.state()})
-        frame = self._advance(dt)
-        if self._mapped != (self.eye, self.eye.loads):
+        return self._advance(dt), notes
+
+    def scene_map(self) -> bytes:
+        """The scene map of what the eye looks at now (`SceneMap`, packed): made again only
+        when the scene or the eye changed, so the same object comes back until then. Call it
+        where the session steps (it reads the simulator), and only when a viewer wants one."""
+        if self._scene_map is None or self._mapped != (self.eye, self.eye.loads):
             self._mapped = (self.eye, self.eye.loads)
-            self.scene_map = SceneMap(self.frame, *self.sim.scene_maps()).pack()
-            notes.append(self.scene_map)
-        return frame, notes
+            self._scene_map = SceneMap(self.frame, *self.sim.scene_maps()).pack()
+        return self._scene_map
 
     def apply(self, control: Control) -> bool:
         """One control message; True when the viewers' `state` changed. (The pointer and the
