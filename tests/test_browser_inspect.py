@@ -221,3 +221,87 @@ def test_upload_asks_before_replacing(live_server, open_viewer, tmp_path: Path) 
     upload(large)
     viewer.wait("() => window.gazehdr.state.scene_info.width === 160")
     assert _http("GET", f"{srv.url}/api/scenes/pic")[1]["width"] == 160
+
+
+def test_a_file_dropped_anywhere_on_the_page_uploads(live_server, open_viewer, tmp_path) -> None:
+    """Drag and drop: the page shows its hint while a file is dragged over it, and a drop
+    uploads the file under its own name, which the session then shows."""
+    import base64
+
+    path = tmp_path / "dropped.pfm"
+    assert cv2.imwrite(str(path), _image()[..., ::-1])
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    drop = """async (b64) => {
+      const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+      const data = new DataTransfer();
+      data.items.add(new File([bytes], 'dropped.pfm'));
+      window.dispatchEvent(new DragEvent('dragover', { dataTransfer: data, cancelable: true }));
+      const hinted = !document.getElementById('drop').hidden;
+      window.dispatchEvent(new DragEvent('drop', { dataTransfer: data, cancelable: true }));
+      return [hinted, document.getElementById('drop').hidden];
+    }"""
+    hinted, hidden_after = viewer.js(drop, base64.b64encode(path.read_bytes()).decode())
+    assert hinted and hidden_after
+    viewer.wait("() => window.gazehdr.state.scenes.includes('dropped')")
+    status, listed = _http("GET", srv.url + "/api/scenes")
+    assert status == 200 and "dropped" in listed["scenes"]
+
+
+def test_the_hud_plots_adaptation_and_rho_from_the_frames(live_server, open_viewer) -> None:
+    """The HUD's plot holds A and rho of the frames it was given, over the last 10 s of
+    simulation time, and draws them (red A, blue rho)."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    first = viewer.header()["frame"]
+    viewer.next_frame(first + 3)
+    plotted = viewer.js(
+        """() => { const c = document.querySelector('#hud canvas.plot');
+          const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+          let red = 0, blue = 0;
+          for (let i = 0; i < px.length; i += 4) {
+            if (px[i] > 200 && px[i + 2] < 150) red++;
+            if (px[i + 2] > 200 && px[i] < 150) blue++;
+          }
+          return [red, blue]; }"""
+    )
+    assert plotted[0] > 10 and plotted[1] > 10, plotted
+
+
+def test_a_status_line_says_what_the_page_waits_for_until_the_first_frame(
+    live_server, browser
+) -> None:
+    """While no frame has come (the server builds its kernels on first use), the page says
+    so with the seconds it has waited; the line goes once frames arrive. Frames are held back
+    by routing the page's /ws/view through the test."""
+    srv = live_server(size=(W, H))
+    held: list[Any] = []
+    release = {"now": False}
+
+    def route(ws: Any) -> None:
+        server = ws.connect_to_server()
+
+        def from_server(message: Any) -> None:
+            if isinstance(message, bytes) and not release["now"]:
+                held.append(message)
+                return
+            ws.send(message)
+
+        server.on_message(from_server)
+        ws.on_message(lambda message: server.send(message))
+
+    page = browser.new_page(viewport={"width": W, "height": H})
+    try:
+        page.route_web_socket("**/ws/view*", route)
+        page.goto(srv.url)
+        text = page.wait_for_function(
+            """() => { const t = document.getElementById('status').textContent;
+              return /waiting for the first frame… \\d+\\.\\d s/.test(t) && t; }""",
+            timeout=30_000,
+        ).json_value()
+        assert "first frame" in text and held  # frames came, and were held back
+        release["now"] = True
+        shown = "() => window.gazehdr.lastHeader && !document.getElementById('status').textContent"
+        page.wait_for_function(shown, timeout=30_000)
+    finally:
+        page.close()
