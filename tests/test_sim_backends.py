@@ -242,3 +242,29 @@ def test_blur_taps_cache_stays_bounded_when_dt_varies() -> None:
         sim.step(0.01 + 1e-4 * k, gaze=(32.0, 24.0))
     assert len(sim._backend._taps) <= TAPS_CACHE
     assert np.isfinite(sim.step(1 / 30)).all()
+
+
+def test_sessions_starting_at_once_share_one_context_and_program() -> None:
+    """Live sessions build their simulators on threads of their own, several at once (the
+    server's first viewers): each first caller must get the same OpenCL context and program,
+    or kernels built on one meet buffers of another (INVALID_CONTEXT). In a fresh process, so
+    that the first calls are the ones that race."""
+    import subprocess
+    import sys
+
+    code = """
+import threading
+import gazehdr.sim.opencl as o
+got, start = [], threading.Barrier(6)
+def first_use():
+    start.wait()
+    got.append((o._context(), o.build_program(o.KERNEL_FILES)))
+threads = [threading.Thread(target=first_use) for _ in range(6)]
+for t in threads: t.start()
+for t in threads: t.join()
+print(len({id(c) for c, _ in got}), len({id(p) for _, p in got}))
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True
+    ).stdout
+    assert out.split() == ["1", "1"]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from functools import cache
 from importlib import resources
 
@@ -75,17 +76,34 @@ def pick_device() -> cl.Device:
     return (gpus or devices)[0]
 
 
-@cache
+#: Sessions start on threads of their own, several at once: without it, each first caller of
+#: `_context` would make a context of its own (functools.cache does not hold others back), and a
+#: program built on one would meet buffers of another (INVALID_CONTEXT).
+_ONCE = threading.RLock()
+
+
 def _context() -> cl.Context:
+    """The one OpenCL context of this process."""
+    with _ONCE:
+        return _make_context()
+
+
+@cache
+def _make_context() -> cl.Context:
     return cl.Context([pick_device()])
 
 
-@cache
 def build_program(files: tuple[str, ...]) -> cl.Program:
     """`kernels/` files built as one program, once per process: building takes seconds on
     PoCL. A baseline model builds common.cl plus its own file, so the default pipeline does
     not pay for models it does not run. The parameter block `params_t` comes first, generated
     from `Params` (kernel_params.py)."""
+    with _ONCE:
+        return _build_program(files)
+
+
+@cache
+def _build_program(files: tuple[str, ...]) -> cl.Program:
     ctx = _context()
     pkg = resources.files("gazehdr.sim") / "kernels"
     source = "\n".join([params_struct(), *((pkg / name).read_text() for name in files)])
