@@ -7,6 +7,7 @@ cd/m²; false colour and histogram follow the scene's scale; keys work whatever 
 from __future__ import annotations
 
 import json
+import time
 import urllib.request
 from pathlib import Path
 from typing import Any
@@ -294,12 +295,15 @@ def test_a_status_line_says_what_the_page_waits_for_until_the_first_frame(
     try:
         page.route_web_socket("**/ws/view*", route)
         page.goto(srv.url)
-        text = page.wait_for_function(
-            """() => { const t = document.getElementById('status').textContent;
-              return /waiting for the first frame… \\d+\\.\\d s/.test(t) && t; }""",
-            timeout=30_000,
-        ).json_value()
-        assert "first frame" in text and held  # frames came, and were held back
+        waiting = """() => { const t = document.getElementById('status').textContent;
+              return /waiting for the first frame… \\d+\\.\\d s/.test(t) && t; }"""
+        page.wait_for_function(waiting, timeout=30_000)
+        deadline = time.monotonic() + 30  # a safety net: the server makes frames within it
+        while not held and time.monotonic() < deadline:
+            page.wait_for_timeout(50)  # lets playwright deliver the routed messages
+        assert held, "the server sent no frame"
+        text = page.evaluate(f"({waiting})()")  # frames came and were held back: still waiting
+        assert text and "first frame" in text
         release["now"] = True
         shown = "() => window.gazehdr.lastHeader && !document.getElementById('status').textContent"
         page.wait_for_function(shown, timeout=30_000)
