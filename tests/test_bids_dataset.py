@@ -1,7 +1,8 @@
 """BIDS datasets as the official validator sees them: gazehdr's export (a new dataset, runs
-added to one), the test fixtures, and import from a dataset's root, a subject or session
-folder or one file, including an excerpt of a real dataset (bids-examples'
-`eyetracking_eeg_ds007338`, see tests/data/formats/SOURCES.md).
+added to one; the real EyeLink recordings of tests/data/formats/eyelink_real, there and back
+exactly), the project's own fixture, and import from a dataset's root, a subject or session
+folder or one file. (No excerpt of a real BIDS dataset is committed until its licence is
+settled: tests/data/formats/SOURCES.md.)
 
 The validator is `bids-validator-deno` (the `test` extra) with the schema it bundles (BIDS
 1.11.1; it fetches one only when given `--schema` or `BIDS_SCHEMA`, src/setup/loadSchema.ts),
