@@ -93,6 +93,13 @@ def build_parser() -> argparse.ArgumentParser:
         "NAME (default: gazehdr) and the fixation and blink events as a Markers stream "
         "'NAME events' (needs gazehdr[lsl])",
     )
+    p.add_argument(
+        "--min-confidence",
+        type=_confidence_arg,
+        metavar="C",
+        help=f"{' and '.join(registry.with_confidence())} sources: a sample whose confidence is "
+        "below C (0 to 1) is invalid (default 0.6, Pupil Player's own)",
+    )
     p.add_argument("--detector", choices=sorted(DETECTORS), default="ivt", help="default: ivt")
     p.add_argument(
         "--screen",
@@ -124,6 +131,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, metavar="HZ", help="synthetic source's sampling rate")
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     return p
+
+
+def _confidence_arg(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got {text!r}") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number from 0 to 1, got {text!r}")
+    return value
 
 
 def _screen_flags(args: argparse.Namespace) -> dict[str, float]:
@@ -229,7 +246,8 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
             replace(ScreenGeometry(), **screen)
         except ValueError as e:  # --screen 0x1080; --diagonal and --distance are checked already
             parser.error(f"--screen: {e}")
-        source = open_source(args.source, rate_hz=args.rate, screen=screen, wait=True)
+        options = {} if args.min_confidence is None else {"min_confidence": args.min_confidence}
+        source = open_source(args.source, rate_hz=args.rate, screen=screen, wait=True, **options)
         _warn_unused_screen(source.info, screen)
         if args.lsl_outlet is not None:
             outlet = _lsl_outlet(args.lsl_outlet, source.info)

@@ -70,13 +70,15 @@ class Opening:
 
 @dataclass(frozen=True)
 class SourceKind:
-    """A kind of gaze source: its name, how it opens (stream, track or both), and `title`, how
-    messages name it (default: its name)."""
+    """A kind of gaze source: its name, how it opens (stream, track or both), `title`, how
+    messages name it (default: its name), and `confidence`: its samples carry one, and its
+    stream takes `min_confidence` (the confidence below which a sample is invalid)."""
 
     name: str
     stream: Opening | None = None
     track: Opening | None = None
     title: str = ""
+    confidence: bool = False
 
     def opening(self, how: How) -> Opening | None:
         return self.stream if how == STREAM else self.track
@@ -146,6 +148,7 @@ KINDS: tuple[SourceKind, ...] = (
             f"{_D}.pupil.source:open_pupil",
         ),
         title="Pupil",
+        confidence=True,
     ),
     SourceKind(
         "lsl",
@@ -157,6 +160,7 @@ KINDS: tuple[SourceKind, ...] = (
             f"{_D}.lsl.source:open_lsl",
         ),
         title="LSL",
+        confidence=True,
     ),
 )
 
@@ -172,6 +176,11 @@ def named_tracks() -> tuple[SourceKind, ...]:
     return tuple(
         k for k in kinds(TRACK) if k.track and k.track.pattern is None and k.track.suffix is None
     )
+
+
+def with_confidence() -> tuple[str, ...]:
+    """The names of the stream kinds that take `min_confidence`."""
+    return tuple(k.name for k in kinds(STREAM) if k.confidence)
 
 
 def choices(how: How) -> str:
@@ -213,7 +222,8 @@ def open_source(
     recordings that do not record their screen, and replaces what a HID tracker reports.
     `screen` overrides single `ScreenGeometry` fields (see `gazehdr.drivers.sources`). `wait`
     (hid, pupil): when no tracker is plugged in (no Pupil Capture answers), wait for one with
-    back-off, a message per attempt, instead of failing. Other `options` go to the source.
+    back-off, a message per attempt, instead of failing. Other `options` go to the source
+    (`min_confidence` to a kind that has `confidence`: lsl, pupil; refused for the others).
     Raises `ValueError` for a spec it does not know or a geometry that is not one, and
     `SourceUnavailableError` for a source that cannot run here.
     """
@@ -221,6 +231,11 @@ def open_source(
     kind = next((k for k in KINDS if k.name == name), None)
     if kind is None or kind.stream is None:
         raise ValueError(f"unknown gaze source {spec!r}; known: {choices(STREAM)}")
+    if "min_confidence" in options and not kind.confidence:
+        raise ValueError(
+            f"a minimum confidence is for sources whose samples carry one "
+            f"({', '.join(with_confidence())}); {kind.title or kind.name} samples do not"
+        )
     request = StreamRequest(
         arg, rate_hz, realtime, geometry, dict(screen or {}), wait, clock, sleep, options
     )

@@ -70,9 +70,9 @@ def test_bids_binocular_eyelink_style_dataset(tmp_path: Path) -> None:
         ("fixation_start", 2, 7186799 * ms, None, None, None, "right"),
         ("fixation_end", 1, 7186803 * ms, None, None, 4 * ms, "left"),
         ("blink_start", 1, 7186803 * ms, None, None, None, "left"),  # saccade with blink = 1
-        ("fixation_end", 2, 7186805 * ms, None, None, 6 * ms, "right"),
-        ("blink_end", 1, 7186805 * ms, None, None, 2 * ms, "left"),
+        ("blink_end", 1, 7186805 * ms, None, None, 2 * ms, "left"),  # at one time: L, then R
         ("fixation_start", 3, 7186805 * ms, None, None, None, "left"),
+        ("fixation_end", 2, 7186805 * ms, None, None, 6 * ms, "right"),
         ("fixation_end", 3, 7186809 * ms, None, None, 4 * ms, "left"),
     ]
     # the two eyes' files repeat the device messages: kept once, quotes removed
@@ -367,6 +367,21 @@ def test_native_bids_native_round_trip(tmp_path: Path) -> None:
         ("fixation_start", 3, log.events[7].t_ns, None, None, None, None),
     ]
     assert [e.dispersion_deg for e in back.events if e.kind == "fixation_end"] == [0.07, 0.1]
+
+
+def test_bids_round_trip_keeps_repeated_notes_and_samples_without_an_eye(tmp_path: Path) -> None:
+    """The same note twice at one time is two notes (only a message in several eyes' files is
+    one); a sample without per-eye data (EyeLink's END) comes back without it."""
+    log = native_log()
+    t = log.samples[3].t_ns
+    log.add(Note(t, "twice"))
+    log.add(Note(t, "twice"))
+    log.add(GazeSample(log.samples[-1].t_ns + 1, NAN, NAN, False))
+    write_bids(log, tmp_path)
+    back = read_bids(tmp_path)
+    assert [n for n in back.notes if n.text == "twice"] == [Note(t, "twice")] * 2
+    assert comparable(back) == comparable(log)
+    assert back.samples[-1].left is None and back.samples[-1].right is None
 
 
 def gz_rows(path: Path) -> list[list[str]]:

@@ -1,7 +1,8 @@
 """BIDS datasets as the official validator sees them: gazehdr's export (a new dataset, runs
-added to one), the test fixtures, and import from a dataset's root, a subject or session
-folder or one file, including an excerpt of a real dataset (bids-examples'
-`eyetracking_eeg_ds007338`, see tests/data/formats/SOURCES.md).
+added to one; the real EyeLink recordings of tests/data/formats/eyelink_real, there and back
+exactly), the project's own fixture, and import from a dataset's root, a subject or session
+folder or one file. (No excerpt of a real BIDS dataset is committed until its licence is
+settled: tests/data/formats/SOURCES.md.)
 
 The validator is `bids-validator-deno` (the `test` extra) with the schema it bundles (BIDS
 1.11.1; it fetches one only when given `--schema` or `BIDS_SCHEMA`, src/setup/loadSchema.ts),
@@ -29,9 +30,15 @@ from gazehdr.cli import main as gazehdr_main
 from gazehdr.drivers.formats import export_main
 from gazehdr.drivers.formats.bids import read_bids, write_bids
 from gazehdr.drivers.samples import GazeSample
-from gazehdr.drivers.sessionlog import FormatError, SessionLog, write_session_log
+from gazehdr.drivers.sessionlog import (
+    FormatError,
+    SessionLog,
+    read_session_log,
+    write_session_log,
+)
 
 RUN = "sub-01/ses-1/beh/sub-01_ses-1_task-hdr"
+REAL = DATA / "eyelink_real"
 
 
 class ValidatorWarning(UserWarning):
@@ -254,3 +261,51 @@ def test_import_command_line_lists_the_runs(tmp_path: Path, capsys) -> None:
     assert "  sub-01 ses-1 task-hdr run-2  (sub-01/ses-1/beh/, 1 recording)\n" in err
     assert gazehdr_main(["import", str(root), "--sub", "01", "--run", "2", "--out", str(out)]) == 0
     assert "sub-01" not in capsys.readouterr().err
+
+
+# --- real recordings, there and back ----------------------------------------------------------
+
+
+def records(log: SessionLog) -> dict:
+    """Everything a log holds, NaN comparable (as text), events with every field."""
+
+    def eye(e):
+        return None if e is None else (repr(e.x), repr(e.y), e.pupil_mm)
+
+    return {
+        "header": log.header,
+        "samples": [
+            (s.t_ns, repr(s.x), repr(s.y), s.valid, eye(s.left), eye(s.right)) for s in log.samples
+        ],
+        "events": [
+            (e.kind, e.id, e.t_ns, repr(e.x), repr(e.y), e.duration_ns, e.dispersion_deg, e.eye)
+            for e in log.events
+        ],
+        **{
+            kind: getattr(log, kind)
+            for kind in ("scenes", "params", "models", "resets", "notes", "clocks")
+        },
+    }
+
+
+@pytest.mark.parametrize("name", sorted(p.name[: -len(".asc.gz")] for p in REAL.glob("*.asc.gz")))
+def test_real_eyelink_recordings_round_trip_exactly_through_bids(tmp_path: Path, name: str) -> None:
+    """Issue 12, "Round trip stays exact": each real EDF2ASC file → `gazehdr import` →
+    `gazehdr export` (a dataset the validator accepts) → `gazehdr import` gives the same
+    records: fixation and blink ends where EyeLink put them with EyeLink's durations (which
+    count both ends), notes repeated at one time all kept, the END marker without eyes; a
+    monocular recording is exported as its eye."""
+    asc = tmp_path / f"{name}.asc"
+    asc.write_bytes(gzip.decompress((REAL / f"{name}.asc.gz").read_bytes()))
+    first, again, root = tmp_path / "first.jsonl", tmp_path / "again.jsonl", tmp_path / "bids"
+    assert gazehdr_main(["import", str(asc), "--out", str(first)]) == 0
+    flags = ["--sub", "01", "--task", "real"]
+    assert gazehdr_main(["export", str(first), "--out", str(root), *flags]) == 0
+    assert gazehdr_main(["import", str(root), "--out", str(again)]) == 0
+    original = read_session_log(first)
+    assert original.events and original.notes
+    assert records(read_session_log(again)) == records(original)
+    eyes = {json.loads(p.read_text())["RecordedEye"] for p in root.glob("sub-01/beh/*_physio.json")}
+    header_eyes = original.header.tracker["eyes"]
+    assert eyes == (set(header_eyes) if len(header_eyes) == 1 else {*header_eyes, "cyclopean"})
+    validate(root)

@@ -231,3 +231,67 @@ def test_serve_streams_a_tracker_of_its_own_machine_to_its_sessions(tmp_path) ->
     finally:
         server.terminate()
         server.wait(timeout=30)
+
+
+def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path) -> None:
+    """`gazehdr serve --tracker lsl:NAME`: a real pylsl outlet in the test (liblsl on loopback,
+    tests/lsl_loopback.py) fixating A then B by turns; the session follows the tracker's
+    fixations to A and to B (normalised on the default 1920x1080 screen)."""
+    import os
+    import re
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    loopback = pytest.importorskip("lsl_loopback")  # sets LSLAPICFG: loopback only
+    pylsl = loopback.pylsl
+    xy = [("x", "both", "ScreenX", "pixels"), ("y", "both", "ScreenY", "pixels")]
+    info = loopback.stream_info("ServeLoop", "Gaze", xy, rate=100, source_id="serve-loop")
+    outlet = pylsl.StreamOutlet(info)
+    stop = threading.Event()
+
+    def fixate() -> None:  # A for 0.4 s, B for 0.4 s, ... at 100 Hz until stopped
+        i = 0
+        while not stop.is_set():
+            outlet.push_sample([480.0, 270.0] if (i // 40) % 2 == 0 else [1440.0, 675.0])
+            i += 1
+            time.sleep(0.01)
+
+    argv = [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36",
+            "--backend", "reference", "--gaze", "remote", "--tracker", "lsl:ServeLoop",
+            "--data-dir", str(tmp_path)]  # fmt: skip
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    pusher = threading.Thread(target=fixate, daemon=True)
+    pusher.start()
+    server = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              env=env)  # fmt: skip
+    try:
+        assert server.stdout is not None
+        url = next(m[1] for line in server.stdout if (m := re.search(r"open (http://\S+)/ ", line)))
+
+        async def follow() -> tuple[set[tuple[float, float]], set[str]]:
+            async with websockets.connect(url.replace("http", "ws") + "/ws/view") as ws:
+                seen: set[tuple[float, float]] = set()
+                sources: set[str] = set()
+                while not {(0.25, 0.25), (0.75, 0.625)} <= seen:
+                    message = await ws.recv()
+                    if isinstance(message, str):
+                        note = json.loads(message)
+                        if note["type"] == "state":
+                            sources.add(note["gaze_source"])
+                        continue
+                    header, _ = decode_frame(message)
+                    if header.tracker:
+                        seen.add((round(header.gaze_x, 3), round(header.gaze_y, 3)))
+                return seen, sources
+
+        seen, sources = run(asyncio.wait_for(follow(), 120))
+        assert "remote:lsl ServeLoop" in sources
+        # A and B, nothing between them; the centre until the first fixation is followed
+        assert seen - {(0.5, 0.5)} == {(0.25, 0.25), (0.75, 0.625)}, seen
+    finally:
+        stop.set()
+        server.terminate()
+        server.wait(timeout=30)
+        pusher.join(timeout=5)

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import websockets
 from conftest import sole_tracker
-from lsl_loopback import TOBII, Recorder, pylsl, stream_info, until
+from lsl_loopback import PUPIL_CAPTURE, TOBII, Recorder, pylsl, stream_info, until
 
 from gazehdr.drivers.lsl.meta import StreamDescription, channel_layout
 from gazehdr.drivers.registry import SourceUnavailableError, open_source
@@ -99,6 +99,49 @@ def test_the_daemon_follows_an_lsl_tracker_and_publishes_what_it_records(
         (e.kind, e.id) for e in log.events if e.kind.startswith("fixation")
     ]
     assert {m["id"] for m in fixations} == {1, 2}  # A and B, nothing along the saccade
+
+
+def test_the_daemon_passes_min_confidence_to_the_lsl_source(live_server, tmp_path: Path) -> None:
+    """`gazehdr daemon --min-confidence 0.4`: Pupil Capture's relay layout, confidence 0.5 then
+    0.2 by turns: the 0.5 samples valid (below the default 0.6 they would not be), the 0.2 not."""
+    server = live_server(token="t")
+    tracker = pylsl.StreamOutlet(
+        stream_info("LoopPupil", "Gaze", PUPIL_CAPTURE, rate=100, source_id="loop-pupil")
+    )
+    record = tmp_path / "rec.jsonl"
+    gazehdr = Path(sys.executable).with_name("gazehdr")
+    command = [str(gazehdr), "daemon", "--source", "lsl:LoopPupil", "--server", server.ws_url]
+    command += ["--token", "t", "--record", str(record), "--min-confidence", "0.4"]
+    confidences = [0.5, 0.2] * 10
+    with subprocess.Popen(command, stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            until(lambda: server.hub.trackers.feeds(), what="the daemon's hello")
+            t0 = pylsl.local_clock()
+            for i, c in enumerate(confidences):
+                tracker.push_sample([c, 0.5, 0.5, 20.0, 20.0, 3.0, 3.0], t0 + i / 100)
+            until(lambda: sole_tracker(server).samples == len(confidences), what="the samples")
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=15)
+        except BaseException:
+            proc.kill()
+            raise
+    assert proc.returncode == 0, err
+    log = read_session_log(record)
+    assert [s.valid for s in log.samples] == [c >= 0.4 for c in confidences]
+
+
+def test_min_confidence_is_refused_for_a_source_without_one(capsys) -> None:
+    from gazehdr.drivers.daemon_cli import daemon_main
+
+    argv = ["--server", "ws://127.0.0.1:9", "--token", "t", "--min-confidence", "0.5"]
+    assert daemon_main([*argv, "--source", "synthetic"]) == 2
+    assert capsys.readouterr().err.startswith(
+        "gazehdr daemon: error: a minimum confidence is for sources whose samples carry one "
+        "(pupil, lsl); synthetic samples do not"
+    )
+    with pytest.raises(SystemExit):
+        daemon_main([*argv[:-1], "1.5", "--source", "lsl"])
+    assert "--min-confidence: expected a number from 0 to 1, got '1.5'" in capsys.readouterr().err
 
 
 def test_a_stream_that_goes_and_comes_back_is_read_again_and_nothing_received_is_lost() -> None:

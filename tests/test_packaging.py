@@ -78,6 +78,18 @@ def test_everything_installs_under_gazehdr() -> None:
     assert {p.split(".")[0] for p in SETUPTOOLS["packages"]} == {"gazehdr"}
 
 
+def test_an_extra_named_after_a_daemon_source_installs_the_daemon() -> None:
+    """docs/gaze.md tells a Pupil or LSL user `pip install 'gazehdr[pupil]'` / `[lsl]` for
+    `gazehdr daemon --source pupil|lsl`: such an extra must bring the daemon's own packages."""
+    from gazehdr.drivers import registry
+
+    extras = PYPROJECT["project"]["optional-dependencies"]
+    named = [k.name for k in registry.kinds(registry.STREAM) if k.name in extras]
+    assert named, "no extra is named after a source"
+    for name in named:
+        assert "gazehdr[daemon]" in extras[name], f"gazehdr[{name}] lacks gazehdr[daemon]"
+
+
 def test_package_data_patterns_each_match_files() -> None:
     for package, patterns in SETUPTOOLS["package-data"].items():
         for pattern in patterns:

@@ -49,6 +49,12 @@ def detect_format(path: str | Path) -> str:
         return "bids"
     if name.endswith(".asc"):
         return "eyelink"
+    if name.endswith(".edf"):
+        raise ValueError(
+            f"{p}: an EyeLink EDF file is SR Research's binary format; convert it to ASC with "
+            f"SR Research's edf2asc first (edf2asc {p.name}, EyeLink Developers Kit), then "
+            "import the .asc"
+        )
     if name.endswith(".csv"):
         return "pupil"
     if name.endswith((".xdf", ".xdfz", ".xdf.gz")):

@@ -179,6 +179,18 @@ def _load(path: Path) -> tuple[list[dict[str, Any]], list[str]]:
     logger.addHandler(handler)
     try:
         streams, _ = pyxdf.load_xdf(str(path), synchronize_clocks=True, dejitter_timestamps=False)
+    except ElementTree.ParseError as e:  # the XML of the file header or a stream header
+        raise FormatError(
+            path,
+            None,
+            None,
+            f"truncated, or malformed XML in its file header or a stream header ({e}): pyxdf "
+            "cannot read it",
+        ) from None
+    except struct.error as e:  # a chunk shorter than its length says
+        raise FormatError(
+            path, None, None, f"truncated: it ends inside a chunk ({e}): pyxdf cannot read it"
+        ) from None
     except Exception as e:  # pyxdf raises what its parsing meets: report it as the file's fault
         raise FormatError(path, None, None, f"pyxdf cannot read it: {e}") from None
     finally:

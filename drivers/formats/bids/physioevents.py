@@ -18,7 +18,11 @@ What import assumes (BIDS 1.11.1 "Physiology events"; the drafts before it, and 
   are skipped; a `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}`,
   `gazehdr model {json}`, `gazehdr reset` and `gazehdr clock {json}` messages become scene,
   parameter, model, reset and clock records; escapes undone where the sidecar says
-  `GazehdrEscapedText`). Event ids are numbered 1, 2, ... per kind in onset order. `duration`
+  `GazehdrEscapedText`). A message that several eyes' files hold (eye2bids writes each in
+  both) is read once; one repeated within a file, as often as it is there. Event ids are
+  numbered 1, 2, ... per kind in onset order; at one time, left-eye events come before
+  right-eye ones (as EyeLink writes them). An end's duration is gazehdr's
+  `tracker_duration` where a row has one (the tracker's own, EyeLink's), else `duration`
   is in its sidecar `Units`, else in the onset's units when OnsetSource names the timestamp
   (as the specification's example and eye2bids write it), else seconds.
 """
@@ -28,6 +32,7 @@ from __future__ import annotations
 import bisect
 import json
 import math
+from collections import Counter
 from pathlib import Path
 
 from gazehdr.drivers.formats.bids.files import ESCAPED_TEXT, NA, unescape_text
@@ -62,8 +67,10 @@ def _sample_at(times: list[int], t: int) -> int:
 
 
 def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None) -> None:
-    intervals: list[tuple[int, str, int | None, float, float, float | None, str | None]] = []
-    seen_messages: set[tuple[int, str]] = set()
+    intervals: list[
+        tuple[int, str, int | None, int | None, float, float, float | None, str | None]
+    ] = []
+    messages: Counter[tuple[int, str]] = Counter()  # the most of each in any one file
     for r in recordings:
         stem = r.path.name.split(".", 1)[0]
         ext = r.path.name[len(stem) :]
@@ -111,15 +118,11 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
             if all(_sample_at(r.times, o) == t for o, (_, _, t) in zip(exact, timed, strict=True)):
                 timed = [(line, row, o) for o, (line, row, _) in zip(exact, timed, strict=True)]
         file_eye = r.eye if r.eye in ("left", "right") else None
+        reported_unit = _unit_ns(side, "tracker_duration") or duration_unit
+        read_here: Counter[tuple[int, str]] = Counter()
         for line, row, t in timed:
-            duration = None
-            if row.get("duration", NA) not in (NA, ""):
-                try:
-                    duration = decimal_ns(row["duration"], duration_unit)
-                except ValueError:
-                    raise FormatError(
-                        path, line, "duration", f"expected a number or n/a, got {row['duration']!r}"
-                    ) from None
+            duration = _duration(path, line, row, "duration", duration_unit)
+            reported = _duration(path, line, row, "tracker_duration", reported_unit)
             kind = row.get("trial_type", NA)
             blink = row.get("blink", NA)
             eye = row.get("eye", NA)
@@ -138,6 +141,7 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
                         t,
                         "fixation",
                         duration,
+                        reported,
                         nan if x is None else x,
                         nan if y is None else y,
                         disp,
@@ -145,21 +149,36 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
                     )
                 )
             elif kind == "blink" or blink == "1":
-                intervals.append((t, "blink", duration, math.nan, math.nan, None, eye))
-            if message not in (NA, "") and (t, message) not in seen_messages:
-                seen_messages.add((t, message))
-                _message(log, t, message, path, line)
+                intervals.append((t, "blink", duration, reported, math.nan, math.nan, None, eye))
+            if message not in (NA, ""):
+                # a message in several eyes' files (eye2bids) once; repeats in one file all
+                read_here[t, message] += 1
+                if read_here[t, message] > messages[t, message]:
+                    messages[t, message] += 1
+                    _message(log, t, message, path, line)
     ids = {"fixation": 0, "blink": 0}
-    for t, family, duration, x, y, disp, eye in sorted(intervals, key=lambda i: i[0]):
+    for t, family, duration, reported, x, y, disp, eye in sorted(intervals, key=lambda i: i[0]):
         ids[family] += 1
         log.events.append(GazeEvent(f"{family}_start", ids[family], t, eye=eye))
         if duration is not None:
+            kept = duration if reported is None else reported
             log.events.append(
-                GazeEvent(f"{family}_end", ids[family], t + duration, x, y, duration, disp, eye)
+                GazeEvent(f"{family}_end", ids[family], t + duration, x, y, kept, disp, eye)
             )
-    log.events.sort(key=lambda e: e.t_ns)
+    log.events.sort(key=lambda e: (e.t_ns, e.eye == "right"))  # at one time, as EyeLink: L, R
     for items in (log.notes, log.scenes, log.params, log.clocks):
         items.sort(key=lambda r: r.t_ns)
+
+
+def _duration(path: Path, line: int, row: dict[str, str], column: str, unit: int) -> int | None:
+    """A duration column in ns; None where n/a or absent."""
+    text = row.get(column, NA)
+    if text in (NA, ""):
+        return None
+    try:
+        return decimal_ns(text, unit)
+    except ValueError:
+        raise FormatError(path, line, column, f"expected a number or n/a, got {text!r}") from None
 
 
 def _unit_ns(side: Sidecar, column: str) -> int | None:

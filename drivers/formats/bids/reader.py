@@ -8,7 +8,10 @@ What import assumes (of sample times: `physio`; of events: `physioevents`):
   `StimulusPresentation.ScreenOrigin` (BIDS 1.11: ["top", "left"], also assumed when absent,
   or ["bottom", "left"], flipped), or the drafts' `EnvironmentCoordinates`. Recordings of
   both eyes give per-eye samples; the sample position is the cyclopean recording's if there is
-  one, else the mean of the valid eyes. `pupil_size` is kept only when its `Units` is mm.
+  one, else the mean of the valid eyes; a time that an eye's file has no row for has no data
+  of that eye (`None`). A run gazehdr exported (`GazehdrHeader`) with one eye's recording only
+  is a monocular log: the gaze, no per-eye data. `pupil_size` is kept only when its `Units`
+  is mm.
 - `ScreenSize` and `ScreenDistance` are metres in the specification; a value above 10 is taken
   as centimetres (earlier drafts used cm for the distance). A `ScreenDistance` given as the
   [X, Y, Z] offset of the screen's centre from the eye is that vector's length.
@@ -77,7 +80,8 @@ def read_bids(
     for r in recordings:
         for t, eye in r.read(flip):
             by_time.setdefault(t, {})[r.eye] = eye
-    per_eye = "left" in eyes or "right" in eyes
+    # a lone eye's recording that gazehdr wrote is a monocular log's gaze (no per-eye data)
+    lone = header is not None and len(eyes) == 1
     samples = []
     for t in sorted(by_time):
         got = by_time[t]
@@ -87,11 +91,8 @@ def read_bids(
             gaze = (c.x, c.y) if math.isfinite(c.x) and math.isfinite(c.y) else None
         else:
             gaze = mean_of_eyes(left, right)
-        if per_eye:
-            left = left if left is not None or "left" not in eyes else EyeSample(math.nan, math.nan)
-            right = (
-                right if right is not None or "right" not in eyes else EyeSample(math.nan, math.nan)
-            )
+        if lone:
+            left = right = None
         if gaze is None:
             samples.append(GazeSample(t, math.nan, math.nan, False, left, right))
         else:

@@ -11,8 +11,10 @@ physio in the `beh` datatype), named `sub-<sub>[_ses-<ses>]_task-<task>[_run-<ru
   `ScreenResolution` and `ScreenSize` (m, from the diagonal and the pixel aspect) from the log's
   screen geometry: REQUIRED for gaze-on-screen data ("Eye-tracking", `checks/eyetrack.yaml`).
 - `_recording-eye<N>_physio.tsv.gz` + `.json`, one recording per eye ("it is REQUIRED that
-  recordings corresponding to each eye ... are split"): `eye1` holds the gaze (`RecordedEye`
-  cyclopean) when the log has no per-eye data; otherwise `eye1` left, `eye2` right, `eye3`
+  recordings corresponding to each eye ... are split"): `eye1` holds the gaze when the log has
+  no per-eye data (`RecordedEye` the header's eye where `tracker.eyes` names one, a monocular
+  EyeLink recording; else cyclopean); otherwise `eye1` left, `eye2` right (each only where
+  some sample has that eye; a sample without it, EyeLink's END, has no row there), `eye3`
   cyclopean. Columns `timestamp` (the log's integer ns, `Units` "ns"), `x_coordinate`,
   `y_coordinate` (pixels, top-left), `pupil_size` (diameter, mm) when an eye has one.
 - `_recording-eye<N>_physioevents.tsv.gz` + `.json`: that eye's fixations and blinks (one row
@@ -20,7 +22,9 @@ physio in the `beh` datatype), named `sub-<sub>[_ses-<ses>]_task-<task>[_run-<ru
   events of no particular eye and, as messages, what `_events.tsv` holds (`gazehdr scene NAME`,
   `gazehdr params {json}`, ..., notes as they are). `"OnsetSource": "timestamp"`: `onset` is on
   the physio timestamp's clock, in its unit (ns), so it is exact; `duration` is in seconds
-  (`columns.duration`), written exactly (nine decimals at most).
+  (`columns.duration`), written exactly (nine decimals at most), the end minus the start, so
+  that onset + duration is the end; `tracker_duration` (s) keeps the duration the tracker
+  reported where it is not that (EyeLink's counts both ends: one sample period more).
 
 The native header rides along in the physio sidecars as `GazehdrHeader`, so native → BIDS →
 native gives back the same samples, fixations (start and end times, mean position,
@@ -57,7 +61,7 @@ from gazehdr.drivers.formats.bids.layout import (
     run_files,
     write_json,
 )
-from gazehdr.drivers.samples import GazeSample
+from gazehdr.drivers.samples import EyeSample, GazeSample
 from gazehdr.drivers.sessionlog import GazeEvent, SessionLog
 
 _EVENT_COLUMNS = [
@@ -70,6 +74,7 @@ _EVENT_COLUMNS = [
     "y_coordinate",
     "dispersion",
     "eye",
+    "tracker_duration",
 ]
 _MESSAGE_KINDS = {
     "scene": "The scene shown from here on (its name).",
@@ -154,23 +159,25 @@ def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]
         if phase != "end":
             continue  # fixation_update: an online detector's intermediate state
         start = starts.pop(key, None)
-        duration = (
-            e.duration_ns if e.duration_ns is not None else (e.t_ns - start.t_ns if start else None)
-        )
-        onset = start.t_ns if start else e.t_ns - (duration or 0)
-        rows.append((onset, len(rows), _event_row(duration, family, e)))
+        if start is not None:  # onset + duration is the end, exactly, as the reader rebuilds it
+            onset, duration = start.t_ns, e.t_ns - start.t_ns
+        else:
+            onset, duration = e.t_ns - (e.duration_ns or 0), e.duration_ns
+        # the tracker's own duration where it is not end - start (EyeLink counts both ends)
+        reported = e.duration_ns if e.duration_ns != duration else None
+        rows.append((onset, len(rows), _event_row(duration, reported, family, e)))
     for start in starts.values():
         family = start.kind.partition("_")[0]
-        rows.append((start.t_ns, len(rows), _event_row(None, family, start)))
+        rows.append((start.t_ns, len(rows), _event_row(None, None, family, start)))
     if eye == "cyclopean":
         for t, kind, payload in _messages(log):
             text = escape_text(_message_text(kind, payload))
-            rows.append((t, len(rows), [NA, NA, NA, text, NA, NA, NA, NA]))
+            rows.append((t, len(rows), [NA, NA, NA, text, NA, NA, NA, NA, NA]))
     rows.sort(key=lambda r: (r[0], r[1]))
     return [[str(t), *rest] for t, _, rest in rows]
 
 
-def _event_row(duration: int | None, family: str, e: GazeEvent) -> list[str]:
+def _event_row(duration: int | None, reported: int | None, family: str, e: GazeEvent) -> list[str]:
     """The columns after onset."""
     fixation = family == "fixation"
     return [
@@ -182,6 +189,7 @@ def _event_row(duration: int | None, family: str, e: GazeEvent) -> list[str]:
         _number_text(e.y) if fixation else NA,
         _number_text(e.dispersion_deg) if fixation else NA,
         e.eye or NA,
+        _seconds(reported),
     ]
 
 
@@ -237,35 +245,42 @@ def write_bids(
     target("events", ".tsv").write_bytes(_tsv(events))
     write_json(target("events", ".json"), _events_sidecar(log, task))
 
-    per_eye = any(s.left is not None or s.right is not None for s in log.samples)
-    labels = (
-        [("eye1", "left"), ("eye2", "right"), ("eye3", "cyclopean")]
-        if per_eye
-        else [("eye1", "cyclopean")]
-    )
-    own_eyes = {"left", "right"} if per_eye else set()
+    # (label, the samples' source, RecordedEye): a monocular log (no per-eye data, the
+    # header's one eye) is that eye's recording; an eye no sample has gets none
+    eyes = [e for e in ("left", "right") if any(_eye(s, e) for s in log.samples)]
+    if eyes:
+        labels = [(f"eye{i + 1}", e, e) for i, e in enumerate(("left", "right")) if e in eyes]
+        labels.append(("eye3", "cyclopean", "cyclopean"))
+    else:
+        header_eyes = log.header.tracker.get("eyes")
+        mono = header_eyes in (["left"], ["right"])
+        labels = [("eye1", "cyclopean", header_eyes[0] if mono else "cyclopean")]
     steps = [b - a for a, b in itertools.pairwise(s.t_ns for s in log.samples) if b > a]
     fs = round(1e9 / statistics.median(steps), 6)
-    for label, eye in labels:
-
-        def position(s: GazeSample, eye: str = eye) -> tuple[float, float, float | None]:
-            if eye == "cyclopean":
-                return (s.x, s.y, None) if s.valid else (math.nan, math.nan, None)
-            e = s.left if eye == "left" else s.right
-            return (e.x, e.y, e.pupil_mm) if e is not None else (math.nan, math.nan, None)
-
-        values = [position(s) for s in log.samples]
-        pupil = any(p is not None and math.isfinite(p) for _, _, p in values)
+    for label, source, recorded in labels:
+        if source == "cyclopean":
+            values = [
+                (s.t_ns, *((s.x, s.y) if s.valid else (math.nan, math.nan)), None)
+                for s in log.samples
+            ]
+        else:  # a sample without this eye's data has no row in its file
+            values = [(s.t_ns, e.x, e.y, e.pupil_mm) for s in log.samples if (e := _eye(s, source))]
+        pupil = any(p is not None and math.isfinite(p) for *_, p in values)
         rows = []
-        for s, (x, y, p) in zip(log.samples, values, strict=True):
-            row = [str(s.t_ns), _number_text(x), _number_text(y)]
+        for t, x, y, p in values:
+            row = [str(t), _number_text(x), _number_text(y)]
             rows.append([*row, _number_text(p)] if pupil else row)
         _write_gzip_tsv(target("physio", ".tsv.gz", label), rows)
-        sidecar = _physio_sidecar(log, task, fs, eye, pupil)
+        sidecar = _physio_sidecar(log, task, fs, recorded, pupil)
         write_json(target("physio", ".json", label), sidecar)
-        _write_gzip_tsv(target("physioevents", ".tsv.gz", label), _event_rows(log, eye, own_eyes))
+        events = _event_rows(log, source, set(eyes))
+        _write_gzip_tsv(target("physioevents", ".tsv.gz", label), events)
         write_json(target("physioevents", ".json", label), _physioevents_sidecar(task))
     return written
+
+
+def _eye(s: GazeSample, eye: str) -> EyeSample | None:
+    return s.left if eye == "left" else s.right
 
 
 def _events_sidecar(log: SessionLog, task: str) -> dict[str, Any]:
@@ -357,6 +372,12 @@ def _physioevents_sidecar(task: str) -> dict[str, Any]:
         "eye": {
             "Description": "The eye an event came from, when another recording's.",
             "Levels": {"left": "The left eye.", "right": "The right eye."},
+        },
+        "tracker_duration": {
+            "Description": "The duration the tracker reported, where it is not the event's "
+            "end minus its start (onset + duration): EyeLink counts the first and the last "
+            "sample, one sample period more; n/a where it is the same.",
+            "Units": "s",
         },
         ESCAPED_TEXT: True,
     }

@@ -22,7 +22,9 @@ what EyeLink's own messages say.
   read, and the header counts them (`unread_lines`); `strict=True` refuses the file at the first
   instead. A file is refused only when no sample could be placed (`FormatError` naming the line
   and the reason of the first that could not), or when the screen size is known neither from
-  the file nor from `geometry`.
+  the file nor from `geometry`. A file that is not text (an EDF, an image), or that has none
+  of the lines every EDF2ASC file has (`**` preamble, MSG, START, SAMPLES) and lines that are
+  no sample, is refused as not an ASC file, saying which.
 - `SAMPLES <type> <eyes> <options>` (§4.9.4) says what the sample lines of its block hold;
   `<type>` must be GAZE (screen pixels; HREF or PUPIL samples cannot be placed: convert with
   `edf2asc -sg`). A monocular sample is `<time> <xp> <yp> <ps> ...`, a binocular one `<time>
@@ -70,7 +72,7 @@ from pathlib import Path
 
 from gazehdr.drivers.formats.eyelink.parser import AscParser
 from gazehdr.drivers.samples import ScreenGeometry
-from gazehdr.drivers.sessionlog import SessionLog
+from gazehdr.drivers.sessionlog import FormatError, SessionLog
 
 
 def read_eyelink_asc(
@@ -83,11 +85,40 @@ def read_eyelink_asc(
     """Read an EyeLink ASC file; `geometry` supplies what the file lacks (diagonal, distance),
     `missing` is `edf2asc -miss`'s string, `strict` refuses a file at its first line not
     understood (by default such lines become notes)."""
-    parser = AscParser(Path(path), missing, strict)
+    path = Path(path)
+    _refuse_binary(path)
+    parser = AscParser(path, missing, strict)
     with open(path, encoding="utf-8-sig", errors="replace") as f:  # an editor's BOM dropped
         for number, line in enumerate(f, 1):
             parser.line(number, line)
     return parser.finish(geometry)
+
+
+_ASC_STARTS = (b"**", b"MSG", b"START", b"SAMPLES", b"EVENTS")
+
+
+def _refuse_binary(path: Path) -> None:
+    """A file that is not text (a NUL byte, or many control characters in its first 64 KiB)
+    and has none of EDF2ASC's lines there: an EDF, an image, ... refused as such rather than
+    read as lines of nothing. (An ASC file with a stray NUL is read: that line becomes a note.)"""
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    control = sum(b < 32 and b not in b"\t\n\r\f\v" for b in head)
+    asc = any(line.lstrip(b"\xef\xbb\xbf").startswith(_ASC_STARTS) for line in head.splitlines())
+    if (b"\0" in head or control > len(head) // 100) and not asc:
+        edf = path.suffix.lower() == ".edf"
+        raise FormatError(
+            path,
+            None,
+            None,
+            "not an EyeLink ASC file: binary, not text"
+            + (
+                "; an EDF file is SR Research's binary format: convert it with SR Research's "
+                f"edf2asc first (edf2asc {path.name}), then import the .asc"
+                if edf
+                else ""
+            ),
+        )
 
 
 __all__ = ["read_eyelink_asc"]

@@ -45,6 +45,8 @@ _PREAMBLE = {
 # Understood, nothing kept: saccades are the gaps between fixations here, and sample velocity
 # (which VPRESCALER scales) is not read.
 _SKIPPED = frozenset({"SSACC", "ESACC", "VPRESCALER"})
+# Lines every EDF2ASC file has one of: a file with none, and lines that are no sample, is not ASC
+_ASC_KEYWORDS = frozenset({"MSG", "START", "END", "SAMPLES", "EVENTS"})
 
 
 class AscParser:
@@ -78,6 +80,8 @@ class AscParser:
         self.rates: list[float] = []
         self.blocks = 0
         self.unread_lines = 0
+        self.asc_lines = False  # a `**` preamble, MSG, START, END, SAMPLES or EVENTS line seen
+        self.foreign: tuple[int, str] | None = None  # the first line not read that is no sample
         self.validations: list[dict[str, Any]] = []
         self.keywords: dict[str, Callable[[int, list[str], str], None]] = {
             "MSG": self.message,
@@ -150,10 +154,12 @@ class AscParser:
                 if tokens[0] in _SKIPPED:
                     return
                 handler = self.keywords.get(tokens[0])
+                self.asc_lines |= tokens[0] in _ASC_KEYWORDS
                 if handler is None:
                     raise self.error(number, None, f"unknown keyword {tokens[0]!r}")
                 handler(number, tokens, text)
             elif raw.startswith("**"):
+                self.asc_lines = True
                 self.preamble(text[2:].strip())
             elif continued is not None:  # a message's next line: indented, or `>>>>>>> ...`
                 note = self.notes[continued]
@@ -171,6 +177,8 @@ class AscParser:
         self.unread_lines += 1
         if is_sample and self.refusal is None:
             self.refusal = err
+        if not is_sample and self.foreign is None:
+            self.foreign = (number, text)
         field = f"field '{err.field}': " if err.field else ""
         note = f"line {number} not read: {field}{err.reason}: {text}"
         if self.now is None:
@@ -412,6 +420,14 @@ class AscParser:
 
     def finish(self, geometry: ScreenGeometry | None) -> SessionLog:
         """The session log; FormatError when no sample could be placed or no screen is known."""
+        if not self.samples and not self.asc_lines and self.foreign is not None:
+            number, text = self.foreign  # a sample-only file (edf2asc -s) has samples only
+            raise self.error(
+                number,
+                None,
+                "not an EyeLink ASC file: it has no '**' preamble, MSG, START or SAMPLES line, "
+                f"and this line is none of what EDF2ASC writes: {text[:60]!r}",
+            )
         if not self.samples:
             raise self.refusal or self.error(
                 None,
