@@ -250,11 +250,12 @@ def test_a_file_dropped_anywhere_on_the_page_uploads(live_server, open_viewer, t
 
 def test_the_hud_plots_adaptation_and_rho_from_the_frames(live_server, open_viewer) -> None:
     """The HUD's plot holds A and rho of the frames it was given, over the last 10 s of
-    simulation time, and draws them (red A, blue rho)."""
+    simulation time, and draws them (red A, blue rho). The test waits until a drawn plot
+    spans 2 s of simulation time (a fifth of the 240 px canvas: ~48 px of each line, however
+    few frames a loaded machine made in that time); the wait's timeout is only a safety net."""
     srv = live_server(size=(W, H))
     viewer = open_viewer(srv.url, W, H)
-    first = viewer.header()["frame"]
-    viewer.next_frame(first + 3)
+    viewer.wait("() => window.gazehdr.hud.plot.drawnSpan >= 2.0", timeout=60_000)
     plotted = viewer.js(
         """() => { const c = document.querySelector('#hud canvas.plot');
           const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
