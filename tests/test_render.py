@@ -324,6 +324,27 @@ def test_cli_lists_scenes(capsys: pytest.CaptureFixture) -> None:
     assert {"flash", "lamp", "checker-night", "adaptation-cross"} <= set(names)
 
 
+def test_cli_help_names_every_model_and_scene_format(capsys: pytest.CaptureFixture) -> None:
+    """The help is written out (the command line imports no model code up front): it must
+    name every model the registries accept, and every image format a scene file may be."""
+    from gazehdr.scenes.image import SUFFIXES
+    from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS
+
+    for command in ("render", "serve"):
+        assert main([command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        # the options' own lines: the last mention of each (the first is the usage line)
+        afterimage = text[text.rindex("--afterimage NAME") : text.rindex("--acuity NAME")]
+        acuity = text[text.rindex("--acuity NAME") + 13 :]
+        acuity = acuity[: acuity.index(" --")]
+        assert all(name in afterimage for name in AFTERIMAGE_MODELS), (afterimage, command)
+        assert all(name in acuity for name in ACUITY_MODELS), (acuity, command)
+        assert all(suffix in text for suffix in SUFFIXES.values()), command
+    assert main(["render", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "EXR file" not in text and "per EXR pixel unit" not in text
+
+
 def test_cli_passes_bench_arguments_through(monkeypatch: pytest.MonkeyPatch) -> None:
     seen: list[list[str]] = []
     fake = types.ModuleType("gazehdr.bench")

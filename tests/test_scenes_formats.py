@@ -144,11 +144,14 @@ def test_library_settings_overwrite_and_the_cli(tmp_path: Path) -> None:
     assert library.refresh("pic", scene) is not scene  # the file was replaced: read anew
     assert library.describe("pic")["scale_source"] == "estimate"  # its settings went with it
     library.configure("pic", {"scale": 7.0})
+    library.store("guessed", [pfm.read_bytes()])  # no settings: the scale is an estimate
     out = subprocess.run(
         [sys.executable, "-m", "gazehdr", "scenes", "--data-dir", str(tmp_path / "data")],
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
-    assert "flash" in out and "pic" in out and "pfm 6×4 · 7 cd/m² per unit (user" in out
+    assert "flash" in out and "pic" in out and "pfm 6×4 · 7 cd/m² per unit (user: given" in out
+    (guessed,) = [line for line in out.splitlines() if line.startswith("guessed ")]
+    assert "(estimate: median luminance" in guessed and guessed.count("estimate:") == 1, guessed
 
 
 def test_patch_switches_an_upload_layer_on_a_real_server(live_server, tmp_path: Path) -> None:
