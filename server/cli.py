@@ -40,7 +40,7 @@ def _add_model_options(p: argparse.ArgumentParser, whose: str, default: str = ""
     p.add_argument(
         "--afterimage",
         metavar="NAME",
-        help=f"afterimage model{whose}: jacobs, ritschel or mikamo "
+        help=f"afterimage model{whose}: jacobs, ritschel, mikamo or none "
         f"(default: {default or 'jacobs'})",
     )
     p.add_argument(
@@ -79,8 +79,8 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         "scene",
         metavar="SCENE",
         nargs="?",
-        help="built-in scene name or EXR file (default with a session log: the scenes it "
-        "recorded, looked up among the built-ins and DATA_DIR's uploads)",
+        help="built-in scene name or HDR image file: .exr, .hdr, .pfm (default with a session "
+        "log: the scenes it recorded, looked up among the built-ins and DATA_DIR's uploads)",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
     p.add_argument(
@@ -112,7 +112,8 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         "--scale",
         type=float,
         metavar="CD_PER_UNIT",
-        help="cd/m^2 per EXR pixel unit, overriding the file's whiteLuminance",
+        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an "
+        "estimate; docs/server.md)",
     )
     p.add_argument("--exr", action="store_true", help="also write undithered float32 EXR")
     p.add_argument(
@@ -447,9 +448,12 @@ def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
             continue
         size = f"{d['width']}×{d['height']}"
         layer = f" layer {d['layer']}" if d["layer"] else ""
+        source, note = d["scale_source"], d["scale_note"]
+        if not note.startswith(f"{source}:"):  # an estimate's note says "estimate: …" itself
+            note = f"{source}: {note}"
         print(
             f"{name:24} upload    {d['format']} {size}{layer} · {d['scale']:.4g} cd/m² per unit "
-            f"({d['scale_source']}: {d['scale_note']})"
+            f"({note})"
         )
     return 0
 

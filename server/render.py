@@ -122,7 +122,7 @@ def _prepare_out_dir(out_dir: Path, overwrite: bool) -> None:
     if old and not overwrite:
         raise ValueError(
             f"output directory {out_dir} already holds frames ({old[0].name}, ...); "
-            f"choose another or allow overwriting"
+            f"choose another --out, or pass --overwrite (overwrite=True) to replace them"
         )
     for path in old:
         path.unlink()

@@ -251,11 +251,12 @@ def test_a_file_dropped_anywhere_on_the_page_uploads(live_server, open_viewer, t
 
 def test_the_hud_plots_adaptation_and_rho_from_the_frames(live_server, open_viewer) -> None:
     """The HUD's plot holds A and rho of the frames it was given, over the last 10 s of
-    simulation time, and draws them (red A, blue rho)."""
+    simulation time, and draws them (red A, blue rho). The test waits until a drawn plot
+    spans 2 s of simulation time (a fifth of the 240 px canvas: ~48 px of each line, however
+    few frames a loaded machine made in that time); the wait's timeout is only a safety net."""
     srv = live_server(size=(W, H))
     viewer = open_viewer(srv.url, W, H)
-    first = viewer.header()["frame"]
-    viewer.next_frame(first + 3)
+    viewer.wait("() => window.gazehdr.hud.plot.drawnSpan >= 2.0", timeout=60_000)
     plotted = viewer.js(
         """() => { const c = document.querySelector('#hud canvas.plot');
           const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
@@ -309,3 +310,75 @@ def test_a_status_line_says_what_the_page_waits_for_until_the_first_frame(
         page.wait_for_function(shown, timeout=30_000)
     finally:
         page.close()
+
+
+def test_plain_compare_puts_the_plain_tone_curve_in_the_right_pane(
+    live_server, open_viewer
+) -> None:
+    """The panel's "Compare: plain tone curve" button: split view, the left pane keeping the
+    model chosen, the right pane with neither afterimages nor acuity loss."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, 320, 192)
+    page = viewer.page
+    page.keyboard.press("p")
+    page.select_option("#afterimage-select", "mikamo")
+    viewer.wait("() => window.gazehdr.state.model.afterimage === 'mikamo'")
+    assert viewer.js("() => window.gazehdr.state.split") is None
+    page.click("#plain-compare")
+    split = viewer.wait("() => window.gazehdr.state.split")
+    assert split == {"afterimage": "none", "acuity": "none"}
+    model = viewer.js("() => window.gazehdr.state.model")
+    assert model["afterimage"] == "mikamo"  # the left pane keeps the chosen model
+    viewer.wait("() => window.gazehdr.lastHeader.split")  # split frames come
+    labels = viewer.wait(
+        """() => { const l = [...document.querySelectorAll('#split-overlay .pane-label')]
+            .map((e) => e.textContent);
+          return l.length === 2 && l.every(Boolean) && l; }"""
+    )
+    assert "mikamo" in labels[0] and "none + none" in labels[1], labels
+
+
+def test_histogram_marks_the_adaptation_and_the_floor(live_server, open_viewer, tmp_path) -> None:
+    """The histogram (300 px for log10 cd/m² -3…7: 30 px a decade) has a red line at the
+    eye's adaptation A and a dashed grey one at the floor A_min, which follows the parameter.
+    The scene is uniform at 1e5 cd/m², so A (about 5, x = 240) is far from the floor (x = 150)."""
+    path = tmp_path / "bright.pfm"
+    cv2.imwrite(str(path), np.ones((H, W, 3), np.float32))
+    srv = live_server(size=(W, H))
+    with open(path, "rb") as f:
+        assert _http("PUT", f"{srv.url}/api/scenes/bright", f.read())[0] == 201
+    assert _http("PATCH", f"{srv.url}/api/scenes/bright", {"scale": 1e5})[0] == 200
+    viewer = open_viewer(srv.url, W, H)
+    viewer.js("() => window.gazehdr.connection.send({type: 'scene', name: 'bright'})")
+    viewer.wait("() => window.gazehdr.state.scene === 'bright'")
+    viewer.page.keyboard.press("i")
+    columns = """() => { const c = document.querySelector('#inspector canvas.histogram');
+      const px = c.getContext('2d').getImageData(0, 0, c.width, c.height - 14).data;
+      const red = new Array(c.width).fill(0), grey = new Array(c.width).fill(0);
+      for (let i = 0; i < px.length; i += 4) {
+        const x = (i / 4) % c.width, [r, g, b, a] = px.slice(i, i + 4);
+        if (a > 60 && r > 200 && g < 140 && b < 140) red[x]++;
+        if (a > 60 && r > 120 && Math.abs(r - g) < 12 && Math.abs(g - b) < 12) grey[x]++;
+      }
+      return [red, grey, window.gazehdr.lastHeader.adaptation]; }"""
+
+    def lines(floor: float) -> tuple[float, float, float]:
+        """Where the red and the grey lines are (mean x of their pixels), and A: waited for
+        until the grey line is near `floor`'s place and a red line is drawn."""
+        red, grey, a = viewer.wait(
+            f"""() => {{ const [red, grey, a] = ({columns})();
+              const at = grey.findIndex((n) => n > 10);
+              return Math.abs(at - {(floor + 3) * 30}) < 3 && red.some((n) => n > 20)
+                && [red, grey, a]; }}"""
+        )
+        mean = lambda n: float(np.average(np.arange(len(n)), weights=n))  # noqa: E731
+        assert sum(red) > 30 and sum(grey) > 10  # a line each, the grey one dashed
+        return mean(red), mean(grey), a
+
+    red_x, grey_x, a = lines(2.0)
+    assert 4.0 < a < 6.0 and red_x == pytest.approx((a + 3) * 30, abs=3.0)
+    assert grey_x == pytest.approx(150, abs=1.0)
+    viewer.js("() => window.gazehdr.connection.send({type: 'params', values: {A_min: 3.0}})")
+    viewer.wait("() => window.gazehdr.state.params.A_min === 3")
+    red_x, grey_x, a = lines(3.0)
+    assert grey_x == pytest.approx(180, abs=1.0) and red_x == pytest.approx((a + 3) * 30, abs=3.0)

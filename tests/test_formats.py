@@ -565,7 +565,7 @@ def test_import_and_export_command_lines(tmp_path: Path, capsys) -> None:
     assert log.header.screen == ScreenGeometry(0.6, 1280, 1024, 0.7)
     assert len(log.samples) == 15 and log.samples[0].t_ns == 2_154_556_000_000
     assert log.track().at(0.0) == (640.2 / 1280, 512.4 / 1024, True)
-    with pytest.raises(FileExistsError):
+    with pytest.raises(FileExistsError, match=r"already exists.*pass --overwrite"):
         import_main([str(DATA / "eyelink_mono.asc"), "--out", str(out)])
     assert import_main([str(DATA / "tobii_ptc.tsv"), "--out", str(out), "--overwrite",
                         "--units", "pix"]) == 0  # fmt: skip

@@ -470,3 +470,45 @@ def test_letterbox_bars_are_not_part_of_the_top_fraction() -> None:
     threshold, top = scene_stats(yp, Params())
     assert 50.0 < threshold <= 5e4 and top == 5e4
     assert scene_stats(np.zeros((4, 4)), Params())[0] == 0.0  # all dark: no light, no mask
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_no_olive_blob_in_a_letterboxed_split_pane(backend: str, tmp_path: Path) -> None:
+    """End to end, issue 14's olive blob: split view (gazehdr.eye.Eye, as a session runs it)
+    with mikamo in the right pane, on a wide image file letterboxed in the 64×48 pane (fitted
+    to 64×16: two thirds of the pane are black bars). The image is a wall at 1000 cd/m² with
+    a lamp at 3000 cd/m² over its left 10 %: the lamp is the image's top 5 %, the wall is not.
+
+    After 2 s fixating the image's middle, the gaze moves 16 px down into the bottom bar. The
+    retina is locked to the eye, so the cells that saw the wall now look at the bar, and those
+    that saw the lamp at the bar's left end: the lamp's afterimage there is legitimate (and
+    checked to appear, so the model did fire). The wall's is not: it is no top 5 % of the
+    scene's light, and only counting the bars in (the bug) made it one, an olive blob over the
+    bar. So the bar right of the lamp's columns (x >= 16) must stay black: v < 0.02 (with
+    the bars counted it reached ~0.9). The left pane's own (Jacobs) afterimage is not checked."""
+    from gazehdr.eye import Eye
+    from gazehdr.scenes.image import ImageScene
+    from gazehdr.sim.models import Models
+
+    cv2 = pytest.importorskip("cv2")
+    image = np.full((32, 128, 3), 1000.0, np.float32)
+    image[:, :13] = 3000.0
+    path = tmp_path / "wide.pfm"
+    assert cv2.imwrite(str(path), image[..., ::-1])
+    panes = [Models("jacobs", "none"), Models("mikamo", "none")]
+    eye = Eye(
+        ImageScene.open(path, 1.0), (128, 48), Params(), panes,
+        backend=backend, seed=0, gaze=(0.25, 0.5), eyes_open=True,
+    )  # fmt: skip
+    assert eye.pane_size == (64, 48)
+    for _ in range(20):
+        eye.step(0.1, (0.25, 0.5), True)
+    _, right = eye.step(0.05, (0.25, 0.5), True)
+    assert right[:16].max() < 0.02 and right[32:].max() < 0.02  # the bars, before: black
+    assert right[16:32].mean() > 0.3  # the image shows
+    for _ in range(5):
+        _, right = eye.step(0.1, (0.25, 40 / 48), True)  # in the bottom bar
+        bar = right[32:]
+        assert bar[:, :16].max() > 0.3  # the lamp's afterimage, where the retina carries it
+        lit = float(bar[:, 16:].max())
+        assert lit < 0.02, f"the bar lit up (an olive blob): v up to {lit:.3f}"

@@ -23,6 +23,8 @@ from gazehdr.protocol import (
     ParamChange,
     ProtocolError,
     Reset,
+    SceneMaps,
+    SceneSettings,
     Viewport,
     decode_frame,
     encode_pixels,
@@ -98,6 +100,14 @@ def test_decode_refuses_foreign_bytes() -> None:
         ({"type": "gaze_source", "name": "remote"}, Choose("gaze_source", "remote")),
         ({"type": "params", "values": {"j1": 0.1}}, ParamChange({"j1": 0.1})),
         ({"type": "reset"}, Reset()),
+        ({"type": "scene_settings", "scale": 250}, SceneSettings({"scale": 250})),
+        (
+            {"type": "scene_settings", "scale": None, "kind": "median", "layer": "beauty/diffuse"},
+            SceneSettings({"scale": None, "kind": "median", "layer": "beauty/diffuse"}),
+        ),
+        ({"type": "scene_settings", "layer": None}, SceneSettings({"layer": None})),
+        ({"type": "scene_maps", "send": True}, SceneMaps(True)),
+        ({"type": "scene_maps", "send": False}, SceneMaps(False)),
     ],
 )
 def test_controls_parse(message: dict, expected: object) -> None:
@@ -126,6 +136,14 @@ def test_controls_parse(message: dict, expected: object) -> None:
         ('{"type": "model", "afterimage": 1}', "'afterimage' must be a model name"),
         ('{"type": "model", "split": "jacobs"}', "'split' must be an object of model names"),
         ('{"type": "model", "split": {"acuity": [1]}}', "'split.acuity' must be a model name"),
+        ('{"type": "scene_settings"}', "'scene_settings' needs 'scale', 'kind' or 'layer'"),
+        ('{"type": "scene_settings", "gain": 2}', "needs 'scale', 'kind' or 'layer'"),
+        ('{"type": "scene_settings", "scale": "250"}', "'scale' must be a number"),
+        ('{"type": "scene_settings", "scale": true}', "'scale' must be a number"),
+        ('{"type": "scene_settings", "kind": 3}', "'kind' must be a string"),
+        ('{"type": "scene_settings", "layer": ["a"]}', "'layer' must be a string"),
+        ('{"type": "scene_maps"}', "'send' must be true or false"),
+        ('{"type": "scene_maps", "send": 1}', "'send' must be true or false"),
     ],
 )
 def test_bad_controls_are_refused_with_a_reason(text: str, match: str) -> None:

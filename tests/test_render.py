@@ -129,7 +129,7 @@ def test_static_scenes_load_once_animated_every_frame(tmp_path: Path, animated: 
 def test_render_refuses_to_mix_with_old_frames(tmp_path: Path) -> None:
     kwargs = dict(seconds=0.1, fps=20, width=16, height=16, seed=0, backend="reference")
     render(_Box(False), FixedGaze(), out_dir=tmp_path, progress=False, **kwargs)
-    with pytest.raises(ValueError, match="already holds frames"):
+    with pytest.raises(ValueError, match=r"already holds frames.*pass --overwrite"):
         render(_Box(False), FixedGaze(), out_dir=tmp_path, progress=False, **kwargs)
     (tmp_path / "notes.txt").write_text("keep me")
     render(_Box(False), FixedGaze(), out_dir=tmp_path, progress=False, overwrite=True, **kwargs)
@@ -174,7 +174,7 @@ def test_cli_exr_holds_the_undithered_values(tmp_path: Path) -> None:
         assert np.isin(codes - low, (0, 1)).all()
 
 
-def test_cli_video_is_the_frames_as_one_lossless_animation(tmp_path: Path) -> None:
+def test_cli_video_is_the_frames_as_one_lossless_animation(tmp_path: Path, capsys) -> None:
     out = tmp_path / "video"
     args = ["render", "flash", *TINY, "--fps", "24", "--seconds", "0.2", "--video"]
     assert main([*args, "--out", str(out)]) == 0
@@ -188,7 +188,11 @@ def test_cli_video_is_the_frames_as_one_lossless_animation(tmp_path: Path) -> No
             assert movie.info["duration"] == pytest.approx(1000 / 24, abs=0.5)
             with Image.open(path) as still:
                 np.testing.assert_array_equal(np.asarray(movie.convert("RGB")), np.asarray(still))
-    # --overwrite removes the old animation with the old frames; without it, nothing is mixed.
+    # Without --overwrite the render is refused, and the refusal names the option; with it,
+    # the old animation goes with the old frames: nothing is mixed.
+    capsys.readouterr()
+    assert main([*args, "--out", str(out), "--seconds", "0.1"]) == 2
+    assert "already holds frames" in (err := capsys.readouterr().err) and "--overwrite" in err
     assert main([*args, "--out", str(out), "--overwrite", "--seconds", "0.1"]) == 0
     with Image.open(out / "render.apng") as movie:
         assert movie.n_frames == 3
@@ -318,6 +322,27 @@ def test_cli_lists_scenes(capsys: pytest.CaptureFixture) -> None:
     assert main(["scenes"]) == 0
     names = capsys.readouterr().out.split()
     assert {"flash", "lamp", "checker-night", "adaptation-cross"} <= set(names)
+
+
+def test_cli_help_names_every_model_and_scene_format(capsys: pytest.CaptureFixture) -> None:
+    """The help is written out (the command line imports no model code up front): it must
+    name every model the registries accept, and every image format a scene file may be."""
+    from gazehdr.scenes.image import SUFFIXES
+    from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS
+
+    for command in ("render", "serve"):
+        assert main([command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        # the options' own lines: the last mention of each (the first is the usage line)
+        afterimage = text[text.rindex("--afterimage NAME") : text.rindex("--acuity NAME")]
+        acuity = text[text.rindex("--acuity NAME") + 13 :]
+        acuity = acuity[: acuity.index(" --")]
+        assert all(name in afterimage for name in AFTERIMAGE_MODELS), (afterimage, command)
+        assert all(name in acuity for name in ACUITY_MODELS), (acuity, command)
+        assert all(suffix in text for suffix in SUFFIXES.values()), command
+    assert main(["render", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "EXR file" not in text and "per EXR pixel unit" not in text
 
 
 def test_cli_passes_bench_arguments_through(monkeypatch: pytest.MonkeyPatch) -> None:

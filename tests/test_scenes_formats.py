@@ -144,8 +144,83 @@ def test_library_settings_overwrite_and_the_cli(tmp_path: Path) -> None:
     assert library.refresh("pic", scene) is not scene  # the file was replaced: read anew
     assert library.describe("pic")["scale_source"] == "estimate"  # its settings went with it
     library.configure("pic", {"scale": 7.0})
+    library.store("guessed", [pfm.read_bytes()])  # no settings: the scale is an estimate
     out = subprocess.run(
         [sys.executable, "-m", "gazehdr", "scenes", "--data-dir", str(tmp_path / "data")],
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
-    assert "flash" in out and "pic" in out and "pfm 6×4 · 7 cd/m² per unit (user" in out
+    assert "flash" in out and "pic" in out and "pfm 6×4 · 7 cd/m² per unit (user: given" in out
+    (guessed,) = [line for line in out.splitlines() if line.startswith("guessed ")]
+    assert "(estimate: median luminance" in guessed and guessed.count("estimate:") == 1, guessed
+
+
+def test_patch_switches_an_upload_layer_on_a_real_server(live_server, tmp_path: Path) -> None:
+    """PATCH /api/scenes/NAME against uvicorn: another EXR layer reaches a session showing the
+    scene (its scene map, read over /ws/view); bad layers and scales are 422 naming the scene
+    and never a server path, a built-in 422, an unknown name 404."""
+    import asyncio
+    import json
+    import math
+
+    import websockets
+
+    from gazehdr.protocol import SCENE_MAGIC, decode_scene_map
+    from tests.test_server import http
+
+    ones = np.ones((24, 40), np.float32)  # the frame's 5:3, so the map has no bars
+    path = tmp_path / "ml.exr"
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    beauty = {"RGB": np.stack([ones] * 3, -1), **{f"diffuse.{c}": ones * 3 for c in "RGB"}}
+    OpenEXR.File([OpenEXR.Part({**header, "name": "beauty"}, beauty)]).write(str(path))
+    srv = live_server(size=(160, 96))
+    url = f"{srv.url}/api/scenes/ml"
+    assert http("PUT", url, path.read_bytes())[0] == 201
+
+    def patch(target: str, values: object) -> tuple[int, dict]:
+        body = json.dumps(values).encode()
+        return http("PATCH", target, body, **{"Content-Type": "application/json"})
+
+    status, info = patch(url, {"scale": 100.0})
+    assert status == 200 and info["layers"] == ["", "diffuse"]  # RGB, diffuse.RGB
+    assert info["layer"] == "" and info["scale"] == 100.0
+
+    async def radiance(want: float, change: dict | None = None) -> float:
+        """The median radiance of the scene maps a session showing `ml` sends (after PATCHing
+        `change`, if given): the first near `want`, else the last one seen within 20 s (maps
+        made before a change took effect may come first)."""
+        async with websockets.connect(f"{srv.ws_url}/ws/view") as ws:
+            await ws.send(json.dumps({"type": "scene", "name": "ml"}))
+            await ws.send(json.dumps({"type": "scene_maps", "send": True}))
+            if change is not None:
+                assert (await asyncio.to_thread(patch, url, change))[0] == 200
+            loop = asyncio.get_running_loop()
+            deadline, value = loop.time() + 20.0, math.nan
+            while loop.time() < deadline:
+                message = await asyncio.wait_for(ws.recv(), 30)
+                if isinstance(message, bytes) and message[:4] == SCENE_MAGIC:
+                    value = float(np.median(decode_scene_map(message).radiance))
+                    if abs(value - want) < 1e-3 * want:
+                        break
+            return value
+
+    assert asyncio.run(radiance(100.0)) == pytest.approx(100.0, rel=1e-3)
+    status, info = patch(url, {"layer": "diffuse"})
+    assert status == 200 and info["layer"] == "diffuse" and info["scale"] == 100.0
+    assert asyncio.run(radiance(300.0)) == pytest.approx(300.0, rel=1e-3)
+    assert asyncio.run(radiance(100.0, {"layer": None})) == pytest.approx(100.0, rel=1e-3)
+
+    refused = [
+        (url, {"layer": "specular"}, 422, "scene 'ml': no layer 'specular'"),
+        (url, {"layer": 3}, 422, "layer must be a layer name"),
+        (url, {"scale": -1}, 422, "scale"),
+        (url, {"scale": "bright"}, 422, "scale"),
+        (url, {"gain": 2}, 422, "unknown scene setting(s) gain"),
+        (f"{srv.url}/api/scenes/flash", {"scale": 2.0}, 422, "built-in"),
+        (f"{srv.url}/api/scenes/nosuch", {"scale": 2.0}, 404, "no scene named 'nosuch'"),
+    ]
+    for target, values, code, words in refused:
+        status, body = patch(target, values)
+        assert status == code and words in body["detail"], (values, status, body)
+        assert str(tmp_path) not in body["detail"] and ".exr" not in body["detail"], body
+    status, info = http("GET", url)
+    assert status == 200 and info["layer"] == "" and info["scale"] == 100.0  # unchanged

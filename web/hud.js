@@ -68,6 +68,7 @@ export class Plot {
     this.canvas = canvas;
     this.seconds = seconds;
     this.samples = []; // [time, A, rho]
+    this.drawnSpan = 0; // seconds of simulation time the last draw covered (tests wait on it)
   }
 
   record(header) {
@@ -82,8 +83,10 @@ export class Plot {
     const ctx = c.getContext('2d');
     ctx.clearRect(0, 0, c.width, c.height);
     const s = this.samples;
+    this.drawnSpan = 0;
     if (s.length < 2) return;
     const t1 = s[s.length - 1][0];
+    this.drawnSpan = t1 - s[0][0];
     const x = (t) => c.width * (1 - (t1 - t) / this.seconds);
     const as = s.map((v) => v[1]);
     const lo = Math.min(...as) - 0.1;

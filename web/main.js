@@ -431,7 +431,7 @@ function tick(now) {
 // For tests and debugging; keep it small.
 const api = {
   state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers, inspector,
-  sceneMap: null, sceneMaps: 0, panel, view,
+  sceneMap: null, sceneMaps: 0, panel, view, hud,
 }; // prettier-ignore
 window.gazehdr = api;
 

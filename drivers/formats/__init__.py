@@ -181,7 +181,14 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         log = import_recording(args.file, fmt, **options)
     except ImportError as e:  # an optional reader's package (pyxdf) is not installed
         p.error(str(e))
-    out = write_session_log(args.out, log, overwrite=args.overwrite)
+    try:
+        out = write_session_log(args.out, log, overwrite=args.overwrite)
+    except FileExistsError as e:  # name the option that allows it
+        raise FileExistsError(
+            e.errno,
+            "session log already exists; choose another --out, or pass --overwrite",
+            e.filename,
+        ) from None
     invalid = sum(not s.valid for s in log.samples)
     screen = log.header.screen
     unread = log.header.tracker.get("unread_lines")

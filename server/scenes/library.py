@@ -164,9 +164,12 @@ class SceneLibrary:
             merged = {**self.settings(name), **values}
             if "scale" in values and values["scale"] is not None:
                 merged.pop("kind", None)  # a number given: no estimate to keep
-            ImageScene.open(
-                path, merged.get("scale"), layer=merged.get("layer"), kind=merged.get("kind")
-            )  # fmt: skip  (refuses a bad layer now)
+            try:  # refuses a bad layer now, naming the scene, not the server's file
+                ImageScene.open(
+                    path, merged.get("scale"), layer=merged.get("layer"), kind=merged.get("kind")
+                )
+            except SceneError as e:
+                raise SceneError(str(e).replace(str(path), f"scene {name!r}")) from None
             self._write_settings(name, {k: v for k, v in merged.items() if v is not None})
         self._bump(name)
         return self.describe(name)
