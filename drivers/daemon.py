@@ -101,10 +101,11 @@ class Daemon:
     """One source, one server. `await run()`; `stop()` (on the loop) ends it cleanly.
 
     `name` is the tracker's name in the hello (default: the source's); give each station its
-    own. `outlet` (anything with `push(record)`) gets every record the session log gets, as
-    the core gives them, whether or not a log is written. `options` are the delivery core's
-    (`Delivery`: buffer, batch, flush_interval, max_rate, burst, max_inflight, echo_interval,
-    clock_window); the rest are about I/O.
+    own. `accuracy_deg`, the tracker's accuracy in degrees, goes with it (default: the
+    source's, if it knows). `outlet` (anything with `push(record)`) gets every record the
+    session log gets, as the core gives them, whether or not a log is written. `options` are
+    the delivery core's (`Delivery`: buffer, batch, flush_interval, max_rate, burst,
+    max_inflight, echo_interval, clock_window); the rest are about I/O.
     """
 
     def __init__(
@@ -123,6 +124,7 @@ class Daemon:
         status_interval: float | None = None,
         name: str | None = None,
         outlet: Any = None,
+        accuracy_deg: float | None = None,
         **options: Any,
     ) -> None:
         if record is not None and record_dir is not None:
@@ -133,6 +135,8 @@ class Daemon:
         # `name`: what the server lists this tracker under, and sessions follow it by
         # (remote:NAME); the source's own name where none is given.
         self.info: SourceInfo = replace(source.info, name=name) if name else source.info
+        if accuracy_deg is not None:
+            self.info = replace(self.info, accuracy_deg=accuracy_deg)
         self.url = gaze_url(server_url)
         self.token = token
         self.record_path = Path(record) if record is not None else None

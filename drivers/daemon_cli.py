@@ -129,6 +129,13 @@ def build_parser() -> argparse.ArgumentParser:
         f"yet acknowledged, at most N + {DEFAULT_MAX_INFLIGHT} items are held in memory",
     )
     p.add_argument("--rate", type=float, metavar="HZ", help="synthetic source's sampling rate")
+    p.add_argument(
+        "--accuracy-deg",
+        type=positive_arg,
+        metavar="DEG",
+        help="the tracker's accuracy in degrees (calibration or data sheet), sent in the hello: "
+        "the server's sessions take it as tracker_accuracy_deg (default: not sent)",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     return p
 
@@ -262,6 +269,7 @@ def daemon_main(argv: Sequence[str] | None = None) -> int:
             status_interval=10.0,
             name=args.name,
             outlet=outlet,
+            accuracy_deg=args.accuracy_deg,
         )
         stats, signalled = asyncio.run(_run_until_signalled(daemon))
     except UnauthorizedError as e:

@@ -424,8 +424,11 @@ class Delivery:
     # --- the server's side ---------------------------------------------------------------------
 
     def hello(self) -> str:
-        """The first message of a connection: the protocol, the tracker and its screen."""
+        """The first message of a connection: the protocol, the tracker, its screen and, when
+        known, its accuracy."""
         screen = {k: float(v) for k, v in asdict(self.info.geometry).items()}
+        if self.info.accuracy_deg is not None:
+            screen[wire.ACCURACY] = float(self.info.accuracy_deg)
         return wire.dumps(wire.Hello(wire.PROTOCOL, self.info.name, screen))
 
     def welcome(self, text: str) -> bool:

@@ -49,7 +49,9 @@ class SourceInfo:
     `live` sources produce samples whether or not anyone reads them (a tracker): a consumer that
     falls behind must drop. A source that is not live (a replay) simply waits to be read.
     `has_events` says that `records()` carries the source's own fixation and blink events.
-    `tracker` is the free-form description a session log header keeps.
+    `tracker` is the free-form description a session log header keeps. `accuracy_deg` is the
+    tracker's accuracy in degrees (its calibration's or data sheet's; None: not known), which
+    the daemon's hello passes on (`screen.accuracy_deg`, drivers/wire.py).
     """
 
     name: str
@@ -58,12 +60,15 @@ class SourceInfo:
     live: bool = True
     has_events: bool = False
     tracker: dict[str, Any] = field(default_factory=dict)
+    accuracy_deg: float | None = None
 
     def header_tracker(self) -> dict[str, Any]:
         """The `tracker` object of a session log header recording this source."""
         out: dict[str, Any] = {"name": self.name, **self.tracker}
         if self.rate_hz is not None:
             out.setdefault("rate_hz", self.rate_hz)
+        if self.accuracy_deg is not None:
+            out.setdefault("accuracy_deg", self.accuracy_deg)
         return out
 
 

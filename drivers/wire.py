@@ -23,6 +23,10 @@ SCREEN_SIZES = (
     "screen_height_px",
     "viewing_distance_m",
 )
+#: The optional `hello` screen field giving the tracker's accuracy in degrees of visual angle
+#: (its calibration's, or its data sheet's), >= 0; the server sets the session's
+#: `tracker_accuracy_deg` from it (gazehdr.gaze).
+ACCURACY = "accuracy_deg"
 EVENT_KINDS = (
     "fixation_start",
     "fixation_update",
@@ -41,6 +45,12 @@ class Hello:
     protocol: int
     tracker: str
     screen: dict[str, float]
+
+    @property
+    def accuracy_deg(self) -> float | None:
+        """The tracker's accuracy the hello gives (`screen.accuracy_deg`), else None."""
+        value = self.screen.get(ACCURACY)
+        return None if value is None else float(value)
 
 
 @dataclass(frozen=True)
@@ -169,6 +179,8 @@ def parse(data: str | bytes) -> Message:
             if not math.isfinite(value) or (key in SCREEN_SIZES and value <= 0):
                 what = "a positive" if key in SCREEN_SIZES else "a finite"
                 raise WireError(f"hello: 'screen.{key}' must be {what} number, got {value}")
+            if key == ACCURACY and value < 0:
+                raise WireError(f"hello: 'screen.{key}' must be a number >= 0, got {value}")
         return Hello(PROTOCOL, tracker[:200], screen)
     if kind == "samples":
         batch = msg.get("samples")

@@ -467,6 +467,7 @@ class _GazeLink:
             self.close()
             self.feed = None
         self.feed = self._connect(msg.tracker)
+        self.feed.hello(msg.accuracy_deg)
         return wire.Welcome(wire.PROTOCOL)
 
     def _connect(self, name: str | None) -> TrackerFeed:
@@ -496,7 +497,7 @@ class _GazeLink:
     def _samples(self, samples: tuple[wire.Sample, ...], now: float) -> None:
         self.metrics.gaze_samples.inc(len(samples))
         feed = self._tracker()
-        feed.samples += len(samples)
+        feed.count([s.t_ns for s in samples])  # the tracker's rate, from the samples' times
         if not self.uses_events:
             valid = [s for s in samples if s.valid]
             if valid:

@@ -11,11 +11,19 @@ Several daemons may stream to one server, one per station. Each is a `TrackerFee
 tracker in its hello; a session follows one by name (`remote:NAME`) and never another station's
 eyes. `remote` alone binds to the tracker when exactly one is connected (the usual setup: one
 tracker, one server), else waits for the viewer to pick one.
+
+Each input also says how good its gaze is, `figures(frame_rate)`: the accuracy and rate that
+the session gives the model as `tracker_accuracy_deg` and `tracker_rate_hz` (the Sec. 5 foveal
+blind spot depends on them). The pointer and the synthetic paths are exact (0 deg, read once a
+frame); a tracker's accuracy is what its daemon's hello says (`screen.accuracy_deg`) and its
+rate what its feed measures from the samples' own times; a replay has its recording's. A
+feed's figures are a frozen `TrackerFigures` swapped in like its readings.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -53,10 +61,32 @@ class GazeReading:
     received_at: float | None = None
 
 
+@dataclass(frozen=True)
+class TrackerFigures:
+    """How good a source's gaze is: its accuracy (degrees) and sample rate (Hz); None where
+    the source does not say (the session then leaves that parameter as it is)."""
+
+    accuracy_deg: float | None = None
+    rate_hz: float | None = None
+
+
+#: A tracker's rate is measured over windows of at least this many seconds of its samples; a
+#: gap longer than RATE_GAP_S between two samples (a pause, a reconnection) starts a new one.
+RATE_WINDOW_S = 1.0
+RATE_GAP_S = 0.5
+#: A measured rate is published (to three significant figures) when it differs from the one
+#: published by more than this fraction: a session rebuilds its eye when the figures change,
+#: so jitter in the measurement must not change them.
+RATE_CHANGE = 0.02
+
+
 class GazeInput(Protocol):
-    """A session's gaze source: the reading for simulation time `t` (seconds)."""
+    """A session's gaze source: the reading for simulation time `t` (seconds), and the figures
+    of its gaze when the session steps at `frame_rate` (Hz)."""
 
     def at(self, t: float) -> GazeReading: ...
+
+    def figures(self, frame_rate: float) -> TrackerFigures: ...
 
 
 class LatestGaze:
@@ -67,6 +97,10 @@ class LatestGaze:
 
     def at(self, t: float) -> GazeReading:
         return self.reading
+
+    def figures(self, frame_rate: float) -> TrackerFigures:
+        """Exact: where the viewer points is where the model looks, read once a frame."""
+        return TrackerFigures(0.0, frame_rate)
 
 
 class PointerGaze(LatestGaze):
@@ -85,18 +119,37 @@ class PointerGaze(LatestGaze):
 
 
 class TrackGaze:
-    """A track replayed from simulation time `start`, looping every `length` seconds."""
+    """A track replayed from simulation time `start`, looping every `length` seconds. `known`
+    are the figures of the tracker that recorded it (a synthetic path has none: exact)."""
 
-    def __init__(self, track: GazeTrack, start: float, length: float) -> None:
+    def __init__(
+        self,
+        track: GazeTrack,
+        start: float,
+        length: float,
+        known: TrackerFigures = TrackerFigures(),
+    ) -> None:
         self.track, self.start, self.length = track, start, max(length, 1e-3)
+        self.known = known
 
     def at(self, t: float) -> GazeReading:
         x, y, eyes_open = self.track.at((t - self.start) % self.length)
         return GazeReading(x, y, eyes_open)
 
+    def figures(self, frame_rate: float) -> TrackerFigures:
+        """The recording's figures; exact (0 deg, once a frame) for what it does not give."""
+        k = self.known
+        return TrackerFigures(
+            0.0 if k.accuracy_deg is None else k.accuracy_deg,
+            frame_rate if k.rate_hz is None else k.rate_hz,
+        )
+
 
 class TrackerFeed(LatestGaze):
-    """One daemon's tracker: its newest gaze, and what the viewers are told of it."""
+    """One daemon's tracker: its newest gaze, its figures, and what the viewers are told of it.
+
+    Written on the event loop only (one connection at a time per feed); `reading` and
+    `known` are frozen objects swapped in whole, so sessions read them from any thread."""
 
     def __init__(self, name: str) -> None:
         super().__init__()
@@ -104,6 +157,44 @@ class TrackerFeed(LatestGaze):
         self.connected = False
         self.samples = 0  # samples received, over every connection under this name
         self.events = 0  # fixation and blink events received, likewise
+        #: The tracker's figures as far as known: accuracy from the hello, rate measured.
+        self.known = TrackerFigures()
+        self._window: tuple[int, int, int] | None = None  # first and last t_ns, samples
+
+    def hello(self, accuracy_deg: float | None) -> None:
+        """A daemon said hello for this tracker: its accuracy (None: it does not say); the rate
+        is measured afresh (the daemon's clock may be another)."""
+        self.known = TrackerFigures(accuracy_deg, self.known.rate_hz)
+        self._window = None
+
+    def count(self, times_ns: list[int]) -> None:
+        """Samples received, by their times on the daemon's clock: every RATE_WINDOW_S of them
+        the rate is measured (intervals over the time they span) and, rounded, published."""
+        self.samples += len(times_ns)
+        for t in times_ns:
+            w = self._window
+            if w is None or not 0 <= t - w[1] <= RATE_GAP_S * 1e9:  # first, a gap, clock back
+                self._window = (t, t, 0)
+                continue
+            first, _, n = w
+            n += 1
+            if t - first >= RATE_WINDOW_S * 1e9:
+                self._publish_rate(n * 1e9 / (t - first))
+                self._window = (t, t, 0)
+            else:
+                self._window = (first, t, n)
+
+    def _publish_rate(self, rate: float) -> None:
+        old = self.known.rate_hz
+        if (
+            math.isfinite(rate)
+            and rate > 0
+            and (old is None or abs(rate - old) > RATE_CHANGE * old)
+        ):
+            self.known = TrackerFigures(self.known.accuracy_deg, float(f"{rate:.3g}"))
+
+    def figures(self, frame_rate: float) -> TrackerFigures:
+        return self.known
 
     def fixate(self, x: float | None, y: float | None, eyes_open: bool, now: float) -> None:
         """A new gaze (None: the place stays where it was, as during a blink)."""
@@ -141,7 +232,7 @@ class Trackers:
             feed.connected = True
             return feed
 
-    def disconnect(self, feed: TrackerFeed) -> None:
+    def disconnect(self, feed: TrackerFeed) -> None:  # its figures stay: it may come back
         feed.connected = False
 
     def feed(self, name: str) -> TrackerFeed:

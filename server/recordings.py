@@ -9,6 +9,7 @@ recordings of its sessions (`gazehdr serve --record`) are written here as they h
 
 from __future__ import annotations
 
+import math
 import os
 import uuid
 from pathlib import Path
@@ -19,6 +20,7 @@ from gazehdr.drivers.sessionlog import (
     SessionTrack,
     read_session_log,
 )
+from gazehdr.gaze import TrackerFigures
 from gazehdr.scenes.library import check_name
 
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
@@ -32,10 +34,20 @@ class RecordingLibrary:
         return sorted(p.stem for p in self.folder.glob("*.jsonl")) if self.folder else []
 
     def track(self, name: str) -> SessionTrack:
+        return self.replay(name)[0]
+
+    def replay(self, name: str) -> tuple[SessionTrack, TrackerFigures]:
+        """The recording's fixations as a track, and the figures of the tracker that recorded
+        it as its header gives them (`tracker.accuracy_deg`, `tracker.rate_hz`; None where it
+        does not: the replay is then exact, gazehdr.gaze.TrackGaze)."""
         path = self._path(name)
         if not path.is_file():
             raise ValueError(f"no recording named {name!r}; available: {', '.join(self.names())}")
-        return read_session_log(path).fixation_track()
+        log = read_session_log(path)
+        tracker = log.header.tracker
+        return log.fixation_track(), TrackerFigures(
+            _figure(tracker.get("accuracy_deg"), 0.0), _figure(tracker.get("rate_hz"), 1e-9)
+        )
 
     def store(self, name: str, chunks: list[bytes]) -> Path:
         """Validate an uploaded session log and move it into place; nothing is kept if bad."""
@@ -64,3 +76,10 @@ class RecordingLibrary:
         if self.folder is None:
             raise ValueError("this server has no data directory for recordings")
         return self.folder / f"{check_name(name)}.jsonl"
+
+
+def _figure(value: object, least: float) -> float | None:
+    """A figure from a log header: a finite number of at least `least`, else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value) if math.isfinite(value) and value >= least else None

@@ -10,6 +10,14 @@ real time. Its gaze comes through one `gazehdr.gaze.GazeInput`, read once per st
 viewer's pointer (`pointer`, which the caller writes), a tracker, or a track. The simulated eye
 and its stepping are `gazehdr.eye.Eye`'s, shared with offline rendering.
 
+The gaze source also sets the parameters `tracker_accuracy_deg` and `tracker_rate_hz` (what the
+Sec. 5 foveal blind spot can show depends on them) from its figures (`GazeInput.figures`): the
+pointer and synthetic paths are exact (0 deg, the session's frame rate), a tracker gives its
+hello's accuracy and its measured rate, a replay its recording's. What a source does not say
+is the default (the paper's tracker). A tracker parameter the user set, to anything but its
+default (the server's `--params`, or a viewer's change), stays as set; set back to the default
+(the panel's paper preset does), it follows the source again.
+
 A session that records keeps a journal of session-log records (drivers/sessionlog/) for its
 caller to write: the scene, parameters and models it ran with and every change to them, resets,
 and the gaze and eyes it followed, on its simulation clock. Each carries the end time of the
@@ -73,6 +81,9 @@ GAZE_SOURCES = ("mouse", *NAMED_TRACKS, REMOTE)
 MAX_FRAME_DT = 1.0
 SYNTHETIC_LOOP_S = 600.0  # a named track (the synthetic scan path) repeats after this long
 SIZE_STEP = 8  # frame sides are multiples of this when fitted to a viewport
+#: The parameters a session takes from its gaze source's figures (`_with_figures`).
+TRACKER_PARAMS = ("tracker_accuracy_deg", "tracker_rate_hz")
+DEFAULTS = Params()
 #: The estimate's scene kinds, as the panel offers them.
 SCENE_KINDS = {
     name: {"ev": k.ev, "what": k.what, "luminance": kind_luminance(name)}
@@ -157,12 +168,15 @@ class Session:
         self.gaze_source = settings.gaze_source
         self._input = self._open_gaze(settings.gaze_source, 0.0, GazeReading())
         self.reading = self._input.at(0.0)  # the gaze the last step followed
+        # The tracker parameters this session set from its source's figures (`_with_figures`).
+        self._applied: dict[str, float] = {}
+        params = self._with_figures(settings.params)
         panes = [settings.model] if settings.split is None else [settings.model, settings.split]
         size = (settings.width, settings.height)
         if settings.split is not None:
             _check_split_width(size)
         self.eye = Eye(
-            scenes.open(settings.scene), size, settings.params, panes,
+            scenes.open(settings.scene), size, params, panes,
             backend=settings.backend, seed=settings.seed, gaze=self.gaze,
             eyes_open=self.reading.eyes_open,
         )  # fmt: skip
@@ -294,6 +308,10 @@ class Session:
                 notes.append({"type": "error", "message": str(e), "in": _type_of(control)})
         changed |= self._bind_remote()
         try:
+            changed |= self._follow_figures()
+        except ValueError as e:  # figures the model refuses: the parameters stay as they were
+            notes.append({"type": "error", "message": str(e), "in": "params"})
+        try:
             changed |= self._follow_library()
         except (ValueError, OSError) as e:  # the upload went away or became unreadable
             notes.append({"type": "error", "message": str(e), "in": "scene"})
@@ -359,10 +377,38 @@ class Session:
             track = registry.open_track(name, seed=self.settings.seed, duration=SYNTHETIC_LOOP_S)
             return TrackGaze(track, 0.0, SYNTHETIC_LOOP_S)
         if name.startswith("replay:"):
-            track = self.recordings.track(name.removeprefix("replay:"))
-            return TrackGaze(track, t, getattr(track, "duration", SYNTHETIC_LOOP_S))
+            track, known = self.recordings.replay(name.removeprefix("replay:"))
+            return TrackGaze(track, t, getattr(track, "duration", SYNTHETIC_LOOP_S), known)
         known = ", ".join([*GAZE_SOURCES, REMOTE_PREFIX + "TRACKER", "replay:NAME"])
         raise ValueError(f"unknown gaze source {name!r}; available: {known}")
+
+    def _with_figures(self, params: Params) -> Params:
+        """`params` with the tracker parameters of the gaze source's figures (the default
+        where it gives none), except those the user set: a value that is neither the default
+        nor what this session last set."""
+        figures = self._input.figures(self.settings.fps)
+        changes = {}
+        for name, figure in zip(
+            TRACKER_PARAMS, (figures.accuracy_deg, figures.rate_hz), strict=True
+        ):
+            value, default = getattr(params, name), getattr(DEFAULTS, name)
+            if value != default and value != self._applied.get(name):
+                continue  # the user's
+            target = default if figure is None else figure
+            self._applied[name] = target
+            if value != target:
+                changes[name] = target
+        return params.replace(**changes) if changes else params
+
+    def _follow_figures(self) -> bool:
+        """The gaze source's figures changed (another source, a hello, a measured rate)."""
+        params = self._with_figures(self.params)
+        if params is self.params:
+            return False
+        before = self.params
+        self._rebuild(params=params)
+        self._log_params(before)
+        return True
 
     def _follow_library(self) -> bool:
         """A change of the scene's settings (or file) in the library: seen from now on."""

@@ -5,6 +5,7 @@ then through a real server with two daemons."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 
 import pytest
@@ -13,9 +14,11 @@ from conftest import sole_tracker
 from sessions import new_session, tick
 
 from gazehdr.drivers.samples import GazePoint
-from gazehdr.gaze import PointerGaze, Trackers, TrackGaze
-from gazehdr.protocol import Choose, Eyes, Gaze, Reset, decode_frame
+from gazehdr.gaze import PointerGaze, TrackerFigures, Trackers, TrackGaze
+from gazehdr.protocol import Choose, Eyes, Gaze, ParamChange, Reset, decode_frame
 from gazehdr.session import SessionSettings
+from gazehdr.sim import Params
+from gazehdr.sim.layout import blind_spot_strength
 from tests.test_server import Client, run
 
 SETTINGS = SessionSettings(width=32, height=18, scene="lamp", backend="reference")
@@ -112,6 +115,77 @@ def test_the_session_times_its_step_with_the_clock_it_is_given() -> None:
     assert frame.header.server_ms == 500.0
 
 
+# --- the source's figures reach the model (Sec. 5 foveal blind spot) -------------------------
+
+BLIND = dataclasses.replace(SETTINGS, params=Params(foveal_blind_spot=1.0), fps=60.0)
+MS_4 = 4_000_000  # a 250 Hz tracker's sample interval, ns
+
+
+def _strength(session) -> float:
+    return blind_spot_strength(session.params)
+
+
+def test_a_feed_measures_its_trackers_rate_from_the_samples_times() -> None:
+    feed = Trackers().connect("t")
+    feed.hello(0.5)
+    feed.count([i * MS_4 for i in range(200)])  # 0.8 s: not measured yet
+    assert feed.known == TrackerFigures(0.5, None) and feed.samples == 200
+    feed.count([i * MS_4 + (i % 3) * 100_000 for i in range(200, 600)])  # jitter: still 250
+    assert feed.known == TrackerFigures(0.5, 250.0)
+    feed.count([10**12 + i * 8_000_000 for i in range(130)])  # after a pause, 125 Hz
+    assert feed.known == TrackerFigures(0.5, 125.0)
+    feed.count([5 * MS_4 + i * MS_4 for i in range(200)])  # the clock went back: a new window
+    assert feed.known == TrackerFigures(0.5, 125.0)
+    feed.hello(None)  # a new hello that does not say: the accuracy is no longer known
+    assert feed.known.accuracy_deg is None
+
+
+def test_a_session_takes_its_trackers_figures_and_the_pointer_is_exact() -> None:
+    """A tracker whose hello says 0.5 deg and whose samples come at 250 Hz gives the blind
+    spot the strength of a 0.5 deg, 250 Hz tracker; the pointer is exact, read once a frame."""
+    trackers = Trackers()
+    feed = trackers.connect("eyes")
+    session = new_session(BLIND, trackers=trackers)
+    exact = blind_spot_strength(Params(foveal_blind_spot=1.0).replace(
+        tracker_accuracy_deg=0.0, tracker_rate_hz=60.0))  # fmt: skip
+    assert (session.params.tracker_accuracy_deg, session.params.tracker_rate_hz) == (0.0, 60.0)
+    assert _strength(session) == pytest.approx(exact) and exact > 0.9
+    feed.hello(0.5)
+    feed.count([i * MS_4 for i in range(400)])
+    _, notes = tick(session, 0.1, [(Choose("gaze_source", "remote:eyes"), 0.0)])
+    assert notes[-1]["params"]["tracker_accuracy_deg"] == 0.5
+    tracker = Params(foveal_blind_spot=1.0, tracker_accuracy_deg=0.5, tracker_rate_hz=250.0)
+    assert _strength(session) == pytest.approx(blind_spot_strength(tracker))
+    assert 0.4 < _strength(session) < 0.6  # docs/model.md: such a tracker allows half
+    _, notes = tick(session, 0.1, [])
+    assert notes == []  # nothing changed: no rebuild, no state
+    feed.hello(None)  # reconnected without an accuracy: the default (the paper's tracker)
+    tick(session, 0.1, [])
+    assert session.params.tracker_accuracy_deg == Params().tracker_accuracy_deg
+    tick(session, 0.1, [(Choose("gaze_source", "mouse"), 0.0)])
+    assert _strength(session) == pytest.approx(exact)
+    track = TrackGaze(None, 0.0, 1.0, TrackerFigures(None, 500.0))  # a log with a rate only
+    assert track.figures(60.0) == TrackerFigures(0.0, 500.0)
+
+
+def test_tracker_parameters_the_user_set_stay_as_set() -> None:
+    trackers = Trackers()
+    feed = trackers.connect("eyes")
+    feed.hello(0.5)
+    feed.count([i * MS_4 for i in range(400)])
+    mine = dataclasses.replace(BLIND, params=BLIND.params.replace(tracker_accuracy_deg=0.8))
+    session = new_session(mine, trackers=trackers)
+    tick(session, 0.1, [(Choose("gaze_source", "remote:eyes"), 0.0)])
+    assert (session.params.tracker_accuracy_deg, session.params.tracker_rate_hz) == (0.8, 250.0)
+    tick(session, 0.1, [(ParamChange({"tracker_rate_hz": 100.0}), 0.0)])
+    tick(session, 0.1, [])
+    assert session.params.tracker_rate_hz == 100.0
+    defaults = Params()  # the panel's paper preset: the source's figures apply again
+    reset = {"tracker_accuracy_deg": 1.0, "tracker_rate_hz": defaults.tracker_rate_hz}
+    tick(session, 0.1, [(ParamChange(reset), 0.0)])
+    assert (session.params.tracker_accuracy_deg, session.params.tracker_rate_hz) == (0.5, 250.0)
+
+
 # --- through a real server -------------------------------------------------------------------
 
 
@@ -172,6 +246,25 @@ def test_each_station_names_its_tracker(live_server, tmp_path) -> None:
     assert daemon_main([*argv, "--name", "station 3", "--record", str(tmp_path / "o.jsonl")]) == 0
     assert [t["name"] for t in server.hub.trackers.describe()] == ["station 3"]
     assert sole_tracker(server).samples == 126
+
+
+def test_a_daemons_accuracy_and_rate_reach_the_sessions_that_follow_it(live_server, tmp_path):
+    """`gazehdr daemon --accuracy-deg 0.5` streaming a 250 Hz recording: the hello carries the
+    accuracy, the server measures the rate, a session bound to the tracker gets both."""
+    from gazehdr.drivers.daemon_cli import daemon_main
+    from gazehdr.drivers.sessionlog import SessionHeader, SessionLogWriter
+    from gazehdr.drivers.sources import SyntheticSource
+
+    server = live_server(token="t")
+    log = tmp_path / "in.jsonl"
+    with SessionLogWriter(log, SessionHeader(tracker={"name": "rig"})) as writer:
+        writer.write_all(SyntheticSource(3, 250.0, duration=2.5, realtime=False, start_ns=0))
+    argv = ["--source", f"replay:{log}@max", "--server", server.ws_url, "--token", "t", "-q"]
+    assert daemon_main([*argv, "--accuracy-deg", "0.5", "--name", "rig"]) == 0
+    assert sole_tracker(server).known == TrackerFigures(0.5, 250.0)
+    session = new_session(BLIND, trackers=server.hub.trackers)
+    tick(session, 0.1, [(Choose("gaze_source", "remote:rig"), 0.0)])
+    assert (session.params.tracker_accuracy_deg, session.params.tracker_rate_hz) == (0.5, 250.0)
 
 
 def test_the_table_of_tracker_names_is_bounded() -> None:

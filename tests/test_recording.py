@@ -96,6 +96,7 @@ def test_the_journal_holds_what_the_session_ran_with_and_every_change() -> None:
     assert changes == [
         SceneChange(0, "lamp"),
         ModelChange(0, "jacobs+stochastic", None),
+        ParamsChange(0, {"tracker_accuracy_deg": 0.0}),  # the pointer's figures: exact
         Note(0, "gaze source mouse"),
         EyeReset(ns(8)),
         ParamsChange(ns(14), {"gamma": 0.5}),
@@ -337,5 +338,5 @@ def test_journal_lines_are_the_documented_format(tmp_path: Path) -> None:
     path = tmp_path / "session.jsonl"
     write_recording(path)
     kinds = [json.loads(line)["k"] for line in path.read_text(encoding="utf-8").splitlines()[1:]]
-    assert kinds[:5] == ["scene", "model", "note", "s", "fixation_start"]
+    assert kinds[:6] == ["scene", "model", "params", "note", "s", "fixation_start"]
     assert {"params", "reset", "blink_start", "blink_end"} <= set(kinds)

@@ -33,7 +33,8 @@ def state_at_gaze(sim: Simulator) -> np.ndarray:
 def test_defaults_are_appendix_a_as_printed() -> None:
     """The paper's Appendix A, typed from the paper, and A_min = log10(100 cd/m^2) of Sec. 2.4.
     The tests below read rates and weights from Params, so they alone would pass wrong
-    defaults. (H, the LMS -> RGB matrix, is not in the paper's text we have: not pinned.)"""
+    defaults. H, the LMS bleaching levels -> RGB afterimage colour matrix, is printed in
+    Appendix A too (rows as printed)."""
     p = Params()
     printed = {
         "gamma": 0.455, "n": 0.7, "a1": 0.75, "a2": 0.2,
@@ -41,6 +42,7 @@ def test_defaults_are_appendix_a_as_printed() -> None:
         "c1": 1.0, "c2": 1.0, "j1": 0.03, "j2": 0.15, "m1": 0.0, "m2": -2.0,
         "w_P": (0.2126, 0.7152, 0.0722), "w_S": (0.0, 0.8451, 0.1459),
         "sigma_0": 0.75, "rho_step": 0.286, "g": 0.25, "A_min": 2.0, "bands": 8,
+        "H": ((1.14, -1.18, 0.36), (0.08, 1.02, 0.18), (0.30, -0.11, 1.25)),
     }  # fmt: skip
     assert {name: getattr(p, name) for name in printed} == printed
     ppd = p.geometry.pixels_per_degree()  # sigma_i = 0.75 2^(i/4) px, i = 0..7

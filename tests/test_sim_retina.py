@@ -153,6 +153,28 @@ def test_the_documented_api_starts_at_equilibrium(backend: str, gaze, adapted: f
     assert_static(frames)
 
 
+def test_the_readmes_api_block_is_the_api_docs_sequence() -> None:
+    """README.md's Python block is python-api.md's, line for line (the sequence the test above
+    runs: `load_scene`, then `step` with the gaze), so the two cannot drift apart."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+
+    def code(path: str) -> list[str]:
+        (block,) = re.findall(r"```python\n(.*?)```", (root / path).read_text(), re.S)[:1]
+        lines = (line.split("#")[0].rstrip() for line in block.splitlines())
+        return [line for line in lines if line]
+
+    readme, api = code("README.md"), code("docs/python-api.md")
+    assert readme and all(line in api for line in readme), set(readme) - set(api)
+    calls = [
+        line.split("(")[0].strip() for line in readme if line.startswith("sim.") or "= sim." in line
+    ]
+    assert calls == ["sim.load_scene", "v = sim.step"]
+    assert "gaze=" in readme[-1]
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_reset_settles_at_the_next_gaze(backend: str) -> None:
     """After a long look at the bulb, `reset` and a step elsewhere: the eye is as a fresh one

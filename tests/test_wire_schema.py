@@ -24,6 +24,8 @@ TO_SERVER = [
     wire.Hello(1, "Tobii Pro Fusion", {"screen_width_px": 1920.0, "screen_height_px": 1080.0}),
     wire.Hello(1, "", {}),
     wire.Hello(1, "rig", {"screen_width_px": 1280.0, "refresh_hz": 0.0}),  # a later field
+    wire.Hello(1, "Tobii Pro Spectrum", {"screen_width_px": 1920.0, "accuracy_deg": 0.3}),
+    wire.Hello(1, "exact", {"accuracy_deg": 0.0}),
     wire.Samples(()),
     wire.Samples(
         (
@@ -86,6 +88,8 @@ INVALID_TO_SERVER = [
     {"type": "hello", "protocol": 1, "screen": {"screen_height_px": -1080}},
     {"type": "hello", "protocol": 1, "screen": {"screen_diagonal_m": 0.0}},
     {"type": "hello", "protocol": 1, "screen": {"viewing_distance_m": -0.6}},
+    {"type": "hello", "protocol": 1, "screen": {"accuracy_deg": -0.5}},
+    {"type": "hello", "protocol": 1, "screen": {"accuracy_deg": "1 deg"}},
     {"type": "samples"},
     {"type": "samples", "samples": {"t": 1}},
     {"type": "samples", "samples": [{"x": 0.5, "y": 0.5}]},
@@ -132,6 +136,15 @@ def test_invalid_replies_fail_the_schema_and_the_reply_parser(obj):
     assert not _validator("to_daemon").is_valid(obj)
     with pytest.raises(wire.WireError):
         wire.parse_reply(json.dumps(obj))
+
+
+def test_the_hello_gives_the_trackers_accuracy_when_it_has_one():
+    """`screen.accuracy_deg` (optional) is the tracker's accuracy, in degrees."""
+    hello = wire.parse(wire.dumps(wire.Hello(1, "t", {"accuracy_deg": 0.5})))
+    assert isinstance(hello, wire.Hello) and hello.accuracy_deg == 0.5
+    assert wire.parse('{"type": "hello", "protocol": 1}').accuracy_deg is None
+    accuracy = SCHEMA["$defs"]["hello"]["properties"]["screen"]["properties"]["accuracy_deg"]
+    assert accuracy["minimum"] == 0
 
 
 def test_an_echo_reply_is_not_an_echo_request():
