@@ -18,9 +18,10 @@ import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from fastapi import Body, FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi import Path as PathParam
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
@@ -52,6 +53,14 @@ CLOSE_POLICY = 1008
 CLOSE_BUSY = 1013
 CLOSE_INTERNAL = 1011
 log = logging.getLogger("gazehdr.app")
+#: A scene or recording name, as `check_name` accepts it (documented; checked by check_name: 400).
+Name = Annotated[
+    str,
+    PathParam(
+        description="letters, digits, '_', '.', '-'; up to 64; no '..', no final '.'",
+        json_schema_extra={"pattern": r"^(?!.*\.\.)(?!.*\.$)[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"},
+    ),
+]
 
 
 @dataclass(frozen=True)
@@ -179,7 +188,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             422: {"description": "not an image the server can read"},
         },
     )
-    async def upload_scene(name: str, request: Request, overwrite: bool = False) -> dict[str, str]:
+    async def upload_scene(name: Name, request: Request, overwrite: bool = False) -> dict[str, str]:
         """Upload an image (OpenEXR, Radiance .hdr, PFM) as the request body; it is validated
         before it is kept. An existing upload of that name is replaced only with `overwrite`."""
         chunks = await _upload_body(name, request, config.max_upload_bytes)
@@ -193,7 +202,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         return {"name": name}
 
     @app.get("/api/scenes/{name}", responses={404: {"description": "no such scene"}})
-    async def describe_scene(name: str) -> dict[str, Any]:
+    async def describe_scene(name: Name) -> dict[str, Any]:
         """A scene's format, size, layers and scale (cd/m² per unit) with its source."""
         return await _scene_call(scenes.describe, name)
 
@@ -205,7 +214,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         },
     )
     async def configure_scene(
-        name: str,
+        name: Name,
         values: dict[str, Any] = Body(...),  # noqa: B008
     ) -> dict[str, Any]:
         """Set a scene's `scale` (cd/m² per unit), estimate `kind` or EXR `layer` (null: the
@@ -229,7 +238,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             422: {"description": "not a session log with samples"},
         },
     )
-    async def upload_recording(name: str, request: Request) -> dict[str, str]:
+    async def upload_recording(name: Name, request: Request) -> dict[str, str]:
         """Upload a session log (JSON Lines, drivers/sessionlog/); validated before kept."""
         cap = min(config.max_upload_bytes, MAX_RECORDING_BYTES)
         chunks = await _upload_body(name, request, cap)
