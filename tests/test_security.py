@@ -304,7 +304,8 @@ def test_schemathesis_finds_no_contract_failure(live_server, tmp_path) -> None:
             "--report", "junit", "--report-dir", str(tmp_path)]  # fmt: skip
     env = {**os.environ, "NO_COLOR": "1", "SCHEMATHESIS_HOOKS": ""}
     started = time.monotonic()
-    done = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=env)
+    # in tmp_path: schemathesis keeps a cache (.schemathesis/) in its working directory
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
     summary = done.stdout[done.stdout.rfind("SUMMARY") :]
     print(summary, f"({time.monotonic() - started:.0f} s)")
     assert done.returncode == 0, done.stdout[-8000:] + done.stderr[-2000:]
