@@ -90,4 +90,5 @@ HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
     CMD ["python", "-c", "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/api/health', timeout=4).close()"]
 
 # 0.0.0.0 inside the container; publish it on the host's loopback (see compose.yaml).
-CMD ["gazehdr", "serve", "--host", "0.0.0.0", "--port", "8000"]
+# --allow-host server: the compose file's daemon reaches it as ws://server:8000 (docs/security.md)
+CMD ["gazehdr", "serve", "--host", "0.0.0.0", "--port", "8000", "--allow-host", "server"]

@@ -18,11 +18,12 @@ import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-from urllib.parse import urlsplit
+from typing import Annotated, Any
 
 from fastapi import Body, FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
-from fastapi.responses import PlainTextResponse
+from fastapi import Path as PathParam
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
 from gazehdr.drivers import wire
@@ -42,17 +43,24 @@ from gazehdr.scenes.library import (
     SceneLibrary,
     check_name,
 )
+from gazehdr.security import install as install_guard
 from gazehdr.session import Session, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 from gazehdr.viewer import default_web_dir, viewer_files
 
 CLOSE_POLICY = 1008
-CLOSE_UNAUTHORIZED = 4401
-CLOSE_ORIGIN = 4403
 CLOSE_BUSY = 1013
 CLOSE_INTERNAL = 1011
 log = logging.getLogger("gazehdr.app")
+#: A scene or recording name, as `check_name` accepts it (documented; checked by check_name: 400).
+Name = Annotated[
+    str,
+    PathParam(
+        description="letters, digits, '_', '.', '-'; up to 64; no '..', no final '.'",
+        json_schema_extra={"pattern": r"^(?!.*\.\.)(?!.*\.$)[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"},
+    ),
+]
 
 
 @dataclass(frozen=True)
@@ -60,8 +68,13 @@ class ServerConfig:
     host: str = "127.0.0.1"
     port: int = 8000
     session: SessionSettings = field(default_factory=SessionSettings)
-    #: Bearer token for `/ws/gaze`; `serve` generates one when none is configured.
+    #: Bearer token for writes, private reads and both WebSockets (`gazehdr.security`); `serve`
+    #: generates one when none is configured.
     token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
+    #: False (`serve --no-auth`): no credential is asked for anything; Host and Origin still are.
+    auth: bool = True
+    #: Host names besides loopback and the bound address that clients may use (`--allow-host`).
+    allow_hosts: tuple[str, ...] = ()
     data_dir: Path | None = None
     #: Scenes opened at start (e.g. an EXR named on the command line), by name.
     scenes: dict[str, Scene] = field(default_factory=dict)
@@ -74,14 +87,6 @@ class ServerConfig:
     #: Publish each session's journal (the gaze it follows, its events) as LSL streams of this
     #: name (`gazehdr.drivers.lsl.outlet.session_outlets`); None: no LSL.
     lsl_outlet: str | None = None
-
-
-def origin_allowed(origin: str | None, host: str | None, allowed: tuple[str, ...]) -> bool:
-    """Browsers send Origin; it must be this server or a configured origin. Non-browser
-    clients (tools, the daemon) send none and cannot be driven by a foreign page."""
-    if origin is None:
-        return True
-    return origin in allowed or (host is not None and urlsplit(origin).netloc == host)
 
 
 @dataclass(frozen=True)
@@ -172,8 +177,18 @@ def create_app(config: ServerConfig) -> FastAPI:
     async def list_scenes() -> dict[str, list[str]]:
         return {"scenes": scenes.names()}
 
-    @app.put("/api/scenes/{name:path}", status_code=201)
-    async def upload_scene(name: str, request: Request, overwrite: bool = False) -> dict[str, str]:
+    @app.put(
+        "/api/scenes/{name:path}",
+        status_code=201,
+        openapi_extra=_binary_body("an image: OpenEXR, .hdr or PFM", config.max_upload_bytes),
+        responses={
+            400: {"description": "the name is not allowed"},
+            409: {"description": "a scene of that name exists (see `overwrite`)"},
+            413: {"description": "the upload is over the size limit"},
+            422: {"description": "not an image the server can read"},
+        },
+    )
+    async def upload_scene(name: Name, request: Request, overwrite: bool = False) -> dict[str, str]:
         """Upload an image (OpenEXR, Radiance .hdr, PFM) as the request body; it is validated
         before it is kept. An existing upload of that name is replaced only with `overwrite`."""
         chunks = await _upload_body(name, request, config.max_upload_bytes)
@@ -186,14 +201,20 @@ def create_app(config: ServerConfig) -> FastAPI:
         hub.broadcast({"type": "scenes", "scenes": scenes.names()})
         return {"name": name}
 
-    @app.get("/api/scenes/{name}")
-    async def describe_scene(name: str) -> dict[str, Any]:
+    @app.get("/api/scenes/{name}", responses={404: {"description": "no such scene"}})
+    async def describe_scene(name: Name) -> dict[str, Any]:
         """A scene's format, size, layers and scale (cd/m² per unit) with its source."""
         return await _scene_call(scenes.describe, name)
 
-    @app.patch("/api/scenes/{name}")
+    @app.patch(
+        "/api/scenes/{name}",
+        responses={
+            400: {"description": "the body is not JSON"},
+            404: {"description": "no such scene"},
+        },
+    )
     async def configure_scene(
-        name: str,
+        name: Name,
         values: dict[str, Any] = Body(...),  # noqa: B008
     ) -> dict[str, Any]:
         """Set a scene's `scale` (cd/m² per unit), estimate `kind` or EXR `layer` (null: the
@@ -205,8 +226,19 @@ def create_app(config: ServerConfig) -> FastAPI:
         """Session logs a session can follow as gaze source `replay:NAME`."""
         return {"recordings": recordings.names()}
 
-    @app.put("/api/recordings/{name:path}", status_code=201)
-    async def upload_recording(name: str, request: Request) -> dict[str, str]:
+    @app.put(
+        "/api/recordings/{name:path}",
+        status_code=201,
+        openapi_extra=_binary_body(
+            "a session log (JSON Lines)", min(config.max_upload_bytes, MAX_RECORDING_BYTES)
+        ),
+        responses={
+            400: {"description": "the name is not allowed"},
+            413: {"description": "the upload is over the size limit"},
+            422: {"description": "not a session log with samples"},
+        },
+    )
+    async def upload_recording(name: Name, request: Request) -> dict[str, str]:
         """Upload a session log (JSON Lines, drivers/sessionlog/); validated before kept."""
         cap = min(config.max_upload_bytes, MAX_RECORDING_BYTES)
         chunks = await _upload_body(name, request, cap)
@@ -226,7 +258,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             "ours": sorted(OURS),
         }
 
-    @app.put("/api/params")
+    @app.put("/api/params", responses={400: {"description": "the body is not JSON"}})
     async def put_params(values: dict[str, Any] = Body(...)) -> dict[str, Any]:  # noqa: B008
         """Change (some of) the parameters new sessions start with."""
         try:
@@ -258,11 +290,7 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     @app.websocket("/ws/view")
     async def view(ws: WebSocket, session: str | None = None) -> None:
-        await ws.accept()
-        origin = ws.headers.get("origin")
-        if not origin_allowed(origin, ws.headers.get("host"), config.allow_origins):
-            await ws.close(CLOSE_ORIGIN, f"origin {origin} is not allowed")
-            return
+        await ws.accept()  # Host, Origin and credential: checked by gazehdr.security's Guard
         viewer = Viewer(ws.send_bytes, ws.send_json, metrics)
         try:
             live = await hub.join(session, viewer)
@@ -318,13 +346,7 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     @app.websocket("/ws/gaze")
     async def gaze(ws: WebSocket) -> None:
-        await ws.accept()
-        given = ws.headers.get("authorization", "")
-        expected = f"Bearer {config.token}"
-        if not secrets.compare_digest(given.encode(), expected.encode()):
-            why = "missing" if not given else "wrong"
-            await ws.close(CLOSE_UNAUTHORIZED, f"unauthorized: {why} bearer token")
-            return
+        await ws.accept()  # the bearer token: checked by gazehdr.security's Guard
         hub.trackers.connections += 1
         metrics.trackers.set(hub.trackers.connections)
         link = _GazeLink(ws, hub, metrics)
@@ -335,7 +357,31 @@ def create_app(config: ServerConfig) -> FastAPI:
             link.close()
 
     app.mount("/", StaticFiles(directory=web_dir, html=True), name="web")
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    install_guard(app, config)
     return app
+
+
+def _binary_body(what: str, cap: int) -> dict[str, Any]:
+    """The OpenAPI request body of an upload: raw bytes, at most `cap` (else 413)."""
+    schema = {"type": "string", "format": "binary", "maxLength": cap}
+    return {
+        "requestBody": {
+            "required": True,
+            "description": f"{what}, as the raw body; at most {cap} bytes",
+            "content": {"application/octet-stream": {"schema": schema}},
+        }
+    }
+
+
+async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's 422 in the API's one error shape: `detail` is a sentence, not a list."""
+    assert isinstance(exc, RequestValidationError)
+    said = []
+    for error in exc.errors():
+        where = ".".join(str(part) for part in error.get("loc", ()))
+        said.append(f"{where}: {error.get('msg', 'invalid')}")
+    return JSONResponse({"detail": "; ".join(said) or "invalid request"}, status_code=422)
 
 
 async def _scene_call(call: Callable[..., dict[str, Any]], name: str, *args: Any) -> dict[str, Any]:

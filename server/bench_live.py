@@ -115,7 +115,9 @@ def run_browser(live, size: tuple[int, int], seconds: float, warmup: float) -> d
 async def _socket_client(live, seconds: float, warmup: float) -> dict[str, float]:
     import websockets
 
-    async with websockets.connect(f"{live.ws_url}/ws/view", max_size=None) as ws:
+    async with websockets.connect(
+        f"{live.ws_url}/ws/view", max_size=None, additional_headers=live.auth
+    ) as ws:
         sent: dict[int, float] = {}
         latencies: list[float] = []
         seq, frames, t0 = 0, 0, None

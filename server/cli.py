@@ -240,7 +240,8 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--layer", metavar="NAME", help="the EXR layer to show (default: the first)")
     p.add_argument(
-        "--token", help="bearer token for the gaze daemon (default: $GAZEHDR_TOKEN or a new one)"
+        "--token",
+        help="bearer token for the gaze daemon and scripts (default: $GAZEHDR_TOKEN or a new one)",
     )
     p.add_argument(
         "--data-dir",
@@ -252,7 +253,22 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="ORIGIN",
-        help="another origin (scheme://host:port) whose pages may open /ws/view; repeatable",
+        help="another origin (scheme://host:port) whose pages may use this server (CORS, "
+        "/ws/view); repeatable",
+    )
+    p.add_argument(
+        "--allow-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="another name clients may reach this server by (the Host header), besides "
+        "127.0.0.1, localhost, [::1] and --host; repeatable (docs/security.md)",
+    )
+    p.add_argument(
+        "--no-auth",
+        action="store_true",
+        help="ask no credential for anything (a lab's closed network only: anyone who reaches "
+        "the server can change it and read recordings; Host and Origin are still checked)",
     )
     p.add_argument(
         "--encoding",
@@ -314,6 +330,8 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         token=token,
         data_dir=_data_dir(args.data_dir),
         allow_origins=tuple(args.allow_origin),
+        allow_hosts=tuple(args.allow_host),
+        auth=not args.no_auth,
         encoding=args.encoding,
         backend=args.backend,
         afterimage=args.afterimage or "jacobs",

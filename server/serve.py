@@ -19,6 +19,7 @@ from gazehdr.drivers.daemon import run_daemon
 from gazehdr.gaze import is_tracker_source
 from gazehdr.protocol import Encoding
 from gazehdr.scenes import builtin_names, open_scene
+from gazehdr.security import LOOPBACK_NAMES, WILDCARD_HOSTS, policy_for
 from gazehdr.session import GAZE_SOURCES, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.layout import check_frame_size
@@ -51,6 +52,8 @@ def build_config(
     record: bool = False,
     lsl_outlet: str | None = None,
     layer: str | None = None,
+    auth: bool = True,
+    allow_hosts: tuple[str, ...] = (),
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
     if lsl_outlet is not None:
@@ -101,6 +104,8 @@ def build_config(
         scenes=loaded,
         allow_origins=allow_origins,
         lsl_outlet=lsl_outlet,
+        auth=auth,
+        allow_hosts=allow_hosts,
     )
 
 
@@ -160,6 +165,8 @@ class BackgroundServer:
         self.url = f"http://127.0.0.1:{self.port}"
         self.ws_url = f"ws://127.0.0.1:{self.port}"
         self.token = config.token
+        #: What a script sends with a write or a private read (`gazehdr.security`).
+        self.auth = {"Authorization": f"Bearer {config.token}"}
         self.hub = self.app.state.hub
         self.metrics = self.app.state.metrics
 
@@ -183,6 +190,27 @@ def bind(host: str, port: int) -> socket.socket:
         raise ValueError(f"cannot listen on {host} port {port}: {e.strerror or e}") from None
     sock.set_inheritable(True)
     return sock
+
+
+def access_lines(config: ServerConfig, url: str) -> list[str]:
+    """What `serve` says about who may do what (docs/security.md)."""
+    hosts = ", ".join(sorted(policy_for(config).hosts))
+    lines = [f"requests must name this server as one of: {hosts}"]
+    if config.host in WILDCARD_HOSTS:
+        lines[0] += ", or any IP address of it"
+    if config.allow_origins:
+        lines.append(f"pages of these origins may use it too: {', '.join(config.allow_origins)}")
+    if not config.auth:
+        lines.append(
+            "--no-auth: NO CREDENTIAL is asked: anyone who can reach this address can change "
+            "parameters, upload and configure scenes and recordings, read recordings (gaze) and "
+            "sessions, join any session and stream gaze as a tracker"
+        )
+        return lines
+    lines.append(f"token (gaze daemon; scripts: Authorization: Bearer TOKEN): {config.token}")
+    if config.host not in LOOPBACK_NAMES:
+        lines.append(f"from another machine, open the viewer once as {url}/?token={config.token}")
+    return lines
 
 
 def check_tracker_spec(spec: str) -> None:
@@ -222,7 +250,8 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     shown = f"[{config.host}]" if ":" in config.host else config.host
     s = config.session
     print(f"gazehdr: open http://{shown}:{port}/ (scene {s.scene}, gaze {s.gaze_source})")
-    print(f"gazehdr: gaze daemon token: {config.token}", flush=True)
+    for line in access_lines(config, f"http://{shown}:{port}"):
+        print(f"gazehdr: {line}", flush=True)
     if s.record:
         print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}", flush=True)
     if config.lsl_outlet is not None:

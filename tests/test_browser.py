@@ -361,7 +361,8 @@ def test_panel_chooses_afterimage_and_acuity_models(live_server, open_viewer) ->
     assert state["model"] == {"afterimage": "jacobs", "acuity": "stochastic"}
 
     def on_server() -> dict[str, Any]:
-        with urllib.request.urlopen(f"{srv.url}/api/sessions", timeout=10) as answer:
+        request = urllib.request.Request(f"{srv.url}/api/sessions", headers=srv.auth)
+        with urllib.request.urlopen(request, timeout=10) as answer:
             sessions = json.load(answer)
         return next(s for s in sessions if s["id"] == state["session"])
 

@@ -28,9 +28,11 @@ def _image() -> np.ndarray:
     return np.stack([base, base * 0.5 + 0.01, base * (1 + yy / H)], axis=-1).astype(np.float32)
 
 
-def _http(method: str, url: str, body: Any = None) -> tuple[int, Any]:
+def _http(method: str, url: str, body: Any = None, token: str | None = None) -> tuple[int, Any]:
     data = json.dumps(body).encode() if isinstance(body, dict) else body
     request = urllib.request.Request(url, data=data, method=method)
+    if token is not None:  # writes need the server's credential (gazehdr.security)
+        request.add_header("Authorization", f"Bearer {token}")
     if isinstance(body, dict):
         request.add_header("Content-Type", "application/json")
     try:
@@ -111,8 +113,8 @@ def test_false_colour_and_histogram_follow_the_scale(live_server, open_viewer, t
     cv2.imwrite(str(path), _image()[..., ::-1])
     srv = live_server(size=(W, H))
     with open(path, "rb") as f:
-        assert _http("PUT", f"{srv.url}/api/scenes/scene", f.read())[0] == 201
-    assert _http("PATCH", f"{srv.url}/api/scenes/scene", {"scale": 1.0})[0] == 200
+        assert _http("PUT", f"{srv.url}/api/scenes/scene", f.read(), srv.token)[0] == 201
+    assert _http("PATCH", f"{srv.url}/api/scenes/scene", {"scale": 1.0}, srv.token)[0] == 200
     viewer = open_viewer(srv.url, W, H)
     page = viewer.page
     viewer.js("() => window.gazehdr.connection.send({type: 'scene', name: 'scene'})")
@@ -132,7 +134,7 @@ def test_false_colour_and_histogram_follow_the_scale(live_server, open_viewer, t
     viewer.wait("() => document.getElementById('falsecolour').width === 160")
     before_colour, before_counts = look()
     seen = _maps_seen(viewer)
-    assert _http("PATCH", f"{srv.url}/api/scenes/scene", {"scale": 1000.0})[0] == 200
+    assert _http("PATCH", f"{srv.url}/api/scenes/scene", {"scale": 1000.0}, srv.token)[0] == 200
     viewer.wait("(n) => window.gazehdr.sceneMaps > n", seen)
     viewer.wait("() => window.gazehdr.state.scene_info.scale === 1000")
     after_colour, after_counts = viewer.wait(

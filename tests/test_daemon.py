@@ -170,7 +170,9 @@ def test_a_remote_session_follows_the_daemons_fixations(live_server) -> None:
 
     async def check() -> list[tuple[float, float, bool]]:
         seen: list[tuple[float, float, bool]] = []
-        async with websockets.connect(server.ws_url + "/ws/view") as view:
+        async with websockets.connect(
+            server.ws_url + "/ws/view", additional_headers=server.auth
+        ) as view:
 
             async def watch() -> None:
                 async for message in view:
@@ -354,7 +356,9 @@ def test_a_flood_is_paced_below_the_limit_without_harming_a_viewer(live_server, 
     source = ReplaySource(log, speed=math.inf)  # as fast as it can be read: a flood
 
     async def check():
-        async with websockets.connect(server.ws_url + "/ws/view") as view:
+        async with websockets.connect(
+            server.ws_url + "/ws/view", additional_headers=server.auth
+        ) as view:
             frames: list[int] = []
 
             async def watch() -> None:

@@ -22,6 +22,8 @@ from gazehdr.sim.layout import blind_spot_strength
 from tests.test_server import Client, run
 
 SETTINGS = SessionSettings(width=32, height=18, scene="lamp", backend="reference")
+#: `gazehdr serve --token gaze-test` (the servers these tests start): writes, /ws/view, recordings
+AUTH = {"Authorization": "Bearer gaze-test"}
 
 
 # --- the inputs ----------------------------------------------------------------------------
@@ -290,11 +292,11 @@ def test_serve_streams_a_tracker_of_its_own_machine_to_its_sessions(tmp_path) ->
     import re
     import subprocess
     import sys
-    from urllib.request import urlopen
+    from urllib.request import Request, urlopen
 
     argv = [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36",
             "--backend", "reference", "--gaze", "remote", "--tracker", "synthetic:4",
-            "--data-dir", str(tmp_path)]  # fmt: skip
+            "--data-dir", str(tmp_path), "--token", "gaze-test"]  # fmt: skip
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     server = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               env=env)  # fmt: skip
@@ -303,7 +305,9 @@ def test_serve_streams_a_tracker_of_its_own_machine_to_its_sessions(tmp_path) ->
         url = next(m[1] for line in server.stdout if (m := re.search(r"open (http://\S+)/ ", line)))
 
         async def follow() -> set[tuple[float, float]]:
-            async with websockets.connect(url.replace("http", "ws") + "/ws/view") as ws:
+            async with websockets.connect(
+                url.replace("http", "ws") + "/ws/view", additional_headers=AUTH
+            ) as ws:
                 seen: set[tuple[float, float]] = set()
                 while len(seen) < 3:  # the scan path moves from fixation to fixation
                     message = await ws.recv()
@@ -318,7 +322,7 @@ def test_serve_streams_a_tracker_of_its_own_machine_to_its_sessions(tmp_path) ->
                 return seen
 
         assert len(run(asyncio.wait_for(follow(), 120))) == 3
-        with urlopen(url + "/api/recordings", timeout=30) as response:
+        with urlopen(Request(url + "/api/recordings", headers=AUTH), timeout=30) as response:
             names = json.loads(response.read())["recordings"]
         assert any(name.startswith("gaze-") for name in names), names
     finally:
@@ -353,7 +357,7 @@ def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path) -> None:
 
     argv = [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36",
             "--backend", "reference", "--gaze", "remote", "--tracker", "lsl:ServeLoop",
-            "--data-dir", str(tmp_path)]  # fmt: skip
+            "--data-dir", str(tmp_path), "--token", "gaze-test"]  # fmt: skip
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     pusher = threading.Thread(target=fixate, daemon=True)
     pusher.start()
@@ -364,7 +368,9 @@ def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path) -> None:
         url = next(m[1] for line in server.stdout if (m := re.search(r"open (http://\S+)/ ", line)))
 
         async def follow() -> tuple[set[tuple[float, float]], set[str]]:
-            async with websockets.connect(url.replace("http", "ws") + "/ws/view") as ws:
+            async with websockets.connect(
+                url.replace("http", "ws") + "/ws/view", additional_headers=AUTH
+            ) as ws:
                 seen: set[tuple[float, float]] = set()
                 sources: set[str] = set()
                 while not {(0.25, 0.25), (0.75, 0.625)} <= seen:

@@ -224,7 +224,9 @@ def test_serve_publishes_the_gaze_each_session_follows(live_server) -> None:
     server = live_server(lsl_outlet="gz-serve-test", record=True, gaze_source="synthetic")
 
     async def view(seconds: float) -> None:
-        async with websockets.connect(server.ws_url + "/ws/view") as ws:
+        async with websockets.connect(
+            server.ws_url + "/ws/view", additional_headers=server.auth
+        ) as ws:
             deadline = time.monotonic() + seconds
             while time.monotonic() < deadline:
                 await asyncio.wait_for(ws.recv(), 5)
@@ -255,7 +257,9 @@ def test_sessions_that_do_not_publish_keep_no_journal(live_server) -> None:
     server = live_server()
 
     async def check() -> None:
-        async with websockets.connect(server.ws_url + "/ws/view") as ws:
+        async with websockets.connect(
+            server.ws_url + "/ws/view", additional_headers=server.auth
+        ) as ws:
             await asyncio.wait_for(ws.recv(), 5)
             (live,) = server.hub.sessions.values()
             assert not live.session.recording and live.outlet is None

@@ -339,8 +339,9 @@ def test_installed_gazehdr_is_the_only_top_level_name(installed: Path, elsewhere
     assert "usage: gazehdr" in _run(installed, "-m", "gazehdr", "--help", cwd=elsewhere)
 
 
-async def _first_frame(url: str) -> bytes:
-    async with websockets.connect(url, open_timeout=60) as ws:
+async def _first_frame(url: str, token: str) -> bytes:
+    auth = {"Authorization": f"Bearer {token}"}
+    async with websockets.connect(url, open_timeout=60, additional_headers=auth) as ws:
         while True:
             message = await asyncio.wait_for(ws.recv(), 120)
             if isinstance(message, bytes):
@@ -361,7 +362,7 @@ def test_installed_server_serves_the_viewer_and_frames(installed: Path, elsewher
 
     process = subprocess.Popen(
         [installed, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36",
-         "--data-dir", elsewhere / "data"],
+         "--data-dir", elsewhere / "data", "--token", "pkg-test"],
         cwd=elsewhere, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env={k: v for k, v in os.environ.items() if k != "GAZEHDR_WEB_DIR"},
     )  # fmt: skip
@@ -371,7 +372,7 @@ def test_installed_server_serves_the_viewer_and_frames(installed: Path, elsewher
             with urlopen(f"{url}/{file}", timeout=30) as response:
                 assert response.status == 200, file
                 assert response.read() == (ROOT / "web" / (file or "index.html")).read_bytes()
-        frame = asyncio.run(_first_frame(url.replace("http://", "ws://") + "/ws/view"))
+        frame = asyncio.run(_first_frame(url.replace("http://", "ws://") + "/ws/view", "pkg-test"))
         assert len(frame) > 64 * 36
     finally:
         process.terminate()

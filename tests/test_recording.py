@@ -289,7 +289,7 @@ def test_serve_records_each_session_where_viewers_can_replay_it(live_server) -> 
     assert (log.samples[-1].x, log.samples[-1].y) == (0.2 * 1920, 0.3 * 1080)
     assert log.samples[-1].t_ns >= log.scenes[-1].t_ns
     name = path.stem
-    assert name in http("GET", server.url + "/api/recordings")[1]["recordings"]
+    assert name in http("GET", server.url + "/api/recordings", **server.auth)[1]["recordings"]
 
     async def replay() -> None:
         client = await Client.open(server)

@@ -54,6 +54,7 @@ class Client:
 
     @classmethod
     async def open(cls, server, query: str = "", **kw) -> Client:
+        kw.setdefault("additional_headers", server.auth)
         ws = await websockets.connect(f"{server.ws_url}/ws/view{query}", **kw)
         client = cls(ws)
         hello = await client.note("hello")
@@ -111,12 +112,20 @@ def test_params_rest_validates_and_sets_new_sessions(live_server) -> None:
     bad.append(b'{"mikamo_sequence": "/etc/passwd"}')  # the server's files are not for clients
     for payload in bad:
         status, err = http(
-            "PUT", server.url + "/api/params", payload, **{"content-type": "application/json"}
+            "PUT",
+            server.url + "/api/params",
+            payload,
+            **{"content-type": "application/json"},
+            **server.auth,
         )
         assert status == 422, (payload, err)
     assert "cannot be set remotely" in err["detail"] and "passwd" not in err["detail"]
     status, body = http(
-        "PUT", server.url + "/api/params", b'{"j1": 0.2}', **{"content-type": "application/json"}
+        "PUT",
+        server.url + "/api/params",
+        b'{"j1": 0.2}',
+        **{"content-type": "application/json"},
+        **server.auth,
     )
     assert status == 200 and body["params"]["j1"] == 0.2
 
@@ -132,7 +141,7 @@ def test_exr_upload(live_server, tmp_path) -> None:
     server = live_server(max_upload_bytes=200_000)
     good = tmp_path / "good.exr"
     write_exr(good, np.full((20, 30, 3), 50.0, np.float32))
-    status, body = http("PUT", server.url + "/api/scenes/office", good.read_bytes())
+    status, body = http("PUT", server.url + "/api/scenes/office", good.read_bytes(), **server.auth)
     assert (status, body) == (201, {"name": "office"})
     assert "office" in http("GET", server.url + "/api/scenes")[1]["scenes"]
     stored = server.config.data_dir / "scenes"
@@ -148,11 +157,12 @@ def test_exr_upload(live_server, tmp_path) -> None:
         ("flash", good.read_bytes(), 422, "taken by a built-in"),
     ]
     for name, payload, code, message in cases:
-        status, body = http("PUT", f"{server.url}/api/scenes/{name}", payload)
+        status, body = http("PUT", f"{server.url}/api/scenes/{name}", payload, **server.auth)
         assert status == code and message in body["detail"], (name, status, body)
     # Nothing of the refused uploads was kept, in the folder or outside it.
     assert sorted(p.name for p in stored.iterdir()) == ["office.exr"]
-    assert sorted(p.name for p in server.config.data_dir.iterdir()) == ["scenes"]
+    # (viewer-secret: the viewer cookie's secret, gazehdr.security, made when the server starts)
+    assert sorted(p.name for p in server.config.data_dir.iterdir()) == ["scenes", "viewer-secret"]
 
     async def view_upload() -> None:
         client = await Client.open(server)
@@ -267,7 +277,9 @@ def test_model_choice_and_split_view_over_the_socket(live_server) -> None:
         assert state["split"] == {"afterimage": "ritschel", "acuity": "none"}
         header, v = await client.frame(lambda h: h.split)
         assert (header.width, header.height) == (64, 36) and v.shape == (36, 64, 3)
-        status, sessions = await asyncio.to_thread(http, "GET", server.url + "/api/sessions")
+        status, sessions = await asyncio.to_thread(
+            http, "GET", server.url + "/api/sessions", **server.auth
+        )
         assert status == 200
         assert (sessions[0]["model"], sessions[0]["split"]) == ("jacobs+none", "ritschel+none")
         await client.send(type="model", afterimage="nope", split=None)
@@ -304,7 +316,11 @@ def test_foreign_origin_is_refused(live_server) -> None:
     server = live_server(allow_origins=("https://lab.example",))
 
     async def check() -> None:
-        ws = await websockets.connect(server.ws_url + "/ws/view", origin="https://evil.example")
+        ws = await websockets.connect(
+            server.ws_url + "/ws/view",
+            origin="https://evil.example",
+            additional_headers=server.auth,
+        )
         with pytest.raises(ConnectionClosed) as info:
             await ws.recv()
         assert info.value.rcvd.code == 4403 and "evil.example" in info.value.rcvd.reason
@@ -573,12 +589,16 @@ def test_a_recorded_session_replays_as_gaze(live_server, tmp_path) -> None:
         # 1920x1080 screen: hold (480, 270) px for 10 s, i.e. (0.25, 0.25) of the screen.
         for i in range(100):
             writer.write(GazeSample(t_ns=i * 100_000_000, x=480.0, y=270.0))
-    status, body = http("PUT", server.url + "/api/recordings/lab-1", log.read_bytes())
+    status, body = http(
+        "PUT", server.url + "/api/recordings/lab-1", log.read_bytes(), **server.auth
+    )
     assert (status, body) == (201, {"name": "lab-1"})
-    assert http("GET", server.url + "/api/recordings")[1] == {"recordings": ["lab-1"]}
+    assert http("GET", server.url + "/api/recordings", **server.auth)[1] == {
+        "recordings": ["lab-1"]
+    }
     bad = [("no-samples", b'{"format": "gazehdr-session"}\n', 422), ("../x", b"", 400)]
     for name, payload, code in bad:
-        assert http("PUT", f"{server.url}/api/recordings/{name}", payload)[0] == code
+        assert http("PUT", f"{server.url}/api/recordings/{name}", payload, **server.auth)[0] == code
 
     async def check() -> None:
         client = await Client.open(server)

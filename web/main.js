@@ -97,7 +97,11 @@ class Connection {
   closed(ws, ev) {
     if (ws !== this.ws) return;
     this.ws = null;
+    // Refusals of gazehdr.security (docs/security.md): 4000 + the HTTP status, with a reason.
     if (ev.code === 4403) toast('the server refused this page’s origin (4403)');
+    if (ev.code === 4401) toast(`not authorized (4401): open the address gazehdr serve printed, with ?token=`);
+    if (ev.code === 4421) toast(`the server does not answer to this name (4421): ${ev.reason}`);
+    if (ev.code === 4429) toast(`too many failed authentications (4429): ${ev.reason}`);
     // Opened but closed before hello: the server refused the session (it restarted and no
     // longer knows it). Start a fresh one next time. A failed connect keeps it: a blip.
     if (this.opened && !this.helloSeen) this.session = null;
