@@ -174,11 +174,11 @@ def test_patch_switches_an_upload_layer_on_a_real_server(live_server, tmp_path: 
     OpenEXR.File([OpenEXR.Part({**header, "name": "beauty"}, beauty)]).write(str(path))
     srv = live_server(size=(160, 96))
     url = f"{srv.url}/api/scenes/ml"
-    assert http("PUT", url, path.read_bytes())[0] == 201
+    assert http("PUT", url, path.read_bytes(), **srv.auth)[0] == 201
 
     def patch(target: str, values: object) -> tuple[int, dict]:
         body = json.dumps(values).encode()
-        return http("PATCH", target, body, **{"Content-Type": "application/json"})
+        return http("PATCH", target, body, **{"Content-Type": "application/json"}, **srv.auth)
 
     status, info = patch(url, {"scale": 100.0})
     assert status == 200 and info["layers"] == ["", "diffuse"]  # RGB, diffuse.RGB
@@ -188,7 +188,7 @@ def test_patch_switches_an_upload_layer_on_a_real_server(live_server, tmp_path: 
         """The median radiance of the scene maps a session showing `ml` sends (after PATCHing
         `change`, if given): the first near `want`, else the last one seen within 20 s (maps
         made before a change took effect may come first)."""
-        async with websockets.connect(f"{srv.ws_url}/ws/view") as ws:
+        async with websockets.connect(f"{srv.ws_url}/ws/view", additional_headers=srv.auth) as ws:
             await ws.send(json.dumps({"type": "scene", "name": "ml"}))
             await ws.send(json.dumps({"type": "scene_maps", "send": True}))
             if change is not None:
