@@ -348,8 +348,8 @@ def test_histogram_marks_the_adaptation_and_the_floor(live_server, open_viewer, 
     cv2.imwrite(str(path), np.ones((H, W, 3), np.float32))
     srv = live_server(size=(W, H))
     with open(path, "rb") as f:
-        assert _http("PUT", f"{srv.url}/api/scenes/bright", f.read())[0] == 201
-    assert _http("PATCH", f"{srv.url}/api/scenes/bright", {"scale": 1e5})[0] == 200
+        assert _http("PUT", f"{srv.url}/api/scenes/bright", f.read(), srv.token)[0] == 201
+    assert _http("PATCH", f"{srv.url}/api/scenes/bright", {"scale": 1e5}, srv.token)[0] == 200
     viewer = open_viewer(srv.url, W, H)
     viewer.js("() => window.gazehdr.connection.send({type: 'scene', name: 'bright'})")
     viewer.wait("() => window.gazehdr.state.scene === 'bright'")
