@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
+import ctypes.util
 import dataclasses
 import logging
 import secrets
@@ -36,10 +38,28 @@ MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
 WINDOW = 2  # frames in flight to a viewer that acks: one being drawn, one on the way
 MAX_IDLE_S = 0.5  # a session steps at least this often, even when no viewer takes frames
 DEMAND_POLL_S = 0.002
+MAX_VIEWERS = 16  # per session (`SessionHub.max_viewers`): each costs a sending task and frames
 
 
 class TooManySessionsError(Exception):
-    """The server runs as many sessions as it is allowed to."""
+    """The server runs as many sessions as it is allowed to (or a session has as many viewers
+    as it may); the message is the WebSocket close reason, at most 123 bytes."""
+
+
+def _libc_malloc_trim() -> Callable[[], None] | None:
+    """glibc's `malloc_trim(0)`, or None elsewhere. glibc keeps freed heap pages (and every
+    thread's arena) for reuse; a session's frames and scene copies are many megabytes freed in
+    small pieces between other allocations, so without a trim the server stays near its peak
+    after sessions end (measured: tests/session_memory.py, docs/server.md#memory)."""
+    name = ctypes.util.find_library("c")
+    try:
+        trim = ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):
+        return None
+    return None if trim is None else (lambda: trim(0))
+
+
+_malloc_trim = _libc_malloc_trim()
 
 
 @dataclass
@@ -245,8 +265,14 @@ class LiveSession:
             dt = 0.0 if last is None else started - last
             last = started
             controls, self.controls = self.controls, []
+            step = asyncio.ensure_future(asyncio.to_thread(self._tick, dt, controls))
             try:
-                frame, notes = await asyncio.to_thread(self._tick, dt, controls)
+                frame, notes = await asyncio.shield(step)
+            except asyncio.CancelledError:
+                # The session ends: its step finishes on its thread before the task does, so
+                # nothing of the session is in use once the task is done (`SessionHub._end`).
+                await asyncio.wait([step])
+                raise
             except Exception as e:  # a broken device or kernel: tell the viewers, then stop
                 log.exception("session %s stopped", self.session.id)
                 note = {"type": "error", "message": f"simulation failed: {e}", "in": None}
@@ -277,6 +303,7 @@ class SessionHub:
         *,
         grace_s: float = 10.0,
         max_sessions: int = 8,
+        max_viewers: int = MAX_VIEWERS,
         publish: Callable[[Session], Any] | None = None,
     ) -> None:
         self.settings = settings
@@ -290,35 +317,58 @@ class SessionHub:
         self.sessions: dict[str, LiveSession] = {}
         self.grace_s = grace_s
         self.max_sessions = max_sessions
+        self.max_viewers = max_viewers
+        self.starting = 0  # sessions being built: their slots are taken (`join`)
         if settings.record and self.recordings.folder is None:
             raise ValueError("recording sessions needs a data directory")
 
     async def join(self, session_id: str | None, viewer: Viewer) -> LiveSession:
-        """The session `session_id` if it still runs, else a new one; `viewer` is added."""
+        """The session `session_id` if it still runs, else a new one; `viewer` is added.
+
+        Limits are checked and taken in one go, with no await between (the event loop runs
+        one coroutine at a time): a new session's slot is reserved before it is built on a
+        worker thread and given back if building fails, so many viewers arriving at once
+        never open more than `max_sessions`."""
         live = self.sessions.get(session_id or "")
-        if live is None:
-            if len(self.sessions) >= self.max_sessions:
-                raise TooManySessionsError(f"the server already runs {self.max_sessions} sessions")
-            new_id = secrets.token_urlsafe(9)
-            settings = self.settings
-            if self.publish is not None:
-                settings = dataclasses.replace(settings, record=True)
-            session = await asyncio.to_thread(
-                Session, new_id, settings, self.scenes, clock=time.perf_counter,
-                trackers=self.trackers, recordings=self.recordings,
-            )  # fmt: skip
-            recording = (
-                await asyncio.to_thread(self._record, session) if self.settings.record else None
-            )
-            outlet = self.publish(session) if self.publish is not None else None
-            live = LiveSession(session, self.metrics, recording, outlet)
-            live.task = asyncio.create_task(live.run(), name=f"session {new_id}")
-            self.sessions[new_id] = live
+        if live is not None:
+            if len(live.viewers) >= self.max_viewers:
+                raise TooManySessionsError(
+                    f"server busy: session {live.session.id} has {self.max_viewers} viewers "
+                    "(the limit); try again later"
+                )
+        else:
+            if len(self.sessions) + self.starting >= self.max_sessions:
+                raise TooManySessionsError(
+                    f"server busy: it runs {self.max_sessions} sessions (the limit); "
+                    "try again later or join one with ?session=ID"
+                )
+            self.starting += 1  # the slot is ours from here on
+            try:
+                live = await self._start()
+            finally:
+                self.starting -= 1
+            self.sessions[live.session.id] = live
         if live.closing:
             live.closing.cancel()
             live.closing = None
         live.viewers.add(viewer)
         self._count()
+        return live
+
+    async def _start(self) -> LiveSession:
+        new_id = secrets.token_urlsafe(9)
+        settings = self.settings
+        if self.publish is not None:
+            settings = dataclasses.replace(settings, record=True)
+        session = await asyncio.to_thread(
+            Session, new_id, settings, self.scenes, clock=time.perf_counter,
+            trackers=self.trackers, recordings=self.recordings,
+        )  # fmt: skip
+        recording = await asyncio.to_thread(self._record, session) if self.settings.record else None
+        outlet = self.publish(session) if self.publish is not None else None
+        live = LiveSession(session, self.metrics, recording, outlet)
+        live.task = asyncio.create_task(live.run(), name=f"session {new_id}")
+        live.task.add_done_callback(lambda _: self._ended(live))
         return live
 
     def _record(self, session: Session) -> SessionLogWriter:
@@ -351,6 +401,7 @@ class SessionHub:
         self._count()
 
     def _end(self, live: LiveSession) -> None:
+        live.closing = None  # a fired handle keeps its arguments: no cycle through it
         if live.viewers:
             return
         if live.task:
@@ -358,6 +409,17 @@ class SessionHub:
         live.close_log()
         self.sessions.pop(live.session.id, None)
         self._count()
+
+    def _ended(self, live: LiveSession) -> None:
+        """A session's task is done (ended, failed, or the server stops). Nothing may keep the
+        session from being freed at once by reference counting: its device buffers, frames and
+        scene go back now, not at some later garbage collection. The task (its exception's
+        traceback holds the task's frames, and so the session) is dropped by the session, and
+        the C heap is trimmed once the task is gone (`_libc_malloc_trim`)."""
+        live.task = None
+        if _malloc_trim is not None:
+            loop = asyncio.get_running_loop()
+            loop.call_soon(lambda: loop.run_in_executor(None, _malloc_trim))
 
     def _count(self) -> None:
         self.metrics.sessions.set(len(self.sessions))

@@ -26,6 +26,7 @@ from gazehdr.scenes import Scene, builtin_names, open_scene
 from gazehdr.scenes.decoding import SceneError
 from gazehdr.scenes.estimate import check_kind
 from gazehdr.scenes.image import SUFFIXES, ImageScene, check_scale, file_format, identity
+from gazehdr.scenes.sandbox import check_upload, open_upload
 
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 MAX_UPLOAD_BYTES = 256 * 1024 * 1024  # an upload is held in memory until validated
@@ -110,7 +111,7 @@ class SceneLibrary:
         if path is None:
             raise NoSuchSceneError(f"no scene named {name!r}; available: {', '.join(self.names())}")
         s = self.settings(name)
-        return ImageScene.open(path, s.get("scale"), layer=s.get("layer"), kind=s.get("kind"))
+        return open_upload(path, s.get("scale"), layer=s.get("layer"), kind=s.get("kind"))
 
     def refresh(self, name: str, scene: Scene) -> Scene:
         """`scene` (opened as `name`) with the settings now in force: the same object with a
@@ -165,7 +166,7 @@ class SceneLibrary:
             if "scale" in values and values["scale"] is not None:
                 merged.pop("kind", None)  # a number given: no estimate to keep
             try:  # refuses a bad layer now, naming the scene, not the server's file
-                ImageScene.open(
+                open_upload(
                     path, merged.get("scale"), layer=merged.get("layer"), kind=merged.get("kind")
                 )
             except SceneError as e:
@@ -196,11 +197,17 @@ class SceneLibrary:
                     f.write(chunk)
             try:
                 kind = file_format(tmp)
-                ImageScene.open(tmp)
+                check_upload(tmp)  # in a worker process (gazehdr.scenes.sandbox)
             except SceneError as e:
                 raise SceneError(str(e).replace(str(tmp), f"upload {name!r}")) from None
             path = self.upload_dir / f"{name}{SUFFIXES[kind]}"
-            with self._lock:
+            with self._lock:  # checked again where it is acted on: uploads decode in parallel
+                existing = self.uploads().get(name)
+                if existing is not None and not overwrite:
+                    raise SceneExistsError(
+                        f"scene {name!r} was uploaded while this upload was checked; replace "
+                        f"it with overwrite (PUT /api/scenes/{name}?overwrite=true)"
+                    )
                 os.replace(tmp, path)
                 if existing is not None and existing != path:
                     existing.unlink(missing_ok=True)
