@@ -30,8 +30,12 @@ def _exr(path: Path) -> bytes:
     return path.read_bytes()
 
 
+TOKEN = "decode-worker-test"
+
+
 def _request(method: str, url: str, body: bytes | None = None) -> tuple[int, dict]:
     req = urllib.request.Request(url, data=body, method=method)
+    req.add_header("Authorization", f"Bearer {TOKEN}")  # writes need the credential
     try:
         with urllib.request.urlopen(req, timeout=60) as r:
             return r.status, json.loads(r.read())
@@ -43,7 +47,8 @@ def _request(method: str, url: str, body: bytes | None = None) -> tuple[int, dic
 def faulty_server(tmp_path: Path):
     """`gazehdr serve` whose decode worker honours the test hook, with a 3 s time limit."""
     argv = [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36",
-            "--backend", "reference", "--data-dir", str(tmp_path / "data")]  # fmt: skip
+            "--backend", "reference", "--data-dir", str(tmp_path / "data"),
+            "--token", TOKEN]  # fmt: skip
     env = {**os.environ, "PYTHONUNBUFFERED": "1", FAULT_ENV: "1", "GAZEHDR_DECODE_TIME_S": "3"}
     server = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               env=env)  # fmt: skip

@@ -22,11 +22,13 @@ from websockets.exceptions import ConnectionClosed
 from gazehdr.app import CLOSE_BUSY, CLOSE_INTERNAL
 
 
-async def _viewer(url: str, admitted: list[str], refused: list[tuple[int, str]], leave) -> None:
-    """Open /ws/view: admitted (a hello, then a frame) it waits for `leave`; refused, it notes
-    the close code and reason."""
+async def _viewer(
+    url: str, admitted: list[str], refused: list[tuple[int, str]], leave, auth: dict[str, str]
+) -> None:
+    """Open /ws/view with the credential `auth`: admitted (a hello, then a frame) it waits for
+    `leave`; refused, it notes the close code and reason."""
     try:
-        async with websockets.connect(url, max_size=None) as ws:
+        async with websockets.connect(url, max_size=None, additional_headers=auth) as ws:
             while True:
                 message = await ws.recv()
                 if isinstance(message, bytes):  # a frame: the session runs
@@ -65,7 +67,10 @@ def test_thirty_viewers_at_once_get_eight_sessions_then_memory_goes_back(live_se
 
     async def check() -> None:
         leave = asyncio.Event()
-        tasks = [asyncio.create_task(_viewer(url, admitted, refused, leave)) for _ in range(30)]
+        tasks = [
+            asyncio.create_task(_viewer(url, admitted, refused, leave, server.auth))
+            for _ in range(30)
+        ]
         await until(lambda: len(admitted) + len(refused) == 30, "every viewer's answer")
         assert len(admitted) == 8, (admitted, refused)
         assert len(server.hub.sessions) == 8
@@ -91,11 +96,16 @@ def test_a_sessions_viewer_limit_holds_when_viewers_join_at_once(live_server) ->
 
     async def check() -> None:
         leave = asyncio.Event()
-        first = asyncio.create_task(_viewer(f"{server.ws_url}/ws/view", admitted, refused, leave))
+        first = asyncio.create_task(
+            _viewer(f"{server.ws_url}/ws/view", admitted, refused, leave, server.auth)
+        )
         await until(lambda: admitted, "the first viewer's session")
         (session,) = server.hub.sessions
         url = f"{server.ws_url}/ws/view?session={session}"
-        tasks = [asyncio.create_task(_viewer(url, admitted, refused, leave)) for _ in range(10)]
+        tasks = [
+            asyncio.create_task(_viewer(url, admitted, refused, leave, server.auth))
+            for _ in range(10)
+        ]
         await until(lambda: len(admitted) + len(refused) == 11, "every viewer's answer")
         assert len(admitted) == 3 and len(server.hub.sessions[session].viewers) == 3
         assert {code for code, _ in refused} == {CLOSE_BUSY}
@@ -116,7 +126,9 @@ def test_a_session_that_fails_to_start_gives_its_slot_back(live_server) -> None:
     async def check() -> None:
         leave = asyncio.Event()
         url = f"{server.ws_url}/ws/view"
-        await asyncio.gather(*[_viewer(url, admitted, refused, leave) for _ in range(5)])
+        await asyncio.gather(
+            *[_viewer(url, admitted, refused, leave, server.auth) for _ in range(5)]
+        )
         # Two were building at once (the limit), the others busy or failing in their turn.
         codes = [code for code, _ in refused]
         assert not admitted and set(codes) <= {CLOSE_INTERNAL, CLOSE_BUSY}, refused
@@ -124,7 +136,10 @@ def test_a_session_that_fails_to_start_gives_its_slot_back(live_server) -> None:
         assert server.hub.starting == 0 and not server.hub.sessions
         server.hub.settings = good  # both slots are free again
         admitted.clear(), refused.clear()
-        tasks = [asyncio.create_task(_viewer(url, admitted, refused, leave)) for _ in range(2)]
+        tasks = [
+            asyncio.create_task(_viewer(url, admitted, refused, leave, server.auth))
+            for _ in range(2)
+        ]
         await until(lambda: len(admitted) + len(refused) == 2, "both viewers' answers")
         assert len(admitted) == 2, refused
         leave.set()
