@@ -29,7 +29,13 @@ from gazehdr.sim.layout import (
     surround_map,
 )
 from gazehdr.sim.models import Models, each_beside_default
-from gazehdr.sim.reference import bleach_response, gamut_map, opponent_gain
+from gazehdr.sim.reference import (
+    bleach_response,
+    gamut_map,
+    linear_contrast,
+    ln_sigma_n,
+    opponent_gain,
+)
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
@@ -45,7 +51,7 @@ class OpenCVPipeline:
         cv2.setNumThreads(0)  # OpenCV's default: all cores
         lay = layout
         self.A = params.A_min
-        self.state = np.zeros((lay.grid_h, lay.grid_w, 6), np.float32)
+        self.state = np.zeros((lay.grid_h, lay.grid_w, 9), np.float32)
         self.rho_taps = gaussian_taps(lay.px(params.rho_sigma_deg) / lay.cell)
         self.acuity_taps = [gaussian_taps(s) for s in acuity_increments(params, lay.ppd)]
         ys, xs = np.mgrid[: lay.height, : lay.width].astype(np.float32) + 0.5
@@ -110,14 +116,17 @@ class OpenCVPipeline:
         B_inf = b1I / (b1I + self.b2)
         c_inf = 1.0 - self._tone(I)
         B = (self.state[..., :3] - B_inf) * cv2.exp(-(b1I + self.b2) * dt) + B_inf
-        c = (self.state[..., 3:] - c_inf) * math.exp(-p.c2 * dt) + c_inf
-        new = np.clip(np.concatenate([B, c], axis=2), 0, 1)
+        c = (self.state[..., 3:6] - c_inf) * math.exp(-p.c2 * dt) + c_inf
+        x_inf = I * np.float32(math.exp(-ln_sigma_n(self.A, p) / p.n))  # adapted_light
+        x = np.maximum((self.state[..., 6:] - x_inf) * math.exp(-p.c2 * dt) + x_inf, 0)
+        new = np.concatenate([np.clip(np.concatenate([B, c], axis=2), 0, 1), x], axis=2)
         sigma = lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell
         self.state = self._sep(new, gaussian_taps(sigma)) if sigma > 0 else new
         # The maps' colour math per retina cell: the reference's NumPy functions (planar).
-        hwc = (I, self.state[..., :3], B_inf, self.state[..., 3:], c_inf)
-        I, B, B_inf, c, c_inf = (np.moveaxis(a, 2, 0) for a in hwc)
-        gain = opponent_gain(c, c_inf, p)
+        st = self.state
+        hwc = (I, st[..., :3], B_inf, st[..., 3:6], c_inf, st[..., 6:], x_inf)
+        I, B, B_inf, c, c_inf, x, x_inf = (np.moveaxis(a, 2, 0) for a in hwc)
+        gain = opponent_gain(c, c_inf, p, linear_contrast(x, x_inf, p))
         bleach = bleach_response(I, B, B_inf, c, self.A, p)
         self.maps = np.moveaxis(np.concatenate([gain, bleach]), 0, 2).astype(np.float32)
 

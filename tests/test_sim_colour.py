@@ -15,7 +15,14 @@ import numpy as np
 import pytest
 
 from gazehdr.sim import Params, Simulator
-from gazehdr.sim.reference import bleach_response, gamut_map, opponent_gain
+from gazehdr.sim.reference import (
+    AGREE_COS,
+    adapted_light,
+    bleach_response,
+    gamut_map,
+    linear_contrast,
+    opponent_gain,
+)
 
 W, H = 128, 72
 BACKENDS = ["reference", "opencl"]
@@ -81,6 +88,55 @@ def test_saturated_squares_leave_their_complement(backend: str, inducer: int, co
     )
 
 
+#: Fig. 9's blue (docs/model.md, "Fig. 9"): 6000 cd/m^2 in B, 433 cd/m^2, brighter than the grey.
+FIG9_BLUE = np.array([0.0, 0.0, 6000.0])
+#: Seconds after the gaze moves at which the afterimage's hue is checked: its visible life.
+HUE_TIMES = (0.1, 0.3, 1.0, 2.0)
+
+
+def afterimage_changes(backend: str, colour: np.ndarray) -> dict[float, tuple[np.ndarray, float]]:
+    """3 s on a square of `colour` on the grey, then the grey beside it in steps of 0.1 s: at
+    each of HUE_TIMES the change of linear RGB where the square's afterimage lies, from the
+    grey around it, and the grey's mean."""
+    scene = np.full((H, W, 3), GREY, np.float32)
+    x, y = int(FIRST[0]), int(FIRST[1])
+    scene[y - HALF : y + HALF, x - HALF : x + HALF] = colour
+    sim = Simulator(W, H, backend=backend, seed=1)
+    sim.start(scene, FIRST)
+    for _ in range(12):
+        sim.step(0.25, gaze=FIRST)
+    out = {}
+    for k in range(1, round(10 * max(HUE_TIMES)) + 1):
+        v = sim.step(0.1, gaze=SECOND)
+        if k / 10 in HUE_TIMES:
+            after = linear(box(v, SECOND, HALF // 2))
+            around = linear(box(v, (SECOND[0], SECOND[1] + 2.5 * HALF), HALF // 2))
+            assert np.ptp(around) < 1e-3 * around.mean(), f"the grey is not neutral: {around}"
+            out[k / 10] = (after - around, float(around.mean()))
+    return out
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize(
+    "colour",
+    [primary_at_grey_luminance(0), primary_at_grey_luminance(1), primary_at_grey_luminance(2),
+     FIG9_BLUE],
+    ids=["red", "green", "blue", "fig9-blue"],
+)  # fmt: skip
+def test_the_afterimage_keeps_the_complement_as_it_fades(backend: str, colour: np.ndarray):
+    """The afterimage stays the complement of its inducer within 30 degrees of hue while it
+    fades, 0.1 to 2 s after the gaze moved (visible: 0.5 % of the grey or more throughout),
+    for the primaries at the grey's luminance and Fig. 9's brighter blue. The gain's direction
+    comes from the linear adaptation state; read back from the calcium through the tone curve
+    it drifted (a blue's afterimage turned orange: 20 to 40 degrees off after 1 s)."""
+    wanted = (hue(colour) + 180) % 360
+    for t, (change, grey) in afterimage_changes(backend, colour).items():
+        assert np.abs(change).max() > 0.005 * grey, f"{t} s: no visible afterimage: {change}"
+        assert hue_error(hue(change), wanted) <= 30, (
+            f"{t} s: afterimage hue {hue(change):.0f}, the complement is {wanted:.0f}: {change}"
+        )
+
+
 def flash_afterimage(backend: str, background: float) -> float:
     """Fig. 4's flash, 1e7 cd/m^2 for 1/8 s on a disc of 3 degrees radius at the gaze, seen on
     a uniform `background`; 0.05 s later, the display luminance at the disc's centre over that
@@ -130,6 +186,67 @@ def test_the_gain_of_a_neutral_light_is_eq11s() -> None:
         eps = P.alpha_eps
         alpha = (1 - c_now + eps) / (1 - c_then + eps)
         np.testing.assert_allclose(opponent_gain(c, c_inf, P).ravel(), alpha**P.j2, rtol=1e-12)
+
+
+def test_with_the_linear_state_a_neutral_light_still_gets_eq11s_gain() -> None:
+    """With the direction from the linear adaptation state (u along (1, 1, 1)), a neutral
+    light's gain is alpha^j2 in every cone, also where the linear state is on the other side
+    of the light now than the calcium (a flash, then a light dimmer than it but brighter than
+    before: x relaxed past the new light, the calcium not yet)."""
+    eps = P.alpha_eps
+    for c_then, c_now in ((0.1, 0.6), (0.9, 0.4), (0.0, 1.0), (0.7, 0.2)):
+        c = np.full((3, 1, 1), c_then)
+        c_inf = np.full((3, 1, 1), c_now)
+        alpha = (1 - c_now + eps) / (1 - c_then + eps)
+        for sign in (1.0, -1.0):
+            u = np.full((3, 1, 1), 0.3 * sign)
+            np.testing.assert_allclose(opponent_gain(c, c_inf, P, u).ravel(), alpha**P.j2)
+
+
+def test_gain_points_along_the_linear_state_with_eq11s_strength() -> None:
+    """Given the linear contrast u, ln gain is -|ln alpha^j2| u / |u| exactly where the calcium
+    agrees (cosine with -u at least AGREE_COS); at right angles to it, the gain fades to 1."""
+    c = np.array([0.45, 0.3, 0.1])[:, None, None]
+    c_inf = np.full((3, 1, 1), 0.5)
+    eps = P.alpha_eps
+    ln_alpha = (P.j2 * (np.log(1 - c_inf + eps) - np.log(1 - c + eps))).ravel()
+    u = np.array([0.05, 0.4, 3.0])
+    change = np.log(opponent_gain(c, c_inf, P, u[:, None, None])).ravel()
+    assert -ln_alpha @ u / (np.linalg.norm(ln_alpha) * np.linalg.norm(u)) > AGREE_COS
+    np.testing.assert_allclose(change, -np.linalg.norm(ln_alpha) * u / np.linalg.norm(u))
+    across = np.cross(ln_alpha, [1.0, 0.0, 0.0])  # at right angles to Eq. 11's vector
+    np.testing.assert_allclose(opponent_gain(c, c_inf, P, across[:, None, None]), 1.0)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_linear_state_relaxes_in_linear_units_and_keeps_its_direction(backend: str) -> None:
+    """After a change of light, the adapted light x (light over sigma) relaxes to the light
+    now at the calcium's rate c2 in linear units, per cone: x - x_inf = (x_0 - x_inf)
+    e^(-c2 t), so the cone contrast u = x / x_inf - 1 keeps its direction while it fades.
+    Both lights are at most the adaptation floor's luminance, so sigma stays put."""
+    then, now = np.array([30.0, 20.0, 90.0]), np.full(3, 60.0)
+    sim = Simulator(W, H, backend=backend, seed=1)
+    centre = (W / 2, H / 2)
+    sim.start(np.broadcast_to(then, (H, W, 3)).astype(np.float32), centre)
+    lay = sim.layout
+    i, j = lay.grid_h // 2, lay.grid_w // 2
+
+    def cones():  # the light over sigma at the centre, now
+        lms = sim._backend.get("down")[:3, lay.low_h // 2, lay.low_w // 2].astype(np.float64)
+        return adapted_light(lms, sim.adaptation, P)
+
+    x0 = cones()
+    np.testing.assert_allclose(sim._backend.get("state")[6:, i, j], x0, rtol=1e-5)
+    sim.load_scene(np.broadcast_to(now, (H, W, 3)).astype(np.float32), reset=False)
+    x_inf, u0 = None, None
+    for k in range(1, 11):
+        sim.step(0.1, gaze=centre)
+        x_inf = cones()
+        x = sim._backend.get("state")[6:, i, j].astype(np.float64)
+        np.testing.assert_allclose(x - x_inf, (x0 - x_inf) * math.exp(-P.c2 * 0.1 * k), rtol=1e-4)
+        u = linear_contrast(x, x_inf, P)
+        u0 = u if u0 is None else u0
+        np.testing.assert_allclose(u / np.linalg.norm(u), u0 / np.linalg.norm(u0), atol=1e-5)
 
 
 def test_gain_follows_the_cone_contrast_of_the_adapting_light() -> None:

@@ -342,7 +342,7 @@ def recompose(sim: Simulator, *, calcium: bool) -> np.ndarray:
     adaptation gain alpha^j2 (c := 1 in the bleaching term, j2 = 0)."""
     a, p = _arrays(sim), sim.params
     if not calcium:
-        a["state"][3:] = 1.0
+        a["state"][3:6] = 1.0
         p = p.replace(j2=0.0)
     maps = afterimage_maps(
         a["state"], a["down"], a["surround"], sim.adaptation, sim.gaze, sim.layout, p

@@ -137,9 +137,10 @@ StageBackendT = TypeVar("StageBackendT", bound=StageBackend)
 
 
 class JacobsAfterimage:
-    """Sec. 2.2: bleaching and calcium per cone, as the backends implement them natively."""
+    """Sec. 2.2: bleaching and calcium per cone, as the backends implement them natively, and
+    the light each cone is adapted to, in linear units (ours: the calcium gain's direction)."""
 
-    state_channels = 6
+    state_channels = 9
 
     def __init__(self, backend: StageBackend, seed: int) -> None:
         self.backend = backend

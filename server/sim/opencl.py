@@ -45,7 +45,7 @@ KERNEL_FILES = (
     "sec5_discussion.cl",
 )
 TAPS_CACHE = 32  # blur tap buffers kept per backend
-STATE_PLANES = 8  # retinal state planes allocated; an afterimage model uses up to this many
+STATE_PLANES = 9  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
@@ -138,7 +138,7 @@ class OpenCLBackend:
             "surround": (3, lay.low_h, lay.low_w),
             "fill": (3, lay.low_h, lay.low_w),
             "A": (1,),
-            "state": (6, lay.grid_h, lay.grid_w),
+            "state": (9, lay.grid_h, lay.grid_w),
             "maps": (6, lay.grid_h, lay.grid_w),
             "d": (lay.height, lay.width),
             "G": (3, lay.height, lay.width),
@@ -384,7 +384,7 @@ class OpenCLBackend:
         s = self._settle_buf
         if not s:
             mf = cl.mem_flags
-            sizes = {"rate": 3, "u": 6, "w": 6, "b": 6}
+            sizes = {"rate": 3, "u": 9, "w": 9, "b": 9}
             s.update(
                 {n: cl.Buffer(self.ctx, mf.READ_WRITE, k * grid_planes) for n, k in sizes.items()}
             )
@@ -398,9 +398,9 @@ class OpenCLBackend:
             *self.grid_args(gaze), np.float32(dt), decay_c, b["state"], s["rate"], s["u"], s["b"],
         )  # fmt: skip
         taps = self.taps_for(plan.sigma)
-        self.blur(s["b"], s["b"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 6)
+        self.blur(s["b"], s["b"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 9)
         for k in range(plan.iterations):
-            self.blur(s["u"], s["w"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 6)
+            self.blur(s["u"], s["w"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 9)
             self.k["retina_settle_step"](
                 self.queue, self._grid8(), None, b["state"], s["u"], s["w"], s["b"], s["rate"],
                 decay_c, s["diag"], np.int32(lay.grid_w), np.int32(lay.grid_h),

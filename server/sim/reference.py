@@ -8,7 +8,9 @@ Conventions shared with the kernels:
 - the low-resolution maps average `cell`×`cell` screen pixels; the retina grid has the same
   cells and spans twice the screen, centred on the gaze (retinal offset 0 = grid centre); off
   the screen it sees the surround map at the nearest screen cell (`layout.surround_map`);
-- calcium is stored normalised, c = C / C_max, so c_inf = 1 - R (Eq. 10 divided by C_max).
+- calcium is stored normalised, c = C / C_max, so c_inf = 1 - R (Eq. 10 divided by C_max);
+- the retina state has nine planes: B (Eq. 5), c (Eq. 9) and x, the light each cone is adapted
+  to over sigma (ours, `adapted_light`), which gives the calcium gain its direction.
 """
 
 from __future__ import annotations
@@ -166,20 +168,33 @@ def retina_input(down, surround, gaze, lay: Layout) -> np.ndarray:
     return bilinear(down[:3], X, Y, outside=surround)
 
 
+def adapted_light(I: np.ndarray, A: float, p: Params) -> np.ndarray:
+    """The light each cone adapts to, in units of the semi-saturation sigma of Eq. 2 (ours):
+    I / sigma, the Naka-Rushton odds R / (1 - R) to the power 1/n, the target of the linear
+    adaptation state (`retina_update`) as 1 - R(I) is the calcium's."""
+    return np.asarray(I, np.float64) * math.exp(-ln_sigma_n(A, p) / p.n)
+
+
 def retina_update(state, down, surround, A, gaze, dt, reset, lay: Layout, p: Params):
     """Bleaching Eq. 5-6 and calcium Eq. 9-10 per cone, then the sqrt(dt)-scaled map blur.
-    With reset, the equilibrium: s_inf, or for dt > 0 the fixed point of such steps."""
+    Planes: B (3), c = C / C_max (3), and x (3), the light each cone is adapted to
+    (`adapted_light`), relaxing in linear units with the calcium's rate c2 (ours: it keeps the
+    direction of the calcium gain, `opponent_gain`). With reset, the equilibrium: s_inf, or
+    for dt > 0 the fixed point of such steps."""
     I = retina_input(down, surround, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
-    s_inf = np.concatenate([b1 * I / (b1 * I + b2), 1.0 - tone(I, A, p)])  # Eq. 6, Eq. 10 / C_max
-    R = np.concatenate([np.exp(-(b1 * I + b2) * dt), np.full(I.shape, math.exp(-p.c2 * dt))])
+    B_inf, R_I, x_inf = b1 * I / (b1 * I + b2), tone(I, A, p), adapted_light(I, A, p)
+    s_inf = np.concatenate([B_inf, 1.0 - R_I, x_inf])  # Eq. 6, Eq. 10 / C_max, x
+    decay_c = np.full((6, *I.shape[1:]), math.exp(-p.c2 * dt))
+    R = np.concatenate([np.exp(-(b1 * I + b2) * dt), decay_c])
     if reset and dt > 0:  # calcium settles as 1 - c (see settle)
-        z = settle(np.concatenate([s_inf[:3], tone(I, A, p)]), R, dt, lay, p)
-        return np.concatenate([z[:3], 1.0 - z[3:]])
+        z = settle(np.concatenate([B_inf, R_I, x_inf]), R, dt, lay, p)
+        return np.concatenate([z[:3], 1.0 - z[3:6], z[6:]])
     if reset:
         return s_inf
-    new = np.clip((state - s_inf) * R + s_inf, 0, 1)  # Eq. 5, 9
+    new = (state - s_inf) * R + s_inf  # Eq. 5, 9; x alike
+    new = np.concatenate([np.clip(new[:6], 0, 1), np.maximum(new[6:], 0)])
     return blur2d(new, map_blur_sigma(dt, lay, p))
 
 
@@ -199,28 +214,61 @@ def settle(s_inf, R, dt: float, lay: Layout, p: Params) -> np.ndarray:
 #: Cap on ln(I_adapt / I_now) in `opponent_gain`: the squares of the cone contrasts stay finite in
 #: float32. With the default n the Eq. 11 guard keeps it below 19.7, so it never binds there.
 LN_CONTRAST_MAX = 20.0
+#: The cosine between the calcium's gain and -u below which the gain fades out (`opponent_gain`).
+AGREE_COS = 0.5
 
 
-def opponent_gain(c: np.ndarray, c_inf: np.ndarray, p: Params) -> np.ndarray:
+def contrast_floor(p: Params) -> float:
+    """The light (over sigma) whose response is alpha_eps: below it a cone counts as dark, as
+    Eq. 11's guard has it; `linear_contrast` divides by no less."""
+    return math.exp((math.log(p.alpha_eps) - math.log1p(-p.alpha_eps)) / p.n)
+
+
+def linear_contrast(x: np.ndarray, x_inf: np.ndarray, p: Params) -> np.ndarray:
+    """u = x / x_inf - 1 per cone, the linear cone contrast of the light the eye is adapted to
+    (the state's x) against the light now (`adapted_light`), x_inf at least `contrast_floor`."""
+    return (x - x_inf) / np.maximum(x_inf, contrast_floor(p))
+
+
+def opponent_gain(
+    c: np.ndarray, c_inf: np.ndarray, p: Params, u: np.ndarray | None = None
+) -> np.ndarray:
     """The local adaptation gain of Eq. 11-12 per cone, pointed along the adapting light (ours).
 
     Eq. 11 gives each cone its own gain alpha^j2; these keep their strength here (the length of
-    the vector of ln alpha^j2) but act along -u, u the linear cone contrast of the light the
-    calcium adapted to against the light now. Per cone, the Naka-Rushton odds R / (1 - R) =
-    (I / sigma)^n, and c, c_inf store 1 - R, so I_adapt / I_now = (odds(1 - c) / odds(1 -
-    c_inf))^(1/n). A gain along -u leaves the additive complement of the adapting light, the
-    linear rebound of subtractive adaptation in the cone-opponent retinal ganglion cells (Zaidi
-    et al. 2012); per-cone gains would compress a blue's large S contrast far more than its small
-    L - M contrast and turn its afterimage orange. A neutral light gives exactly alpha^j2.
+    the vector of ln alpha^j2) but act along -u, u the linear cone contrast of the light the eye
+    adapted to against the light now. A gain along -u leaves the additive complement of the
+    adapting light, the linear rebound of subtractive adaptation in the cone-opponent retinal
+    ganglion cells (Zaidi et al. 2012); per-cone gains would compress a blue's large S contrast
+    far more than its small L - M contrast and turn its afterimage orange.
+
+    The model passes u from the linear adaptation state (`linear_contrast`), which relaxes in
+    linear units, so u keeps its direction as the afterimage fades. Without u it is read from
+    the calcium through the tone curve: the odds R / (1 - R) = (I / sigma)^n, and c, c_inf store
+    1 - R, so I_adapt / I_now = (odds(1 - c) / odds(1 - c_inf))^(1/n); exact when the gaze
+    moves, but as the calcium relaxes in response units the S cone's large contrast shrinks
+    fastest and a blue's afterimage drifts to orange (docs/model.md, "Adaptation colour").
+
+    The calcium decides the sign: the gain points the way of Eq. 11's vector of ln alpha^j2
+    (-u or u, whichever is nearer). Where the two are almost at right angles (cosine below
+    AGREE_COS, histories in which the calcium and the linear state disagree) it fades through
+    1, continuously. A neutral light (u along (1, 1, 1)) gives exactly alpha^j2 in every cone.
     """
-    eps = p.alpha_eps
+    eps, side = p.alpha_eps, None
     ln_R_now, ln_R_then = np.log(1.0 - c_inf + eps), np.log(1.0 - c + eps)
     ln_gain = p.j2 * (ln_R_now - ln_R_then)  # ln alpha^j2, Eq. 11 (guarded)
-    ln_ratio = (ln_R_then - np.log(c + eps) - ln_R_now + np.log(c_inf + eps)) / p.n
-    u = np.expm1(np.minimum(ln_ratio, LN_CONTRAST_MAX))
     length = np.sqrt((ln_gain**2).sum(axis=0))
-    u_length = np.sqrt((u**2).sum(axis=0))
-    return np.exp(-length * u / np.maximum(u_length, np.finfo(np.float32).tiny))
+    if u is None:  # read back from the calcium: points against ln_gain, cone by cone
+        ln_ratio = (ln_R_then - np.log(c + eps) - ln_R_now + np.log(c_inf + eps)) / p.n
+        u = np.expm1(np.minimum(ln_ratio, LN_CONTRAST_MAX))
+        side = 1.0
+    tiny = np.finfo(np.float32).tiny
+    u = u / np.maximum(np.abs(u).max(axis=0), tiny)  # in [-1, 1]: its square cannot overflow
+    u = u / np.maximum(np.sqrt((u**2).sum(axis=0)), tiny)
+    if side is None:
+        cosine = -(ln_gain * u).sum(axis=0) / np.maximum(length, tiny)
+        side = np.clip(cosine / AGREE_COS, -1.0, 1.0)
+    return np.exp(-length * side * u)
 
 
 def bleach_response(
@@ -251,15 +299,15 @@ def bleach_response(
 
 def afterimage_maps(state, down, surround, A, gaze, lay: Layout, p: Params) -> np.ndarray:
     """The maps every afterimage model makes for `compose`: a multiplicative gain per cone
-    (here Eq. 11's, along the adapting light: `opponent_gain`) and an additive linear-RGB term
-    (here H times Eq. 12's bleaching term, as a response: `bleach_response`)."""
+    (here Eq. 11's, along the light of the linear state: `opponent_gain`) and an additive
+    linear-RGB term (here H times Eq. 12's bleaching term, as a response: `bleach_response`)."""
     I = retina_input(down, surround, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
     B_inf = b1 * I / (b1 * I + b2)  # Eq. 6
     c_inf = 1.0 - tone(I, A, p)  # Eq. 10 / C_max
-    B, c = state[:3], state[3:]
-    gain = opponent_gain(c, c_inf, p)
+    B, c = state[:3], state[3:6]
+    gain = opponent_gain(c, c_inf, p, linear_contrast(state[6:9], adapted_light(I, A, p), p))
     bleach = bleach_response(I, B, B_inf, c, A, p)
     return np.concatenate([gain, np.tensordot(np.asarray(p.H), bleach, axes=1)])
 
@@ -355,7 +403,7 @@ class ReferenceBackend:
             "surround": np.zeros((3, lay.low_h, lay.low_w)),
             "fill": np.zeros((3, lay.low_h, lay.low_w)),
             "A": np.array([params.A_min]),
-            "state": np.zeros((6, lay.grid_h, lay.grid_w)),
+            "state": np.zeros((9, lay.grid_h, lay.grid_w)),
             "maps": np.zeros((6, lay.grid_h, lay.grid_w)),
             "d": np.zeros((lay.height, lay.width), np.int32),
             "G": np.zeros((3, lay.height, lay.width)),

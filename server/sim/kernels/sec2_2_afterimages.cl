@@ -1,6 +1,8 @@
 // Sec. 2.2, afterimages: bleaching (Eq. 4-6) and calcium (Eq. 8-11) per cone on the retina
 // grid, which is centred on the gaze and spans twice the screen. Calcium is stored normalised,
-// c = C / C_max, so c_inf = 1 - R (Eq. 10 over C_max). One work-item makes 8 neighbouring
+// c = C / C_max, so c_inf = 1 - R (Eq. 10 over C_max). The state's planes: B (3), c (3), x (3),
+// the light each cone is adapted to over sigma (ours: reference.adapted_light), relaxing in
+// linear units at the calcium's rate; it gives the calcium gain its direction. One work-item makes 8 neighbouring
 // cells of a grid row; global size (ceil(grid_w / 8), grid_h). Off the screen the retina reads
 // the `surround` map (L, M, S planes of the low-res grid, made by surround_map below) at the
 // nearest screen cell.
@@ -91,6 +93,9 @@ inline float8 bleach_inf8(__constant const params_t *P, int c, float8 I) {
 
 inline float8 load_cell8(__global const float *p, int j, int n) { return load8_row(p, j, n); }
 
+// 1 / sigma of Eq. 2 (reference.adapted_light: x_inf = I / sigma), from ln sigma^n.
+inline float inv_sigma(__constant const params_t *P, float lsn) { return exp(-lsn / P->n); }
+
 inline void store_cell8(__global float *p, float8 v, int j, int n) {
     if (j + VEC <= n) STORE8_G(p + j, v);
     else store8_part(p + j, v, n - j);
@@ -109,31 +114,35 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
     size_t row = (size_t)i * grid_w;
     cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
-    float lsn = ln_sigma_n_of(P, A[0]);
+    float lsn = ln_sigma_n_of(P, A[0]), xs = inv_sigma(P, lsn);
     for (int c = 0; c < 3; ++c) {
         float8 B_inf = bleach_inf8(P, c, In[c]);
         float8 c_inf = 1.0f - tone8(P, lsn, In[c]);
-        float8 B = B_inf, ca = c_inf;
+        float8 x_inf = In[c] * xs;
+        float8 B = B_inf, ca = c_inf, x = x_inf;
         if (!reset) {
             float8 rate = P->b1[c] * In[c] + P->b2[c];
             B = (load_cell8(state + c * plane + row, j, grid_w) - B_inf) * exp8(-rate * dt) + B_inf;
             ca = (load_cell8(state + (3 + c) * plane + row, j, grid_w) - c_inf) * decay_c + c_inf;
+            x = (load_cell8(state + (6 + c) * plane + row, j, grid_w) - x_inf) * decay_c + x_inf;
             B = CLAMP(B, 0.0f, 1.0f);
             ca = CLAMP(ca, 0.0f, 1.0f);
+            x = MAX(x, 0.0f);
         }
         store_cell8(out + c * plane + row, B, j, grid_w);
         store_cell8(out + (3 + c) * plane + row, ca, j, grid_w);
+        store_cell8(out + (6 + c) * plane + row, x, j, grid_w);
     }
 }
 
-// Cap on ln(I_adapt / I_now) in the gain's direction (reference.LN_CONTRAST_MAX): the squared
-// cone contrasts stay finite in float32.
-#define LN_CONTRAST_MAX 20.0f
+// The cosine between the calcium's gain and -u below which the gain fades (reference.AGREE_COS).
+#define AGREE_COS 0.5f
 
 // The maps of 8 cells (reference.afterimage_maps). Gain: Eq. 11's alpha^j2 per cone (guarded by
 // alpha_eps so darkness gives 1, not 0/0), its length kept but pointed along -u, u the linear
-// cone contrast of the light the calcium adapted to against the light now (ours:
-// reference.opponent_gain). Add: Eq. 12's bleaching term times the display gain, as the cone's
+// cone contrast of the light the eye adapted to (the state's x) against the light now, on the
+// side of Eq. 11's vector and fading where the two are near right angles (ours:
+// reference.opponent_gain, linear_contrast). Add: Eq. 12's bleaching term times the display gain, as the cone's
 // response to its equivalent light (ours: reference.bleach_response), to linear RGB through H.
 inline void maps8(__constant const params_t *P, __global const float *down,
                   __global const float *surround, float8 *st, __global float *maps, float lsn,
@@ -144,16 +153,17 @@ inline void maps8(__constant const params_t *P, __global const float *down,
     cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
     float8 u[3], ln_gain[3], bleach[3];
-    float8 len_g = 0.0f, len_u = 0.0f;
-    float eps = P->alpha_eps, lsn_floor = ln_sigma_n_of(P, P->A_min);
+    float8 len_g = 0.0f, u_max = 0.0f;
+    float eps = P->alpha_eps, lsn_floor = ln_sigma_n_of(P, P->A_min), xs = inv_sigma(P, lsn);
+    float floor_x = exp((log(eps) - log1p(-eps)) / P->n);  // reference.contrast_floor
     for (int c = 0; c < 3; ++c) {
         float8 ca = st[3 + c], R_now = tone8(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
         float8 ln_now = log8(R_now + eps), ln_then = log8(1.0f - ca + eps);
         ln_gain[c] = P->j2 * (ln_now - ln_then);  // ln alpha^j2, Eq. 11
-        float8 ln_ratio = (ln_then - log8(ca + eps) - ln_now + log8(1.0f - R_now + eps)) / P->n;
-        u[c] = exp8(MIN(ln_ratio, LN_CONTRAST_MAX)) - 1.0f;
+        float8 x_inf = In[c] * xs;
+        u[c] = (st[6 + c] - x_inf) / MAX(x_inf, floor_x);  // reference.linear_contrast
         len_g += ln_gain[c] * ln_gain[c];
-        len_u += u[c] * u[c];
+        u_max = MAX(u_max, fabs(u[c]));
         // Bleaching (Eq. 12) as a response x; its light R^-1(x) at A_min adds to the input.
         float8 x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_inf8(P, c, In[c]), 0.0f);
         x = MIN(x, 1.0f - eps);
@@ -164,7 +174,21 @@ inline void maps8(__constant const params_t *P, __global const float *down,
         float8 unmasked = one_minus_exp_neg8(P->n * log1p8(ratio));
         bleach[c] = x > 0.0f ? (1.0f - R_now) * tone8(P, lsn, In[c] + I_x) * unmasked : 0.0f;
     }
-    float8 scale = -sqrt(len_g) / MAX(sqrt(len_u), FLT_MIN);
+    // u / max |u| in [-1, 1], then its unit vector; the side (cosine / AGREE_COS, clamped)
+    float8 len_u = 0.0f, dot = 0.0f;
+    u_max = MAX(u_max, FLT_MIN);
+    for (int c = 0; c < 3; ++c) {
+        u[c] = u[c] / u_max;
+        len_u += u[c] * u[c];
+    }
+    len_u = MAX(sqrt(len_u), FLT_MIN);
+    for (int c = 0; c < 3; ++c) {
+        u[c] = u[c] / len_u;
+        dot -= ln_gain[c] * u[c];
+    }
+    len_g = sqrt(len_g);
+    float8 side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
+    float8 scale = -len_g * side;
     for (int c = 0; c < 3; ++c) store_cell8(maps + c * plane + row, exp8(scale * u[c]), j, grid_w);
     rgb8_t add = mat8_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
     store_cell8(maps + 3 * plane + row, add.r, j, grid_w);
@@ -183,14 +207,14 @@ __kernel void afterimage_maps(__constant const params_t *P, __global const float
     if (j >= grid_w || i >= grid_h) return;
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
-    float8 st[6];
-    for (int c = 0; c < 6; ++c) st[c] = load_cell8(state + c * plane + row, j, grid_w);
+    float8 st[9];
+    for (int c = 0; c < 9; ++c) st[c] = load_cell8(state + c * plane + row, j, grid_w);
     maps8(P, down, surround, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h,
           gx, gy, j, i);
 }
 
 // The map blur of Sec. 2.4 (separable Gaussian, edges clamped, as blur_h then blur_v) of all
-// six state planes in one pass, src -> state; cells inside the window [j0, j1] x [i0, i1] also
+// nine state planes in one pass, src -> state; cells inside the window [j0, j1] x [i0, i1] also
 // get their maps, from the blurred state still in registers.
 __kernel void retina_blur_maps(__constant const params_t *P, __global const float *down,
                                __global const float *surround, __global const float *src,
@@ -204,10 +228,10 @@ __kernel void retina_blur_maps(__constant const params_t *P, __global const floa
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
     int inner = j >= radius && j + VEC + radius <= grid_w;
-    float8 st[6];
+    float8 st[9];
     if (radius == 1 && inner && i >= 1 && i + 1 < grid_h) {  // the usual 3-tap blur, unrolled
         float t0 = taps[0], t1 = taps[1], t2 = taps[2];
-        for (int c = 0; c < 6; ++c) {
+        for (int c = 0; c < 9; ++c) {
             __global const float *p = src + c * plane + row + j;
 #define H3(q) (t0 * LOAD8_G((q) - 1) + t1 * LOAD8_G(q) + t2 * LOAD8_G((q) + 1))
             st[c] = t0 * H3(p - grid_w) + t1 * H3(p) + t2 * H3(p + grid_w);
@@ -215,7 +239,7 @@ __kernel void retina_blur_maps(__constant const params_t *P, __global const floa
             STORE8_G(state + c * plane + row + j, st[c]);
         }
     } else {
-        for (int c = 0; c < 6; ++c) {
+        for (int c = 0; c < 9; ++c) {
             __global const float *p = src + c * plane;
             float8 acc = 0.0f;
             for (int dy = -radius; dy <= radius; ++dy) {
@@ -242,8 +266,8 @@ __kernel void retina_blur_maps(__constant const params_t *P, __global const floa
 // Settling (layout.settle_plan): the state that steps of dt leave as it is, s = G(R s + (1 - R)
 // s_inf), by Jacobi iterations. Calcium settles as 1 - c, the same equation (G keeps a
 // constant), which in the dark is small and so exact in float32 where c, near 1, is not.
-// retina_settle_init writes z = z_inf (B_inf; 1 - c_inf = R(I), Eq. 10), R of the bleaching
-// planes (calcium's is decay_c everywhere), u = R z and b = (1 - R) z_inf, which the host blurs.
+// retina_settle_init writes z = z_inf (B_inf; 1 - c_inf = R(I), Eq. 10; x_inf = I / sigma), R of
+// the bleaching planes (calcium's and x's is decay_c everywhere), u = R z and b = (1 - R) z_inf, which the host blurs.
 __kernel void retina_settle_init(__constant const params_t *P, __global const float *down,
                                  __global const float *surround, __global const float *A,
                                  int low_w, int low_h, int cell, int grid_w, int grid_h,
@@ -255,9 +279,10 @@ __kernel void retina_settle_init(__constant const params_t *P, __global const fl
     size_t plane = (size_t)grid_w * grid_h, row = (size_t)i * grid_w;
     cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
     float8 In[3] = {I.l, I.m, I.s};
-    float lsn = ln_sigma_n_of(P, A[0]);
+    float lsn = ln_sigma_n_of(P, A[0]), xs = inv_sigma(P, lsn);
     for (int c = 0; c < 3; ++c) {
         float8 B_inf = bleach_inf8(P, c, In[c]), y_inf = tone8(P, lsn, In[c]);
+        float8 x_inf = In[c] * xs;
         float8 R = exp8(-(P->b1[c] * In[c] + P->b2[c]) * dt);  // Eq. 5
         store_cell8(state + c * plane + row, B_inf, j, grid_w);
         store_cell8(state + (3 + c) * plane + row, y_inf, j, grid_w);
@@ -266,12 +291,15 @@ __kernel void retina_settle_init(__constant const params_t *P, __global const fl
         store_cell8(u + (3 + c) * plane + row, decay_c * y_inf, j, grid_w);
         store_cell8(b + c * plane + row, (1.0f - R) * B_inf, j, grid_w);
         store_cell8(b + (3 + c) * plane + row, (1.0f - decay_c) * y_inf, j, grid_w);
+        store_cell8(state + (6 + c) * plane + row, x_inf, j, grid_w);
+        store_cell8(u + (6 + c) * plane + row, decay_c * x_inf, j, grid_w);
+        store_cell8(b + (6 + c) * plane + row, (1.0f - decay_c) * x_inf, j, grid_w);
     }
 }
 
 // One Jacobi iteration, z <- (b + w - d R z) / (1 - d R) with w = G(u) and d = diag_x[j]
 // diag_y[i], the diagonal of G (`diag` holds both); then u = R z for the next one, or, after
-// the last, the state itself (c = 1 - z).
+// the last, the state itself (c = 1 - z; B and x are z).
 __kernel void retina_settle_step(__global float *state, __global float *u,
                                  __global const float *w, __global const float *b,
                                  __global const float *rate, float decay_c,
@@ -280,13 +308,13 @@ __kernel void retina_settle_step(__global float *state, __global float *u,
     if (j >= grid_w) return;
     size_t plane = (size_t)grid_w * grid_h, row = (size_t)i * grid_w;
     float8 d = load_cell8(diag, j, grid_w) * diag[grid_w + i];
-    for (int c = 0; c < 6; ++c) {
+    for (int c = 0; c < 9; ++c) {
         size_t at = c * plane + row;
         float8 R = c < 3 ? load_cell8(rate + at, j, grid_w) : (float8)(decay_c);
         float8 dR = d * R;
         float8 z = load_cell8(b + at, j, grid_w) + load_cell8(w + at, j, grid_w);
         z = (z - dR * load_cell8(state + at, j, grid_w)) / (1.0f - dR);
-        store_cell8(state + at, last && c >= 3 ? 1.0f - z : z, j, grid_w);
+        store_cell8(state + at, last && c >= 3 && c < 6 ? 1.0f - z : z, j, grid_w);
         store_cell8(u + at, R * z, j, grid_w);
     }
 }
