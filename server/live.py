@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import ctypes
-import ctypes.util
 import dataclasses
 import logging
 import secrets
@@ -24,6 +22,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
+from gazehdr import heap
 from gazehdr.drivers.sessionlog import SessionLogWriter
 from gazehdr.gaze import Trackers
 from gazehdr.metrics import Metrics
@@ -46,20 +45,7 @@ class TooManySessionsError(Exception):
     as it may); the message is the WebSocket close reason, at most 123 bytes."""
 
 
-def _libc_malloc_trim() -> Callable[[], None] | None:
-    """glibc's `malloc_trim(0)`, or None elsewhere. glibc keeps freed heap pages (and every
-    thread's arena) for reuse; a session's frames and scene copies are many megabytes freed in
-    small pieces between other allocations, so without a trim the server stays near its peak
-    after sessions end (measured: tests/session_memory.py, docs/server.md#memory)."""
-    name = ctypes.util.find_library("c")
-    try:
-        trim = ctypes.CDLL(name).malloc_trim if name else None
-    except (OSError, AttributeError):
-        return None
-    return None if trim is None else (lambda: trim(0))
-
-
-_malloc_trim = _libc_malloc_trim()
+_malloc_trim = heap.trimmer()
 
 
 @dataclass
@@ -415,7 +401,7 @@ class SessionHub:
         session from being freed at once by reference counting: its device buffers, frames and
         scene go back now, not at some later garbage collection. The task (its exception's
         traceback holds the task's frames, and so the session) is dropped by the session, and
-        the C heap is trimmed once the task is gone (`_libc_malloc_trim`)."""
+        the C heap is trimmed once the task is gone (`gazehdr.heap`)."""
         live.task = None
         if _malloc_trim is not None:
             loop = asyncio.get_running_loop()

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import uvicorn
 
+from gazehdr import heap
 from gazehdr.app import ServerConfig, create_app
 from gazehdr.drivers import registry
 from gazehdr.drivers.daemon import run_daemon
@@ -244,6 +245,7 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     config = build_config(**options)
     for spec in trackers:
         check_tracker_spec(spec)
+    heap.limit_arenas()  # before any session's thread: memory goes back when sessions end
     server = uvicorn_server(create_app(config), config.host, config.port)
     sock = bind(config.host, config.port)
     port = sock.getsockname()[1]

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import websockets
 
+TOKEN = "session-memory"  # the credential the measured server is started with
+
 
 def rss_mib(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -36,12 +38,11 @@ def settled_rss(pid: int, timeout: float = 10.0) -> float:
     """RSS once it stops falling (a session's memory goes back just after its end is
     announced: its last step finishes, then the heap is trimmed), at most `timeout` s."""
     deadline = time.monotonic() + timeout
-    last = rss_mib(pid)
-    while time.monotonic() < deadline:
+    last, steady = rss_mib(pid), 0
+    while time.monotonic() < deadline and steady < 4:  # unchanged (within 1 MiB) for 2 s
         time.sleep(0.5)
         now = rss_mib(pid)
-        if abs(now - last) < 1:
-            return now
+        steady = steady + 1 if abs(now - last) < 1 else 0
         last = now
     return last
 
@@ -63,7 +64,10 @@ def wait_sessions(url: str, n: int, timeout: float = 60.0) -> None:
 async def viewer(ws_url: str, frames: int, hold: asyncio.Event) -> str:
     """Connect, take `frames` frames, wait for `hold`, leave. Returns 'ok' or the close reason."""
     try:
-        async with websockets.connect(f"{ws_url}/ws/view", max_size=None) as ws:
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        async with websockets.connect(
+            f"{ws_url}/ws/view", max_size=None, additional_headers=auth
+        ) as ws:
             got = 0
             while got < frames:
                 if isinstance(await ws.recv(), bytes):
@@ -102,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as data:
         cmd = [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", args.size,
-               "--data-dir", data, "--fps", "30"]  # fmt: skip
+               "--data-dir", data, "--fps", "30", "--token", TOKEN]  # fmt: skip
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
         try:
             first = proc.stdout.readline()
