@@ -31,6 +31,7 @@ from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.gaze import TrackerFeed
 from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from gazehdr.metrics import Counter, Metrics
+from gazehdr.params_schema import ParamsChange, changed
 from gazehdr.protocol import Ack, ProtocolError, SceneMaps, parse_control
 from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from gazehdr.recordings import RecordingLibrary
@@ -259,8 +260,9 @@ def create_app(config: ServerConfig) -> FastAPI:
         }
 
     @app.put("/api/params", responses={400: {"description": "the body is not JSON"}})
-    async def put_params(values: dict[str, Any] = Body(...)) -> dict[str, Any]:  # noqa: B008
+    async def put_params(body: ParamsChange) -> dict[str, Any]:
         """Change (some of) the parameters new sessions start with."""
+        values = changed(body)
         try:
             check_remote_change(defaults["params"], values)
             params = Params.from_dict({**defaults["params"].to_dict(), **values})
