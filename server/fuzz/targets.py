@@ -171,6 +171,7 @@ def split_bids(data: bytes) -> tuple[bytes, bytes, bytes]:
 
 def _bids() -> Loaded:
     from gazehdr.drivers.formats.bids import read_bids
+    from gazehdr.drivers.samples import ScreenGeometry
     from gazehdr.drivers.sessionlog import FormatError
 
     folder = scratch() / "sub-01" / "beh"
@@ -188,7 +189,9 @@ def _bids() -> Loaded:
             events_path.write_bytes(gzip.compress(events, mtime=0, compresslevel=1))
         else:
             events_path.unlink(missing_ok=True)
-        return read_bids(physio)
+        # The screen given, as `gazehdr import --screen` does: a run without an events sidecar
+        # saying it would otherwise be refused before any row is read.
+        return read_bids(physio, geometry=ScreenGeometry())
 
     return one, (FormatError,)
 
