@@ -66,25 +66,30 @@ def test_target_runs_clean_from_its_corpus(name: str, tmp_path: Path) -> None:
 # --- the runner catches what it must ----------------------------------------------------------
 
 
-def test_runner_reports_an_exception_and_a_deadly_signal(tmp_path: Path) -> None:
-    """A child that raises and a child that dies of SIGSEGV, as libFuzzer reports them."""
+def test_runner_reports_an_exception_a_deadly_signal_and_a_hang(tmp_path: Path) -> None:
+    """A child that raises, one that dies of SIGSEGV and one that hangs, as libFuzzer (under
+    the runner's options) reports them, and the input kept."""
     code = (
-        "import atheris, sys, ctypes\n"
+        "import atheris, sys, ctypes, time\n"
         "def one(data):\n"
         "    if data.startswith(b'RAISE'): raise KeyError('planted')\n"
         "    if data.startswith(b'SEGV'): ctypes.string_at(0)\n"
+        "    if data.startswith(b'HANG'): time.sleep(30)\n"
         "atheris.Setup(sys.argv, one); atheris.Fuzz()\n"
     )
-    for planted, expected in ((b"RAISE", "KeyError"), (b"SEGV", "deadly signal")):
+    cases = [(b"RAISE", "KeyError", "crash-"), (b"SEGV", "deadly signal", "crash-"),
+             (b"HANG", "timeout after", "timeout-")]  # fmt: skip
+    for planted, expected, prefix in cases:
         seeds = tmp_path / planted.decode()
         seeds.mkdir()
         (seeds / "x").write_bytes(planted)
-        args = [sys.executable, "-c", code, f"-artifact_prefix={seeds}/", "-runs=10", str(seeds)]
-        proc = subprocess.run(args, capture_output=True, text=True, check=False)
+        args = [sys.executable, "-c", code, f"-artifact_prefix={seeds}/", "-runs=10", "-timeout=1"]
+        proc = subprocess.run([*args, str(seeds)], capture_output=True, text=True, check=False)
         assert proc.returncode != 0
         _, what = _what(proc.stdout + proc.stderr)
         assert expected in what, what
-        assert list(seeds.glob("crash-*"))  # the input kept as a reproducer
+        (kept,) = seeds.glob(f"{prefix}*")  # the input kept as a reproducer
+        assert kept.read_bytes() == planted
 
 
 # --- EXR: the issue's bug, through the real upload route --------------------------------------
