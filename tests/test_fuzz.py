@@ -34,10 +34,10 @@ from gazehdr.scenes.decoding import SceneError
 from gazehdr.scenes.exr import write_exr
 from gazehdr.scenes.library import SceneLibrary
 
-#: Inputs per target in CI: a few seconds each on a 2-core machine (the corpus included).
+#: Inputs per target in CI: 1 to 5 s each on a 2-core machine (the corpus included).
 CI_RUNS = {
-    "exr": 2000, "hid": 3000, "sessionlog": 150, "eyelink": 400, "tobii": 400, "pupil": 400,
-    "bids": 300, "xdf": 1000, "control": 1500, "wire": 1000,
+    "exr": 6000, "hid": 12000, "sessionlog": 1200, "eyelink": 1500, "tobii": 2000,
+    "pupil": 2500, "bids": 1200, "xdf": 2000, "control": 20000, "wire": 20000,
 }  # fmt: skip
 
 
