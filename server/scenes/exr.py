@@ -17,9 +17,12 @@ into linear Rec.709 with a Bradford adaptation from the file's white to D65, so 
 neutral (ACES AP0 files, for instance, come out right).
 
 Bad files. Anything unreadable raises `SceneError` naming the file and the fault: missing,
-empty, not an EXR, corrupted or truncated header or pixels, no usable channels, an unknown
-layer, too large. The pixel count (all parts, as the library reads them all) is checked
-against `max_pixels` from the header alone, before any pixel data is allocated.
+empty, not an EXR, corrupted or truncated header or pixels, a channel name that is not UTF-8
+(shown as escaped bytes), no usable channels, an unknown layer, too large. An attribute we read
+(`whiteLuminance`, `chromaticities`, a part's `name`) of a type the library does not know is
+ignored with a note, refused, or replaced by `partN`. The pixel count (all parts, as the library
+reads them all) is checked against `max_pixels` from the header alone, before any pixel data is
+allocated.
 
 NaN and Inf in a file are passed through unchanged: the simulator sanitises its input.
 """
