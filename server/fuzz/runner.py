@@ -12,6 +12,7 @@ when any target crashed.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
 import subprocess
@@ -101,8 +102,14 @@ def run_target(
             left = seconds - (time.monotonic() - start)
             args.append(f"-max_total_time={max(int(left), 1)}")
         log_path = logs / f"{name}-{attempt}.log"
-        with open(log_path, "w+") as log_file:
-            proc = subprocess.run(args, stdout=log_file, stderr=subprocess.STDOUT, check=False)
+        with (
+            open(log_path, "w+") as log_file,
+            tempfile.TemporaryDirectory(prefix="gazehdr-fuzz-") as scratch,
+        ):
+            env = {**os.environ, "GAZEHDR_FUZZ_SCRATCH": scratch}
+            proc = subprocess.run(
+                args, stdout=log_file, stderr=subprocess.STDOUT, env=env, check=False
+            )
             log_file.seek(0)
             log = log_file.read()
         done = _RUNS.findall(log) or _DONE.findall(log)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import gzip
+import os
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -44,11 +45,14 @@ _DIR: Path | None = None
 
 
 def scratch() -> Path:
-    """This process's folder for the files an input is written to (removed at exit)."""
+    """This process's folder for the files an input is written to: the runner's (it removes
+    it when the child ends, a crash included), else a temporary one removed at exit."""
     global _DIR
     if _DIR is None:
-        _DIR = Path(tempfile.mkdtemp(prefix="gazehdr-fuzz-"))
-        atexit.register(shutil.rmtree, _DIR, True)
+        given = os.environ.get("GAZEHDR_FUZZ_SCRATCH")
+        _DIR = Path(given) if given else Path(tempfile.mkdtemp(prefix="gazehdr-fuzz-"))
+        if not given:
+            atexit.register(shutil.rmtree, _DIR, True)
     return _DIR
 
 
