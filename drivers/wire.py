@@ -127,9 +127,20 @@ def load_typed_json(data: str | bytes, limit: int) -> dict[str, Any]:
         msg = json.loads(data, parse_constant=_refuse_constant)
     except (ValueError, UnicodeDecodeError) as e:
         raise ValueError(f"malformed JSON: {e}") from None
+    except RecursionError:  # Python's parser recurses once per level of nesting
+        raise ValueError("malformed JSON: nested too deeply") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
         raise ValueError("a message is a JSON object with a string 'type'")
     return msg
+
+
+def as_float(value: int | float) -> float:
+    """A JSON number as a float; an integer too large for one is ±inf (json gives any size
+    of integer, and float() of a huge one raises OverflowError)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 def _int(obj: dict[str, Any], key: str, where: str) -> int:
@@ -143,7 +154,7 @@ def _coord(obj: dict[str, Any], key: str, where: str) -> float:
     value = obj.get(key)
     if not isinstance(value, (int, float)) or isinstance(value, bool):
         raise WireError(f"{where}: '{key}' must be a number")
-    if not (math.isfinite(value) and -3.0 <= value <= 4.0):
+    if not (math.isfinite(as_float(value)) and -3.0 <= value <= 4.0):
         raise WireError(f"{where}: '{key}' must be finite and within [-3, 4] screens")
     return float(value)
 
@@ -176,7 +187,7 @@ def parse(data: str | bytes) -> Message:
         for key, value in screen.items():
             if not isinstance(value, (int, float)) or isinstance(value, bool):
                 raise WireError(f"hello: 'screen.{key}' must be a number")
-            if not math.isfinite(value) or (key in SCREEN_SIZES and value <= 0):
+            if not math.isfinite(as_float(value)) or (key in SCREEN_SIZES and value <= 0):
                 what = "a positive" if key in SCREEN_SIZES else "a finite"
                 raise WireError(f"hello: 'screen.{key}' must be {what} number, got {value}")
             if key == ACCURACY and value < 0:

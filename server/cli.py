@@ -384,6 +384,12 @@ def _daemon(args: argparse.Namespace, extra: list[str]) -> int:
     return daemon_main(extra)
 
 
+def _fuzz(args: argparse.Namespace, extra: list[str]) -> int:
+    from gazehdr.fuzz.runner import fuzz_main
+
+    return fuzz_main(extra)
+
+
 def _devices(args: argparse.Namespace, extra: list[str]) -> int:
     from gazehdr.drivers.hid.devices import devices_main
 
@@ -535,6 +541,12 @@ COMMANDS: dict[str, Command] = {
         "list HID eye trackers (usage page 0x12) and why other devices are skipped "
         "(arguments pass through; see 'gazehdr devices --help')",
         _devices,
+        passthrough=True,
+    ),
+    "fuzz": Command(
+        "fuzz the parsers (EXR upload, HID, session log, importers, both WebSocket protocols) "
+        "with atheris, each target in a child process (see 'gazehdr fuzz --help')",
+        _fuzz,
         passthrough=True,
     ),
     "figures": Command(

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from gazehdr.drivers.wire import load_typed_json
+from gazehdr.drivers.wire import as_float, load_typed_json
 from gazehdr.sim.layout import encode_output
 
 MAGIC = b"GZHF"
@@ -258,7 +258,7 @@ def _field(msg: dict[str, Any], key: str, kind: type | tuple[type, ...], what: s
 
 
 def _number(msg: dict[str, Any], key: str, lo: float, hi: float) -> float:
-    value = float(_field(msg, key, (int, float), "a number"))
+    value = as_float(_field(msg, key, (int, float), "a number"))
     if not (math.isfinite(value) and lo <= value <= hi):
         raise ProtocolError(f"'{key}' must be a finite number in [{lo}, {hi}]", msg["type"])
     return value

@@ -62,7 +62,8 @@ def read_pupil_gaze_csv(
         raise ValueError(f"min_confidence must lie in [0, 1], got {min_confidence}")
     screen = geometry or ScreenGeometry()
     samples: list[GazeSample] = []
-    with path.open(newline="", encoding="utf-8-sig") as f:
+    # Bytes that are not UTF-8 become U+FFFD: a number holding one is refused by its field.
+    with path.open(newline="", encoding="utf-8-sig", errors="replace") as f:
         rows = csv.reader(f)
         header = [name.strip() for name in next(rows, [])]
         time_column = "gaze_timestamp" if "gaze_timestamp" in header else "timestamp"

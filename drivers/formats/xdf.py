@@ -30,6 +30,7 @@ records in its description, else `geometry` (default `ScreenGeometry()`).
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 import struct
@@ -102,6 +103,11 @@ def _stream_header(xml: bytes, path: Path, at: int) -> _Stream:
 def check_structure(path: Path) -> list[str]:
     """Walk the chunks (see the module docstring); FormatError for what is not XDF, and the
     notes on what pyxdf will have to skip (a file cut short)."""
+    return _walk(path)[0]
+
+
+def _walk(path: Path) -> tuple[list[str], int]:
+    """`check_structure`'s notes, and where the whole chunks end (pyxdf reads no further)."""
     streams: dict[int, _Stream] = {}
     size = path.stat().st_size
     with path.open("rb") as f:
@@ -112,11 +118,14 @@ def check_structure(path: Path) -> list[str]:
             at = f.tell()
             length = _varlen(f, "chunk", path, at)
             if length is None:
-                return []
+                return [], at
             n += 1
             start = f.tell()
             if start + length > size:
-                return [f"cut short: chunk {n} at byte {at} runs past the end; read up to it"]
+                note = f"cut short: chunk {n} at byte {at} runs past the end; read up to it"
+                # A cut header stays in: pyxdf's XML parser then says the file is truncated.
+                header = f.read(2) in (b"\x01\x00", b"\x02\x00")
+                return [note], size if header else at
             raw = f.read(2)
             tag = int.from_bytes(raw, "little") if len(raw) == 2 else -1
             if length < 2 or tag not in TAGS:
@@ -167,7 +176,41 @@ class _Warnings(logging.Handler):
         self.texts.append(record.getMessage().splitlines()[0])
 
 
-def _load(path: Path) -> tuple[list[dict[str, Any]], list[str]]:
+class _Upto(io.RawIOBase):
+    """The file up to byte `end`, for pyxdf: a chunk cut short is never handed to it (it would
+    allocate for all the samples the chunk's count claims, then drop the chunk: a count of
+    10^8 in a few bytes made it allocate gigabytes)."""
+
+    def __init__(self, path: Path, end: int) -> None:
+        super().__init__()
+        self._f = open(path, "rb")  # noqa: SIM115 - closed by close()
+        self._end = end
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        data = self._f.read(max(0, min(len(buffer), self._end - self._f.tell())))
+        buffer[: len(data)] = data
+        return len(data)
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        if whence == io.SEEK_END:
+            return self._f.seek(self._end + offset)
+        return self._f.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def close(self) -> None:
+        self._f.close()
+        super().close()
+
+
+def _load(path: Path, end: int) -> tuple[list[dict[str, Any]], list[str]]:
     try:
         import pyxdf
     except ModuleNotFoundError as e:
@@ -178,7 +221,8 @@ def _load(path: Path) -> tuple[list[dict[str, Any]], list[str]]:
     handler = _Warnings()
     logger.addHandler(handler)
     try:
-        streams, _ = pyxdf.load_xdf(str(path), synchronize_clocks=True, dejitter_timestamps=False)
+        whole = io.BufferedReader(_Upto(path, end))
+        streams, _ = pyxdf.load_xdf(whole, synchronize_clocks=True, dejitter_timestamps=False)
     except ElementTree.ParseError as e:  # the XML of the file header or a stream header
         raise FormatError(
             path,
@@ -268,8 +312,8 @@ def read_xdf(
     """Read an XDF file's gaze stream (`stream`: its name or source_id, when there are
     several) and the markers beside it."""
     path = Path(path)
-    notes = check_structure(path)
-    streams, warnings = _load(path)
+    notes, end = _walk(path)
+    streams, warnings = _load(path, end)
     chosen, layout = _pick(streams, stream, path)
     desc = layout.stream
     screen = _screen(desc, geometry)

@@ -72,6 +72,13 @@ class ReportError(ValueError):
 # --- descriptor -------------------------------------------------------------------------------
 
 
+#: Limits of Linux's HID parser (drivers/hid/hid-core.c: HID_MAX_USAGES, and the largest
+#: Report Size it accepts); a descriptor beyond them is refused there too. Without them a
+#: 4-byte Report Count or Usage Minimum..Maximum makes hid-tools build billions of fields.
+MAX_USAGES = 12288
+MAX_REPORT_SIZE = 256
+
+
 def _twos(value: int, bits: int) -> int:
     return value - (1 << bits) if value >> (bits - 1) & 1 else value
 
@@ -109,6 +116,10 @@ def _descriptor_class() -> type:
                 self.glob = copy.copy(self.glob)
                 return
             if name == "Collection":
+                if not 0 <= rdesc_item.value <= 0xFF:  # hid-tools asserts it
+                    raise DescriptorError(
+                        f"Collection type {rdesc_item.value:#x} does not fit in a byte"
+                    )
                 self._concatenate_usages()
                 full = self.local.usages[-1] if self.local.usages else 0
                 self._saved.append((self.glob.application, self.glob.physical, self.glob.logical))
@@ -129,12 +140,23 @@ def _descriptor_class() -> type:
                 self.glob.pmax_bytes = max(1, len(rdesc_item.raw_value))
             elif name == "Unit Exponent" and not -8 <= self.glob.unit_exp <= 7:
                 self.glob.unit_exp = int.from_bytes(rdesc_item.raw_value, "little", signed=True)
+                if not -8 <= self.glob.unit_exp <= 7:
+                    raise DescriptorError(
+                        f"Unit Exponent {self.glob.unit_exp} is outside -8..7 (HID 1.11, 6.2.2.7)"
+                    )
             return
 
         # Main items: fix a signed Logical/Physical Maximum before hid-tools creates the fields,
         # then annotate the new fields with their collection path and their main item.
         def _main(self, rdesc_item: Any) -> None:
             g = self.glob
+            self._concatenate_usages()  # what hid-tools does first; done twice, no change
+            lo, hi = self.local.usage_min, self.local.usage_max
+            if g.count > MAX_USAGES or (lo and hi and hi - lo >= MAX_USAGES):
+                what = f"Report Count {g.count}" if g.count > MAX_USAGES else "Usage range"
+                raise DescriptorError(f"{what} beyond {MAX_USAGES} usages in one main item")
+            if g.item_size > MAX_REPORT_SIZE:
+                raise DescriptorError(f"Report Size {g.item_size} bits; at most {MAX_REPORT_SIZE}")
             bits = 8 * getattr(g, "lmax_bytes", 1)
             if g.logical_min < 0 and g.logical_max > 0 and g.logical_max >> (bits - 1) & 1:
                 g.logical_max = _twos(g.logical_max, bits)
@@ -279,6 +301,10 @@ class Descriptor:
     def _group(fields: list[Any], ht: Any) -> list[_Item]:
         items: list[_Item] = []
         for f in fields:
+            if f.size == 0 and f.usage and not f.is_array:
+                raise DescriptorError(
+                    f"usage 0x{f.usage:08x} has Report Size 0: a value of no bits"
+                )
             prev = items[-1].head if items else None
             if (
                 prev is not None
@@ -366,5 +392,16 @@ class Descriptor:
         for item in self._items[(FEATURE, report_id)]:
             f = item.head
             if not f.is_array and f.usage in values:
-                f.fill_values(buf, [values[f.usage]])
+                value = values[f.usage]
+                bits = (
+                    range(-(1 << (f.size - 1)), 1 << (f.size - 1))
+                    if f.logical_min < 0
+                    else range(1 << f.size)
+                )
+                if not (f.logical_min <= value <= f.logical_max and value in bits):
+                    raise ReportError(
+                        f"feature report {report_id}: usage 0x{f.usage:08x} cannot hold {value} "
+                        f"(logical range {f.logical_min}..{f.logical_max}, {f.size} bits)"
+                    )
+                f.fill_values(buf, [value])
         return buf

@@ -490,7 +490,7 @@ def marker_record(text: str, t_ns: int, path: Path, index: int) -> Record:
     not one."""
     try:
         obj = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):  # not JSON (or nested past the parser's depth)
         obj = text
     if isinstance(obj, dict):
         obj = {**obj, "t": int(t_ns)}

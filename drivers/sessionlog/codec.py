@@ -164,7 +164,14 @@ class _Fields:
             raise self.error(name, "missing (a number is required)")
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise self.error(name, f"must be a number, got {value!r}")
-        return float(value)
+        return self.as_float(name, value)
+
+    def as_float(self, name: str, value: int | float) -> float:
+        """A JSON number as a float; an integer too large for one (json reads any) is refused."""
+        try:
+            return float(value)
+        except OverflowError:
+            raise self.error(name, f"an integer of {len(str(value))} digits is too large") from None
 
     def text(self, name: str) -> str:
         value = self.obj.get(name)
@@ -184,7 +191,8 @@ class _Fields:
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
         ):
             raise self.error(name, f"must be [x, y], [x, y, pupil_mm] or null, got {value!r}")
-        return EyeSample(float(value[0]), float(value[1]), float(value[2]) if value[2:] else None)
+        x, y, *pupil = (self.as_float(name, v) for v in value)
+        return EyeSample(x, y, pupil[0] if pupil else None)
 
 
 _SAMPLE_KEYS = ("k", "t", "v", "x", "y", "l", "r")

@@ -106,13 +106,18 @@ class SessionLog:
         the next one starts, so a saccade never sweeps the simulated retina (SPEC §4). A log
         whose events place no fixation (none, only blinks, or fixations without positions) is
         run through I-VT first, as a daemon replaying it does; one where I-VT finds none falls
-        back to the samples. Its time line is `track()`'s: from the first sample to the last."""
+        back to the samples. Its time line is `track()`'s: from the first sample to the last.
+        A log may repeat a sample time (an import holds times that went back); I-VT needs them
+        to increase, so it gets the first sample of each time."""
         events = self.events
         points = _fixation_points(events)
         if not points:
             from gazehdr.drivers.fixations import detect  # only logs that place no fixation need it
 
-            found = detect(self.samples, "ivt", self.header.screen)
+            increasing = [
+                s for i, s in enumerate(self.samples) if i == 0 or s.t_ns > self.samples[i - 1].t_ns
+            ]
+            found = detect(increasing, "ivt", self.header.screen)
             events = [
                 GazeEvent(e.kind, e.id, e.t_ns, e.x, e.y, e.duration_ns, e.dispersion_deg)
                 for e in found

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog.codec import decode_header, decode_record
@@ -21,6 +21,14 @@ from gazehdr.drivers.sessionlog.track import SessionTrack
 
 def _reject_constant(name: str) -> float:
     raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _loads(raw: bytes) -> Any:
+    """One line's JSON value; ValueError (or UnicodeDecodeError) when it is not JSON."""
+    try:
+        return json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+    except RecursionError:  # Python's parser recurses once per level of nesting
+        raise ValueError("JSON nested too deeply") from None
 
 
 class SessionLogReader:
@@ -41,7 +49,7 @@ class SessionLogReader:
             if not raw.strip(b"\x00 \t\r\n"):
                 raise FormatError(self.path, 1, None, "empty file: no session log header")
             try:
-                obj = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+                obj = _loads(raw)
             except (UnicodeDecodeError, ValueError) as e:
                 cut = "" if raw.endswith(b"\n") else " (cut short: nothing was recorded)"
                 raise FormatError(self.path, 1, None, f"header is not JSON{cut}: {e}") from None
@@ -67,7 +75,7 @@ class SessionLogReader:
             if not raw.strip(b" \t\r\n"):
                 continue
             try:
-                obj = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+                obj = _loads(raw)
             except (UnicodeDecodeError, ValueError) as e:
                 rest = self._file.read()
                 cut = not raw.endswith(b"\n") or b"\x00" in raw

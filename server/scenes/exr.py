@@ -17,9 +17,12 @@ into linear Rec.709 with a Bradford adaptation from the file's white to D65, so 
 neutral (ACES AP0 files, for instance, come out right).
 
 Bad files. Anything unreadable raises `SceneError` naming the file and the fault: missing,
-empty, not an EXR, corrupted or truncated header or pixels, no usable channels, an unknown
-layer, too large. The pixel count (all parts, as the library reads them all) is checked
-against `max_pixels` from the header alone, before any pixel data is allocated.
+empty, not an EXR, corrupted or truncated header or pixels, a channel name that is not UTF-8
+(shown as escaped bytes), no usable channels, an unknown layer, too large. An attribute we read
+(`whiteLuminance`, `chromaticities`, a part's `name`) of a type the library does not know is
+ignored with a note, refused, or replaced by `partN`. The pixel count (all parts, as the library
+reads them all) is checked against `max_pixels` from the header alone, before any pixel data is
+allocated.
 
 NaN and Inf in a file are passed through unchanged: the simulator sanitises its input.
 """
@@ -150,7 +153,38 @@ def _read_headers(path: Path) -> list[dict]:
         raise SceneError(f"{path}: corrupted or truncated EXR header ({e})") from None
     if not headers:
         raise SceneError(f"{path}: EXR file has no image parts")
+    for header in headers:
+        for channel in header.get("channels", []):
+            try:
+                channel.name  # noqa: B018 - the bindings decode the name (UTF-8) when asked
+            except UnicodeDecodeError:
+                raise SceneError(f"{path}: {_bad_channel_name(path)}") from None
     return headers
+
+
+_CHLIST = b"channels\x00chlist\x00"
+
+
+def _bad_channel_name(path: Path) -> str:
+    """What is wrong with a channel name that is not UTF-8, the name shown as escaped bytes.
+
+    OpenEXR's bindings cannot hand such a name to Python, so it is read from the file's
+    channel lists (`channels`, type `chlist`: each entry a NUL-terminated name and 16 bytes of
+    pixel type, linearity and sampling; a NUL ends the list)."""
+    data = read_head(path, 1 << 20)
+    start = data.find(_CHLIST)
+    while start >= 0:
+        pos = start + len(_CHLIST) + 4  # after the attribute's size
+        while 0 <= pos < len(data) and data[pos] != 0:
+            end = data.find(b"\x00", pos)
+            name = data[pos : end if end >= 0 else len(data)]
+            try:
+                name.decode("utf-8")
+            except UnicodeDecodeError as e:
+                return f"EXR channel name {name!r} is not UTF-8 text ({e.reason} at byte {e.start})"
+            pos = end + 1 + 16 if end >= 0 else -1
+        start = data.find(_CHLIST, start + 1)
+    return "an EXR channel name is not UTF-8 text"
 
 
 def _layers(headers: list[dict]) -> list[_Layer]:
@@ -159,7 +193,8 @@ def _layers(headers: list[dict]) -> list[_Layer]:
     for i, header in enumerate(headers):
         names = [c.name for c in header.get("channels", [])]
         prefixes = sorted({n.rpartition(".")[0] for n in names}, key=lambda p: (p != "", p))
-        part = str(header.get("name") or f"part{i}") if len(headers) > 1 else ""
+        name = header.get("name")
+        part = (name if isinstance(name, str) and name else f"part{i}") if len(headers) > 1 else ""
         for prefix in prefixes:
             dot = f"{prefix}." if prefix else ""
             own = {n.removeprefix(dot) for n in names if n.rpartition(".")[0] == prefix}
@@ -211,7 +246,9 @@ def _white_luminance(path: Path, header: dict) -> tuple[float | None, tuple[str,
     white = header.get("whiteLuminance")
     if white is None:
         return None, ()
-    if not (isinstance(white, (int, float)) and math.isfinite(white) and white > 0):
+    if not isinstance(white, (int, float)):  # an attribute of another type: its repr may fail
+        return None, (f"whiteLuminance ignored: a {type(white).__name__}, not a number",)
+    if not (math.isfinite(white) and white > 0):
         return None, (f"whiteLuminance {white!r} ignored: not a positive number",)
     return float(white), ()
 
@@ -239,7 +276,10 @@ def _read_rgb(path: Path, header: dict, layer: _Layer, width: int, height: int) 
         if p.dtype.kind != "f":
             raise SceneError(f"{path}: channel {n} holds {p.dtype} values, not HALF or FLOAT")
         full[n.removeprefix(layer.prefix)] = _upsample(p.astype(np.float32), steps, (height, width))
-    primaries = check_primaries(path, header.get("chromaticities", REC709))
+    chromaticities = header.get("chromaticities", REC709)
+    if isinstance(chromaticities, OpenEXR.OpaqueAttribute):  # a type OpenEXR does not know
+        raise SceneError(f"{path}: the chromaticities attribute is not of type chromaticities")
+    primaries = check_primaries(path, chromaticities)
     if "R" in full:
         rgb = np.stack([full["R"], full["G"], full["B"]], axis=-1)
     elif "RY" in full:

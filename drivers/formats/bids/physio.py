@@ -17,6 +17,7 @@ import itertools
 import json
 import math
 import statistics
+import zlib
 from collections.abc import Iterator
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
@@ -34,6 +35,12 @@ def _load_json(path: Path) -> dict[str, Any]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as e:
         raise FormatError(path, e.lineno, None, f"not valid JSON: {e.msg}") from None
+    except UnicodeDecodeError as e:
+        raise FormatError(
+            path, None, None, f"not UTF-8 text: {e.reason} at byte {e.start}"
+        ) from None
+    except RecursionError:  # Python's parser recurses once per level of nesting
+        raise FormatError(path, None, None, "not valid JSON: nested too deeply") from None
     if not isinstance(data, dict):
         raise FormatError(path, 1, None, "a sidecar is a JSON object")
     return data
@@ -104,7 +111,7 @@ def _rows(path: Path, columns: list[str]) -> Iterator[tuple[int, dict[str, str]]
                         f"({', '.join(columns)})",
                     )
                 yield reader.line_num, dict(zip(columns, (v.strip() for v in row), strict=True))
-    except (OSError, EOFError, UnicodeDecodeError) as e:
+    except (OSError, EOFError, UnicodeDecodeError, zlib.error) as e:
         if isinstance(e, FileNotFoundError):
             raise
         raise FormatError(path, None, None, f"cannot read as gzip TSV: {e}") from None

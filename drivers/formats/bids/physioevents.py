@@ -231,6 +231,9 @@ def _message(log: SessionLog, t: int, text: str, path: Path, line: int) -> None:
                 value = json.loads(text[len(prefix) :])
             except json.JSONDecodeError as e:
                 raise FormatError(path, line, "message", f"{prefix.strip()}: {e.msg}") from None
+            except RecursionError:  # Python's parser recurses once per level of nesting
+                what = f"{prefix.strip()}: JSON nested too deeply"
+                raise FormatError(path, line, "message", what) from None
             if not isinstance(value, dict):
                 raise FormatError(path, line, "message", f"{prefix.strip()}: not an object")
             if prefix == "gazehdr params ":
