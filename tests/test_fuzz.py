@@ -108,8 +108,8 @@ def _exr_with_channel_name(tmp_path: Path) -> bytes:
     return data.replace(b"diffuse.R\x00", b"\xbdiffuse.R\x00")
 
 
-def _http(method: str, url: str, body: bytes) -> tuple[int, dict]:
-    request = urllib.request.Request(url, data=body, method=method)
+def _http(method: str, url: str, body: bytes, **headers: str) -> tuple[int, dict]:
+    request = urllib.request.Request(url, data=body, method=method, headers=headers)
     try:
         with urllib.request.urlopen(request, timeout=30) as response:
             return response.status, json.loads(response.read())
@@ -121,7 +121,7 @@ def test_exr_channel_name_not_utf8_is_a_4xx_naming_it(live_server, tmp_path: Pat
     data = _exr_with_channel_name(tmp_path)
     assert data == repro("exr", "channel-name-not-utf8")
     server = live_server()
-    status, body = _http("PUT", server.url + "/api/scenes/bad", data)
+    status, body = _http("PUT", server.url + "/api/scenes/bad", data, **server.auth)
     assert status == 422, (status, body)
     assert body["detail"] == (
         "upload 'bad': EXR channel name b'\\xbdiffuse.R' is not UTF-8 text "
