@@ -15,7 +15,7 @@ import logging
 import math
 import secrets
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -83,6 +83,10 @@ class ServerConfig:
     session_grace_s: float = 10.0
     max_sessions: int = 8
     max_upload_bytes: int = MAX_UPLOAD_BYTES
+    #: Uploads handled at once: each holds its body (up to `max_upload_bytes`) in memory and a
+    #: decode worker; one more is refused with 503 rather than queued (ours: 2, so uploads take
+    #: at most twice the cap of the server's memory).
+    max_uploads: int = 2
     #: The viewer's files (`gazehdr.viewer`); None: the installed package's.
     web_dir: Path | None = None
     #: Publish each session's journal (the gaze it follows, its events) as LSL streams of this
@@ -158,6 +162,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     app.state.hub = hub
     app.state.metrics = metrics
     app.state.config = config
+    uploads = app.state.uploads = UploadSlots(config.max_uploads)
 
     # --- REST ---------------------------------------------------------------------------------
 
@@ -187,18 +192,20 @@ def create_app(config: ServerConfig) -> FastAPI:
             409: {"description": "a scene of that name exists (see `overwrite`)"},
             413: {"description": "the upload is over the size limit"},
             422: {"description": "not an image the server can read"},
+            503: {"description": "as many uploads as the server handles at once are running"},
         },
     )
     async def upload_scene(name: Name, request: Request, overwrite: bool = False) -> dict[str, str]:
         """Upload an image (OpenEXR, Radiance .hdr, PFM) as the request body; it is validated
         before it is kept. An existing upload of that name is replaced only with `overwrite`."""
-        chunks = await _upload_body(name, request, config.max_upload_bytes)
-        try:
-            await asyncio.to_thread(scenes.store, name, chunks, overwrite=overwrite)
-        except SceneExistsError as e:
-            raise HTTPException(409, str(e)) from None
-        except SceneError as e:
-            raise HTTPException(422, str(e)) from None
+        with uploads.take():
+            chunks = await _upload_body(name, request, config.max_upload_bytes)
+            try:
+                await asyncio.to_thread(scenes.store, name, chunks, overwrite=overwrite)
+            except SceneExistsError as e:
+                raise HTTPException(409, str(e)) from None
+            except SceneError as e:
+                raise HTTPException(422, str(e)) from None
         hub.broadcast({"type": "scenes", "scenes": scenes.names()})
         return {"name": name}
 
@@ -237,16 +244,18 @@ def create_app(config: ServerConfig) -> FastAPI:
             400: {"description": "the name is not allowed"},
             413: {"description": "the upload is over the size limit"},
             422: {"description": "not a session log with samples"},
+            503: {"description": "as many uploads as the server handles at once are running"},
         },
     )
     async def upload_recording(name: Name, request: Request) -> dict[str, str]:
         """Upload a session log (JSON Lines, drivers/sessionlog/); validated before kept."""
         cap = min(config.max_upload_bytes, MAX_RECORDING_BYTES)
-        chunks = await _upload_body(name, request, cap)
-        try:
-            await asyncio.to_thread(recordings.store, name, chunks)
-        except ValueError as e:
-            raise HTTPException(422, str(e)) from None
+        with uploads.take():
+            chunks = await _upload_body(name, request, cap)
+            try:
+                await asyncio.to_thread(recordings.store, name, chunks)
+            except ValueError as e:
+                raise HTTPException(422, str(e)) from None
         return {"name": name}
 
     @app.get("/api/params")
@@ -391,6 +400,28 @@ async def _scene_call(call: Callable[..., dict[str, Any]], name: str, *args: Any
         return await asyncio.to_thread(call, name, *args)
     except SceneError as e:
         raise HTTPException(404 if isinstance(e, NoSuchSceneError) else 422, str(e)) from None
+
+
+class UploadSlots:
+    """Uploads in flight, at most `limit`. Taken and counted on the event loop with no await
+    between the check and the count, so uploads that arrive together cannot all pass."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit, self.busy = limit, 0
+
+    @contextlib.contextmanager
+    def take(self) -> Iterator[None]:
+        if self.busy >= self.limit:
+            raise HTTPException(
+                503,
+                f"the server handles {self.limit} uploads at once (its limit); try again shortly",
+                headers={"Retry-After": "1"},
+            )
+        self.busy += 1
+        try:
+            yield
+        finally:
+            self.busy -= 1
 
 
 async def _upload_body(name: str, request: Request, cap: int) -> list[bytes]:

@@ -12,6 +12,10 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import gc
+import json
+import socket
+import urllib.error
+import urllib.request
 import weakref
 
 import pytest
@@ -146,3 +150,31 @@ def test_a_session_that_fails_to_start_gives_its_slot_back(live_server) -> None:
         await asyncio.gather(*tasks)
 
     asyncio.run(check())
+
+
+def test_uploads_beyond_the_limit_are_refused_while_one_is_in_flight(live_server) -> None:
+    """With `max_uploads=1`, an upload whose body is still arriving holds the one slot: another
+    gets 503 with Retry-After and a reason, and once the first has finished the next goes in."""
+    server = live_server(max_uploads=1)
+    slots = server.app.state.uploads
+    body = b"#?RADIANCE\n" + bytes(200)  # not an image: the first upload ends in a 422
+    head = (
+        f"PUT /api/scenes/slow HTTP/1.1\r\nHost: 127.0.0.1:{server.port}\r\n"
+        f"Authorization: Bearer {server.token}\r\nContent-Length: {len(body)}\r\n\r\n"
+    ).encode()
+    with socket.create_connection(("127.0.0.1", server.port), timeout=30) as slow:
+        slow.sendall(head + body[:10])  # the rest is held back: the upload stays in flight
+        asyncio.run(until(lambda: slots.busy == 1, "the first upload to take its slot"))
+        request = urllib.request.Request(
+            f"{server.url}/api/scenes/other", data=b"x", method="PUT", headers=server.auth
+        )
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(request, timeout=30)
+        assert refused.value.code == 503 and refused.value.headers["Retry-After"] == "1"
+        assert "1 uploads at once" in json.loads(refused.value.read())["detail"]
+        slow.sendall(body[10:])
+        assert b" 422 " in slow.recv(4096).split(b"\r\n")[0] + b" "
+    asyncio.run(until(lambda: slots.busy == 0, "the first upload to give its slot back"))
+    with pytest.raises(urllib.error.HTTPError) as answered:  # admitted: refused as no image
+        urllib.request.urlopen(request, timeout=30)
+    assert answered.value.code == 422
