@@ -268,6 +268,27 @@ def _bench_models(
     return {name: statistics.median(v[2:]) * 1000 for name, v in times.items()}
 
 
+def _print_roofline(width: int, height: int, args, roofs):
+    """The roofline table of one size (roofline.py); the roofs are measured once per run."""
+    from gazehdr import roofline
+
+    sim = Simulator(width, height, backend="opencl", seed=0)
+    b = sim._backend
+    if roofs is None:
+        roofs = roofline.measure_roofs(b.ctx, roofline.profiling_queue(b.ctx), args.roof_mib)
+    from gazehdr.scenes import open_scene
+
+    sim.start(open_scene(args.scene).render(0.0, width, height), (width / 2, height / 2))
+    sim.step(args.dt)
+    out = np.float16 if args.half else np.float32
+    costs, kernel_s, wall_s = roofline.profile_live(sim, args.frames, args.dt, out)
+    print(f"\n{width}x{height}  scene={args.scene}  roofline, OpenCL device: {sim.device}")
+    print(roofline.roofs_line(roofs))
+    for line in roofline.table(costs, kernel_s, wall_s, roofs, width * height):
+        print(line)
+    return roofs
+
+
 def _parse_models(text: str) -> list[Models]:
     if text == "all":
         return each_beside_default()
@@ -292,6 +313,15 @@ def main(argv: list[str] | None = None) -> int:
         help="instead of the stage table, time a live step of each model, e.g. "
         "'jacobs,ritschel,jacobs+thompson', or 'all' (each baseline beside the default)",
     )
+    ap.add_argument(
+        "--roofline",
+        action="store_true",
+        help="also a roofline line per stage of the live step: bytes and flops per pixel, "
+        "time, and the fraction of this device's bandwidth and FMA rate, measured in the run",
+    )
+    ap.add_argument(
+        "--roof-mib", type=int, default=256, help="MiB per array of the bandwidth kernels"
+    )
     args = ap.parse_args(argv)
     models = None
     if args.models:
@@ -306,13 +336,20 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("the OpenCV side needs opencv: pip install -e '.[bench]'")
     if args.frames < 1:
         ap.error("--frames must be at least 1")
+    if args.roofline and models is not None:
+        ap.error("--roofline times the default model's stages; leave out --models")
+    if args.roof_mib < 1:
+        ap.error("--roof-mib must be at least 1")
     if not 0 < args.dt <= 60:
         ap.error("--dt must be in (0, 60] seconds")
     try:
         sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
     except ValueError:
         ap.error(f"--sizes must look like 640x360,1280x720, got {args.sizes!r}")
+    roofs = None
     for width, height in sizes:
+        if args.roofline:
+            roofs = _print_roofline(width, height, args, roofs)
         if models is not None:
             ms = _bench_models(width, height, args.frames, args.scene, args.dt, models)
             base = ms[str(models[0])]

@@ -1,0 +1,112 @@
+"""`gazehdr bench --roofline`: the per-launch accounting follows the backend's own buffers, and
+the table has a line per stage of the live step (no timing asserts)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from gazehdr import roofline
+from gazehdr.bench import main
+from gazehdr.scenes import open_scene
+from gazehdr.sim import Simulator
+
+W, H = 96, 54
+
+
+def _live_step_launches():
+    sim = Simulator(W, H, backend="opencl", seed=0)
+    sim.start(open_scene("lamp").render(0.0, W, H), (W / 2, H / 2))
+    sim.step(1 / 60)
+    b = sim._backend
+    rec = roofline.Recorder(b)
+    gaze = (30.0, 20.0)
+    for stage, fn in (
+        ("adapt", lambda: b.adapt(gaze, 1 / 60, False)),
+        ("retina", lambda: sim._afterimage.retina(gaze, 1 / 60, False)),
+        ("acuity", lambda: b.acuity(sim._noise.at(0.1))),
+        ("compose", lambda: b.compose(gaze, 1.0)),
+    ):
+        rec.stage = stage
+        fn()
+    b.queue.finish()
+    rec.restore()
+    return sim, b, gaze, rec.launches
+
+
+def test_bytes_are_the_buffers_each_stage_reads_and_writes() -> None:
+    sim, b, gaze, launches = _live_step_launches()
+    lay, buf = sim.layout, b.buf
+    full = W * H
+    costs = roofline.account(launches, lay, sim.params, b.get("d"))
+    assert [ln.stage for ln in launches][-1] == "compose"
+    # the acuity stage: acuity_levels reads rho_full and the noise, writes d; the tiled bank
+    # reads the scene and d and writes G (plus its small constant buffers)
+    bank = b._bank
+    consts = b.P.size + bank["taps"].size + bank["levels"].size
+    expect = buf["rho_full"].size + b._noise_buf.size + 2 * buf["d"].size + consts
+    expect += buf["scene"].size + buf["G"].size
+    assert costs["acuity"].bytes == pytest.approx(expect)
+    assert buf["scene"].size == buf["G"].size == 3 * 4 * full and buf["d"].size == full
+    # compose: G, rho at every pixel, the maps of the cells the screen shows, A, the fovea
+    # factors, and the frame it writes
+    cells = roofline._cells(b._screen_window(gaze))
+    maps = buf["maps"].size * cells / (lay.grid_w * lay.grid_h)
+    expect = b.P.size + buf["G"].size + buf["rho_full"].size + maps + buf["A"].size
+    expect += buf["fovea"].size + buf["v"].size
+    assert costs["compose"].bytes == pytest.approx(expect)
+    # retina: the state is read and its blurred copy written through grid_a, both whole
+    assert costs["retina"].bytes > 2 * (buf["state"].size + buf["grid_a"].size)
+    assert costs["retina"].kernels == ["retina_update", "retina_blur_maps"]
+    for c in costs.values():
+        assert c.bytes > 0 and c.flops > 0
+
+
+def test_flops_follow_the_launch_and_unknown_kernels_are_refused() -> None:
+    sim, _, _, launches = _live_step_launches()
+    bank = next(ln for ln in launches if ln.name == "acuity_bank")
+    lay, p = sim.layout, sim.params
+    none = roofline.launch_cost(
+        bank.name, bank.gsize, bank.args, lay, p, np.zeros((H, W), np.uint8)
+    )
+    every = roofline.launch_cost(bank.name, bank.gsize, bank.args, lay, p, None)
+    assert none.flops == 0 < every.flops  # no level dropped: the bank only copies
+    assert none.bytes == every.bytes
+    blur = next(ln for ln in launches if ln.name == "retina_blur_maps")
+    wide = list(blur.args)
+    wide[8] = np.int32(int(blur.args[8]) + 2)  # a wider map blur costs more arithmetic
+    assert (
+        roofline.launch_cost(blur.name, blur.gsize, tuple(wide), lay, p).flops
+        > roofline.launch_cost(blur.name, blur.gsize, blur.args, lay, p).flops
+    )
+    with pytest.raises(KeyError, match="no accounting"):
+        roofline.launch_cost("made_up", (8,), (), lay, p)
+
+
+NUM = r"-?\d+(?:\.\d+)?"
+
+
+def test_bench_roofline_prints_a_line_per_stage(capsys) -> None:
+    args = ["--roofline", "--opencl-only", "--frames", "1", "--sizes", f"{W}x{H}"]
+    assert main([*args, "--roof-mib", "8"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(rf"roofs: copy {NUM} GB/s, triad {NUM} GB/s \(8 MiB", out)
+    assert re.search(rf"FMA {NUM} GFLOP/s; balance {NUM} flop/B", out)
+    rows = {}
+    for line in out.splitlines():
+        m = re.match(rf"  (\w[\w ]*?)\s+((?:{NUM}\s+){{11}})\s*(memory|compute) \(roof", line)
+        if m:
+            rows[m.group(1)] = [float(v) for v in m.group(2).split()]
+    assert list(rows) == ["prepare", "adapt", "retina", "acuity", "compose", "live step"]
+    live = rows.pop("live step")
+    rows.pop("prepare")  # not part of a live step (the scene maps are kept)
+    assert live[2] == pytest.approx(sum(r[2] for r in rows.values()), abs=0.02)  # MB
+    assert live[3] == pytest.approx(live[2] * 1e6 / (W * H), rel=0.01)  # bytes per pixel
+    assert "OpenCL ms" in out  # the stage table is still there
+
+
+def test_roofline_refuses_models() -> None:
+    with pytest.raises(SystemExit):
+        main(["--roofline", "--models", "all"])
