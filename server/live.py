@@ -11,6 +11,7 @@ sends from its own task, one stuck socket never delays another viewer or session
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import dataclasses
 import logging
@@ -46,6 +47,8 @@ class TooManySessionsError(Exception):
 
 
 _malloc_trim = heap.trimmer()
+#: The threads that step sessions (one step per session at a time).
+_STEPPER = concurrent.futures.ThreadPoolExecutor(thread_name_prefix="gazehdr-step")
 
 
 @dataclass
@@ -94,6 +97,8 @@ class Viewer:
         self.sent = self.acks = 0
         self._credit = asyncio.Event()
         self.maps = False  # whether it asked for scene maps (binary notes)
+        #: Its task waits on the mailbox with credit: a frame put now is on its way at once.
+        self.taking = False
 
     def want_maps(self, send: bool, latest: bytes | None) -> None:
         """Scene maps on or off; on, the latest one comes at once (the page has none yet)."""
@@ -110,8 +115,13 @@ class Viewer:
         return self.window is None or self.sent - self.acks < self.window
 
     def wants_frame(self) -> bool:
-        """Whether a new frame would be sent now rather than replace one still waiting."""
-        return self.mailbox.frame is None and self.has_credit()
+        """Whether a frame made from now on would be sent rather than replace one still waiting
+        or wait for credit: the frame in the mailbox counts as sent when this viewer's task is
+        already waiting to take it (the next step then overlaps its sending)."""
+        queued = self.mailbox.frame is not None
+        if queued and not self.taking:
+            return False
+        return self.window is None or self.sent + queued - self.acks < self.window
 
     async def _wait_for_credit(self) -> None:
         while self.window is not None and self.sent - self.acks >= self.window:
@@ -122,7 +132,11 @@ class Viewer:
         m = self._metrics
         while True:
             await self._wait_for_credit()
-            frame, notes = await self.mailbox.take()
+            self.taking = True
+            try:
+                frame, notes = await self.mailbox.take()
+            finally:
+                self.taking = False
             for note in notes:  # a scene map is binary, the rest JSON
                 if not isinstance(note, bytes):
                     await self._send_json(note)
@@ -168,12 +182,14 @@ class LiveSession:
         # A step may still be writing on its thread when the session ends and the log closes.
         self._log_lock = threading.Lock()
 
-    def _tick(self, dt: float, controls: list[tuple[Control, float]]) -> tuple[Frame, list[Note]]:
+    def _tick(
+        self, dt: float, controls: list[tuple[Control, float]], maps: bool = False
+    ) -> tuple[Frame, list[Note]]:
         """One step, on the worker thread, with what it journaled published and appended to the
-        log. A log that cannot be written stops recording, not the session; the viewers are
-        told."""
+        log; `maps`: a viewer inspects (decided on the event loop, which owns the viewers). A
+        log that cannot be written stops recording, not the session; the viewers are told."""
         frame, notes = self.session.tick(dt, controls)
-        if any(v.maps for v in self.viewers):  # made only for viewers that inspect
+        if maps:  # made only for viewers that inspect
             scene_map = self.session.scene_map()
             if scene_map is not self.scene_map:
                 self.scene_map = scene_map
@@ -242,6 +258,10 @@ class LiveSession:
             await asyncio.sleep(DEMAND_POLL_S)
 
     async def run(self) -> None:
+        """Step, publish, step again. Once a step is done the next one starts before anything
+        else runs on the event loop (no await between): the viewers' tasks send its frame while
+        the next is simulated, and that step reads the gaze (`Session.pointer`, a tracker) when
+        it starts, on its thread."""
         interval = 1.0 / self.session.settings.fps
         last: float | None = None
         m = self.metrics
@@ -251,13 +271,17 @@ class LiveSession:
             dt = 0.0 if last is None else started - last
             last = started
             controls, self.controls = self.controls, []
-            step = asyncio.ensure_future(asyncio.to_thread(self._tick, dt, controls))
+            maps = any(v.maps for v in self.viewers)
+            # The step's own future, awaited directly: the task resumes at the loop's next turn
+            # after the step ends (each extra hop, a task or a shield, costs a turn, and with
+            # the GIL shared every turn can wait for another thread).
+            work = _STEPPER.submit(self._tick, dt, controls, maps)
             try:
-                frame, notes = await asyncio.shield(step)
+                frame, notes = await asyncio.wrap_future(work)
             except asyncio.CancelledError:
                 # The session ends: its step finishes on its thread before the task does, so
                 # nothing of the session is in use once the task is done (`SessionHub._end`).
-                await asyncio.wait([step])
+                await asyncio.wait([asyncio.wrap_future(work)])
                 raise
             except Exception as e:  # a broken device or kernel: tell the viewers, then stop
                 log.exception("session %s stopped", self.session.id)
@@ -273,8 +297,11 @@ class LiveSession:
                 # A viewer out of credit gets the next frame made once it acks, not this one.
                 taken = frame if viewer.has_credit() else None
                 m.frames_dropped.inc(viewer.mailbox.put(taken, notes) + (taken is None))
-            # Sleep out the rest of the frame interval; always yield once so sockets get served.
-            await asyncio.sleep(max(0.0, started + interval - time.monotonic()))
+            # Sleep out the rest of the frame interval, if any: the sockets are served while
+            # the next step runs.
+            rest = started + interval - time.monotonic()
+            if rest > 0:
+                await asyncio.sleep(rest)
 
 
 class SessionHub:
