@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import os
 import re
 import sys
@@ -123,77 +122,55 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--overwrite", action="store_true", help="replace frames already in DIR")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    batch = p.add_argument_group(
+        "batch rendering (many logs as Dask tasks, each into its own folder under --out)"
+    )
+    batch.add_argument(
+        "--logs", nargs="+", metavar="LOG", help="session logs to render, files or globs"
+    )
+    batch.add_argument(
+        "--batch", metavar="MANIFEST.toml", help="logs x models x presets (docs/cli.md)"
+    )
+    batch.add_argument(
+        "--workers", type=int, metavar="N", help="local cluster's worker processes (default: cores)"
+    )
+    batch.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="an existing Dask cluster's scheduler, tcp://HOST:PORT",
+    )
+
+
+def _render_defaults() -> dict[str, object]:
+    """The render options' defaults: a batch manifest's values replace these, not given ones."""
+    p = argparse.ArgumentParser()
+    _configure_render(p)
+    return vars(p.parse_args(["--out", "-"]))
+
+
+def _render_request(args: argparse.Namespace, **fields: object) -> object:
+    """The render options of `args` as a `RenderRequest` (`fields` replace some)."""
+    from gazehdr.render import RenderRequest
+
+    width, height = args.size
+    values = dict(
+        gaze=args.gaze, scene=args.scene, seconds=args.seconds, fps=args.fps, width=width,
+        height=height, seed=args.seed, backend=args.backend, afterimage=args.afterimage,
+        acuity=args.acuity, params=args.params, data_dir=str(_data_dir(args.data_dir)),
+        scale=args.scale, exr=args.exr, video=args.video,
+    )  # fmt: skip
+    return RenderRequest(**(values | fields))
 
 
 def _render(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.drivers.sessionlog import read_session_log
-    from gazehdr.render import recorded_changes, render
-    from gazehdr.scenes import open_scene
-    from gazehdr.scenes.library import SceneLibrary
-    from gazehdr.sim import Params
-    from gazehdr.sim.models import Models
+    if args.logs or args.batch:  # many logs, as Dask tasks (docs/cli.md, "Batch rendering")
+        from gazehdr import batch
 
-    given_models = args.afterimage is not None or args.acuity is not None
-    # a wrong name: exit 2 listing the choices
-    models = Models(args.afterimage or "jacobs", args.acuity or "stochastic")
-    params = None
-    if args.params:
-        try:
-            params = Params.load(args.params)
-        except (ValueError, TypeError) as e:
-            raise UsageError(f"parameter preset {args.params}: {e}") from None
-    log, changes = None, []
-    if Path(args.gaze).suffix.lower() == ".jsonl":
-        if not Path(args.gaze).is_file():
-            raise UsageError(f"gaze file {args.gaze!r} not found")
-        log = read_session_log(args.gaze)
-        track = log.fixation_track()
-        changes = recorded_changes(
-            log, track.t0_ns, SceneLibrary(_data_dir(args.data_dir)),
-            scene=args.scene is None, params=params is None, models=not given_models,
-        )  # fmt: skip
-        if not given_models and any(m.split for m in log.models):
-            print(
-                f"{PROG}: note: the session ran in split view at times; this renders its left "
-                "pane (name the right pane's models with --afterimage/--acuity)",
-                file=sys.stderr,
-            )
-    seed = args.seed
-    if seed is None:
-        recorded = log.header.tracker.get("seed") if log else None
-        seed = recorded if isinstance(recorded, int) and recorded >= 0 else 0
-    seconds = args.seconds
-    fps_ok = math.isfinite(args.fps) and args.fps > 0  # else render says what is wrong with it
-    if seconds is None and log is not None and fps_ok:  # to its last record, of any kind
-        seconds = (max(r.t_ns for r in log.records()) - track.t0_ns) / 1e9 + 1 / args.fps
-    seconds = 6.0 if seconds is None else seconds
-    if log is None:
-        track = registry.open_track(args.gaze, seed=seed, duration=seconds)
-    if args.scene is not None:
-        scene = open_scene(args.scene, scale=args.scale)
-    elif not any(c.scene for c in changes):
-        raise UsageError("SCENE is needed: the gaze given is not a session log naming its scene")
-    else:  # the log's first scene; render takes it from the changes
-        scene = next(c.scene for c in changes if c.scene)
-    width, height = args.size
-    summary = render(
-        scene,
-        track,
-        seconds=seconds,
-        fps=args.fps,
-        width=width,
-        height=height,
-        seed=seed,
-        backend=args.backend,
-        afterimage=models.afterimage,
-        acuity=models.acuity,
-        out_dir=args.out,
-        exr=args.exr,
-        video=args.video,
-        progress=not args.quiet,
-        params=params,
-        overwrite=args.overwrite,
-        changes=changes,
+        return batch.main(args, _render_request, parser_defaults=_render_defaults())
+    from gazehdr.render import render_request
+
+    summary = render_request(
+        _render_request(args), args.out, progress=not args.quiet, overwrite=args.overwrite
     )
     print(f"wrote {summary.frames} frames to {summary.out_dir} in {summary.wall_seconds:.1f} s")
     return 0

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 import time
 from collections import deque
 from collections.abc import Sequence
@@ -28,10 +29,11 @@ from tqdm import tqdm
 
 from gazehdr.apng import ApngWriter
 from gazehdr.dither import dither8
+from gazehdr.drivers import registry
 from gazehdr.drivers.samples import GazeTrack
-from gazehdr.drivers.sessionlog import SessionLog
+from gazehdr.drivers.sessionlog import SessionLog, read_session_log
 from gazehdr.eye import Eye
-from gazehdr.scenes import Scene
+from gazehdr.scenes import Scene, open_scene
 from gazehdr.scenes.exr import write_exr
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.sim import Params
@@ -202,6 +204,91 @@ def render(
             if exr:
                 write_exr(stem.with_suffix(".exr"), v)
     return RenderSummary(n, out_dir, time.perf_counter() - started)
+
+
+@dataclass(frozen=True)
+class RenderRequest:
+    """What `gazehdr render` was asked for, as plain values (a batch job's, too): resolved by
+    `render_request` into a scene, a track and recorded changes and rendered by `render`.
+    None takes the default: from a session log given as `gaze`, its scenes, seed, length,
+    models and parameters; else the paper's models, seed 0 and 6 s."""
+
+    gaze: str = "synthetic"
+    scene: str | None = None
+    seconds: float | None = None
+    fps: float = 30.0
+    width: int = 640
+    height: int = 360
+    seed: int | None = None
+    backend: str = "opencl"
+    afterimage: str | None = None
+    acuity: str | None = None
+    params: str | None = None  # a parameter preset file (partial is fine)
+    data_dir: str | None = None  # where a recorded session's uploaded scenes are
+    scale: float | None = None
+    exr: bool = False
+    video: bool = False
+
+
+def render_request(
+    request: RenderRequest,
+    out_dir: str | Path,
+    *,
+    progress: bool = True,
+    overwrite: bool = False,
+    note: Any = None,
+) -> RenderSummary:
+    """Render `request` into `out_dir`: the one path of `gazehdr render`, one log or many.
+    Mistakes in the request are ValueErrors before anything is written; `note(text)` hears
+    what the user should know (default: printed to stderr)."""
+    note = note or (lambda text: print(f"gazehdr: note: {text}", file=sys.stderr))
+    r = request
+    given_models = r.afterimage is not None or r.acuity is not None
+    models = Models(r.afterimage or "jacobs", r.acuity or "stochastic")  # checks the names
+    params = None
+    if r.params:
+        try:
+            params = Params.load(r.params)
+        except (ValueError, TypeError) as e:
+            raise ValueError(f"parameter preset {r.params}: {e}") from None
+    log, changes = None, []
+    if Path(r.gaze).suffix.lower() == ".jsonl":
+        if not Path(r.gaze).exists():  # a named pipe is fine
+            raise ValueError(f"gaze file {r.gaze!r} not found")
+        log = read_session_log(r.gaze)
+        track = log.fixation_track()
+        changes = recorded_changes(
+            log, track.t0_ns, SceneLibrary(Path(r.data_dir) if r.data_dir else None),
+            scene=r.scene is None, params=params is None, models=not given_models,
+        )  # fmt: skip
+        if not given_models and any(m.split for m in log.models):
+            note(
+                "the session ran in split view at times; this renders its left pane (name the "
+                "right pane's models with --afterimage/--acuity)"
+            )
+    seed = r.seed
+    if seed is None:
+        recorded = log.header.tracker.get("seed") if log else None
+        seed = recorded if isinstance(recorded, int) and recorded >= 0 else 0
+    seconds = r.seconds
+    fps_ok = math.isfinite(r.fps) and r.fps > 0  # else render says what is wrong with it
+    if seconds is None and log is not None and fps_ok:  # to its last record, of any kind
+        seconds = (max(x.t_ns for x in log.records()) - track.t0_ns) / 1e9 + 1 / r.fps
+    seconds = 6.0 if seconds is None else seconds
+    if log is None:
+        track = registry.open_track(r.gaze, seed=seed, duration=seconds)
+    if r.scene is not None:
+        scene = open_scene(r.scene, scale=r.scale)
+    elif not any(c.scene for c in changes):
+        raise ValueError("SCENE is needed: the gaze given is not a session log naming its scene")
+    else:  # the log's first scene; render takes it from the changes
+        scene = next(c.scene for c in changes if c.scene)
+    return render(
+        scene, track, seconds=seconds, fps=r.fps, width=r.width, height=r.height, seed=seed,
+        backend=r.backend, afterimage=models.afterimage, acuity=models.acuity, out_dir=out_dir,
+        exr=r.exr, video=r.video, progress=progress, params=params, overwrite=overwrite,
+        changes=changes,
+    )  # fmt: skip
 
 
 def _make(change: Change, eye: Eye, gaze: tuple[float, float], eyes_open: bool) -> Eye:
