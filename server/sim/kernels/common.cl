@@ -45,6 +45,13 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define MAX(a, b) ((a) > (b) ? (a) : (b))
 #define CLAMP(x, lo, hi) MIN(MAX(x, lo), hi)
 
+// Whether any lane of a comparison is true (any() is a library call under PoCL, see above).
+inline int any8(int8 m) {
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) != 0;
+}
+
 inline float8 floor8(float8 x) {
     float8 t = TO_FLOAT8(TO_INT8(x));
     return t + TO_FLOAT8(t > x);  // a true comparison is -1
