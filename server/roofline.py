@@ -17,7 +17,8 @@ What is counted:
 - Flops: arithmetic per element as counted from the kernels' source and rounded (an add, a
   multiply, a compare, a division each 1; an FMA 2). Transcendentals (exp, log, pow, sqrt) are
   counted apart and not in the flops. Blur flops follow the launch's tap radius; the acuity
-  bank's follow the levels each tile runs (the d map's maximum per tile).
+  bank's follow the levels each tile runs (the d map's maximum per tile), each on the box of
+  the tile's pixels that need it.
 """
 
 from __future__ import annotations
@@ -154,21 +155,36 @@ def _io(name: str, a: tuple, gsize: tuple, lay, params, d_map) -> tuple[list, fl
 
 
 def _bank_flops(a: tuple, lay, params, d_map) -> float:
-    """The tiled bank blurs each tile through the levels up to the tile's largest d: per pixel
-    and channel, a horizontal and a vertical pass of each level's taps."""
+    """The tiled bank blurs each tile through the levels up to the tile's largest d, each level
+    only on the box of the tile's pixels that drop more than it and the next level's box widened
+    by that level's radius (kernel acuity_bank): per pixel of that box (inside the screen) and
+    channel, a horizontal and a vertical pass of the level's taps."""
     from gazehdr.sim.layout import acuity_increments, gaussian_taps
 
     # the bank's tap radii, as opencl._acuity_bank_setup makes them
     radii = [len(gaussian_taps(s)) // 2 for s in acuity_increments(params, lay.ppd)]
-    per_level = np.cumsum([0] + [2 * _blur_flops(r) for r in radii])
     tx, ty = int(a[7]), int(a[8])
-    if d_map is None:  # every tile at the deepest level
-        return 3 * lay.width * lay.height * float(per_level[-1])
+    if d_map is None:  # every pixel at the deepest level
+        d_map = np.full((lay.height, lay.width), len(radii), np.uint8)
     total = 0.0
     for y0 in range(0, lay.height, ty):
         for x0 in range(0, lay.width, tx):
             tile = d_map[y0 : y0 + ty, x0 : x0 + tx]
-            total += tile.size * float(per_level[min(int(tile.max()), len(radii))])
+            box = None  # the next level's box: x0, x1, y0, y1 (inclusive)
+            for level in range(min(int(tile.max()), len(radii)) - 1, -1, -1):
+                ys, xs = np.nonzero(tile > level)
+                own = [x0 + xs.min(), x0 + xs.max(), y0 + ys.min(), y0 + ys.max()]
+                if box is not None:
+                    r = radii[level + 1]
+                    lo, hi = (
+                        (min(own[0], box[0] - r), min(own[2], box[2] - r)),
+                        (max(own[1], box[1] + r), max(own[3], box[3] + r)),
+                    )
+                    own = [lo[0], hi[0], lo[1], hi[1]]
+                box = own
+                w = min(box[1], lay.width - 1) - max(box[0], 0) + 1
+                h = min(box[3], lay.height - 1) - max(box[2], 0) + 1
+                total += w * h * 2 * _blur_flops(radii[level])
     return 3 * total
 
 

@@ -49,7 +49,7 @@ STATE_PLANES = 9  # retinal state planes allocated; an afterimage model uses up 
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
-ACUITY_TILE = (128, 64)  # screen pixels per work-item of the tiled acuity bank (x: VEC multiple)
+ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: VEC multiple, <= 128)
 
 # compose's outputs: kernel, buffer, shape
 COMPOSE_OUTPUTS = {

@@ -167,6 +167,8 @@ inline void maps8(__constant const params_t *P, __global const float *down,
         // Bleaching (Eq. 12) as a response x; its light R^-1(x) at A_min adds to the input.
         float8 x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_inf8(P, c, In[c]), 0.0f);
         x = MIN(x, 1.0f - eps);
+        bleach[c] = 0.0f;
+        if (!any8(x > 0.0f)) continue;  // no bleaching above equilibrium: the usual case
         float8 ln_odds = log8(MAX(x, FLT_MIN)) - log8(1.0f - x);
         float8 I_x = exp8((lsn_floor + ln_odds) / P->n);
         // 1 - (I / (I + I_x))^n without cancelling where I_x << I (reference.bleach_response)

@@ -135,6 +135,8 @@ inline float8 conv8_l(__local const float *s, int d, __constant const float *t, 
     return a;
 }
 
+#define BANK_TX_MAX 128  // the widest tile (opencl.ACUITY_TILE)
+
 __kernel void acuity_bank(__global const float *scene, __global const uchar *d_map,
                           __global float *G, __constant const float *taps,
                           __constant const int *levels, int W, int H, int TX, int TY,
@@ -146,16 +148,42 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
     __global const float *src_g = scene + c * plane;
     __global float *dst_g = G + c * plane;
 
+    // The tile's d: its maximum, and per level l the box of the pixels that drop more than l
+    // bands (rows; columns in whole float8 chunks), so that each level is made only there and
+    // around it (work in proportion to the pixels that need each level).
+    int ylo[8], yhi[8], xlo[8], xhi[8];
+    for (int l = 0; l < 8; ++l) ylo[l] = xlo[l] = 1 << 20, yhi[l] = xhi[l] = -1;
+    uchar8 cm[BANK_TX_MAX / VEC];  // per float8 chunk of columns, the largest d down the tile
+    int chunks = (xe - tx0 + VEC - 1) / VEC;
+    for (int k = 0; k < chunks; ++k) cm[k] = (uchar8)(0);
     int dmax = 0;
-    uchar8 dm8 = (uchar8)(0);
     for (int y = ty0; y < ye; ++y) {
-        __global const uchar *drow = d_map + (size_t)y * W;
-        int x = tx0;
-        for (; x + VEC <= xe; x += VEC) dm8 = MAX(dm8, LOAD8_D(drow + x));
-        for (; x < xe; ++x) dmax = MAX(dmax, (int)drow[x]);
+        __global const uchar *drow = d_map + (size_t)y * W + tx0;
+        uchar8 rm = (uchar8)(0);
+        for (int k = 0; k < chunks; ++k) {
+            uchar8 v;
+            if (tx0 + VEC * (k + 1) <= xe) {
+                v = LOAD8_D(drow + VEC * k);
+            } else {  // the screen's last columns
+                uchar t[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+                for (int i = 0; i < xe - tx0 - VEC * k; ++i) t[i] = drow[VEC * k + i];
+                v = (uchar8)(t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]);
+            }
+            cm[k] = MAX(cm[k], v);
+            rm = MAX(rm, v);
+        }
+        uchar4 r4 = MAX(rm.lo, rm.hi);
+        uchar2 r2 = MAX(r4.lo, r4.hi);
+        int m = MIN((int)MAX(r2.x, r2.y), 8);
+        for (int l = 0; l < m; ++l) ylo[l] = MIN(ylo[l], y - ty0), yhi[l] = y - ty0;
+        dmax = MAX(dmax, m);
     }
-    dmax = MAX(dmax, (int)MAX(MAX(MAX(dm8.s0, dm8.s1), MAX(dm8.s2, dm8.s3)),
-                              MAX(MAX(dm8.s4, dm8.s5), MAX(dm8.s6, dm8.s7))));
+    for (int k = 0; k < chunks; ++k) {
+        uchar4 c4 = MAX(cm[k].lo, cm[k].hi);
+        uchar2 c2 = MAX(c4.lo, c4.hi);
+        int m = MIN((int)MAX(c2.x, c2.y), 8);
+        for (int l = 0; l < m; ++l) xlo[l] = MIN(xlo[l], k), xhi[l] = k;
+    }
     if (dmax == 0) {  // nothing dropped: the scene itself
         for (int y = ty0; y < ye; ++y) {
             size_t k = (size_t)y * W;
@@ -176,15 +204,31 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
     // the horizontal pass has read it all by then), one the horizontal pass, one the output.
     __local float *buf_a = lmem, *tmp = lmem + BW * BH, *acc = lmem + 2 * BW * BH;
 
+    // Where level l is needed, in buffer coordinates [nx0, nx1) x [ny0, ny1): the box of its
+    // own pixels and the next level's region widened by that level's radius.
+    int nx0[8], nx1[8], ny0[8], ny1[8];
+    for (int l = dmax - 1; l >= 0; --l) {
+        nx0[l] = PX + VEC * xlo[l], nx1[l] = PX + VEC * (xhi[l] + 1);
+        ny0[l] = PY + ylo[l], ny1[l] = PY + yhi[l] + 1;
+        if (l + 1 < dmax) {
+            int r = levels[2 * (l + 1)];
+            nx0[l] = MIN(nx0[l], nx0[l + 1] - r), nx1[l] = MAX(nx1[l], nx1[l + 1] + r);
+            ny0[l] = MIN(ny0[l], ny0[l + 1] - r), ny1[l] = MAX(ny1[l], ny1[l + 1] + r);
+        }
+    }
+
     // Screen edges in buffer coordinates.
     int left = PX - tx0, right = PX + W - 1 - tx0, top = PY - ty0, bottom = PY + H - 1 - ty0;
 
-    // The scene, edges clamped, everywhere in the buffer; and as the output where d = 0.
-    for (int by = 0; by < BH; ++by) {
+    // The scene, edges clamped, where level 0 reads it.
+    int r0 = levels[0];
+    int ly0 = MAX(ny0[0] - r0, 0), ly1 = MIN(ny1[0] + r0, BH);
+    int lx0 = MAX((nx0[0] - r0) / VEC * VEC, 0), lx1 = MIN((nx1[0] + r0 + VEC - 1) / VEC * VEC, BW);
+    for (int by = ly0; by < ly1; ++by) {
         int y = CLAMP(ty0 - PY + by, 0, H - 1);
         __global const float *row = src_g + (size_t)y * W;
         __local float *brow = buf_a + by * BW;
-        for (int bx = 0; bx < BW; bx += VEC) {
+        for (int bx = lx0; bx < lx1; bx += VEC) {
             int x = tx0 - PX + bx;
             float8 val;
             if (x >= 0 && x + VEC <= W) val = LOAD8_G(row + x);
@@ -192,20 +236,23 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             STORE8_L(brow + bx, val);
         }
     }
-    for (int y = 0; y < TY; ++y)
-        for (int x = 0; x < TX; x += VEC)
-            STORE8_L(acc + y * TX + x, LOAD8_L(buf_a + (PY + y) * BW + PX + x));
+    // The output starts as the scene (d = 0).
+    for (int y = 0; y < ye - ty0; ++y) {
+        __global const float *grow = src_g + (size_t)(ty0 + y) * W + tx0;
+        __local float *arow = acc + y * TX;
+        int x = 0;
+        for (; x + VEC <= ow; x += VEC) STORE8_L(arow + x, LOAD8_G(grow + x));
+        for (; x < ow; ++x) arow[x] = grow[x];
+    }
 
     __local float *src = buf_a, *dst = buf_a;
     for (int l = 0; l < dmax; ++l) {
         int r = levels[2 * l];
         __constant const float *t = taps + levels[2 * l + 1];
-        int hl = halo[l + 1], hp = halo[l];
-        int hx = (hl + VEC - 1) / VEC * VEC;
-        int cx0 = PX - hx, cx1 = PX + TX + hx;
+        int cx0 = nx0[l] / VEC * VEC, cx1 = (nx1[l] + VEC - 1) / VEC * VEC;  // float8 steps
         // Horizontal pass on the rows the vertical pass reads, inside the screen.
-        int ry0 = MAX(PY - hp, top), ry1 = MIN(PY + TY + hp, bottom + 1);
-        int vy0 = MAX(PY - hl, top), vy1 = MIN(PY + TY + hl, bottom + 1);
+        int vy0 = MAX(ny0[l], top), vy1 = MIN(ny1[l], bottom + 1);
+        int ry0 = MAX(vy0 - r, top), ry1 = MIN(vy1 + r, bottom + 1);
         float t0 = t[0], t1 = t[MIN(1, 2 * r)], t2 = t[MIN(2, 2 * r)], t3 = t[MIN(3, 2 * r)];
         float t4 = t[MIN(4, 2 * r)], t5 = t[MIN(5, 2 * r)], t6 = t[MIN(6, 2 * r)];
 #define H_PASS(CONV)                                                      \
@@ -234,10 +281,10 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             H_PASS(CONVN)
         }
         // Rows above and below the screen repeat its edge rows.
-        for (int by = PY - hp; by < ry0; ++by)
+        for (int by = vy0 - r; by < ry0; ++by)
             for (int bx = cx0; bx < cx1; bx += VEC)
                 STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + top * BW + bx));
-        for (int by = ry1; by < PY + TY + hp; ++by)
+        for (int by = ry1; by < vy1 + r; ++by)
             for (int bx = cx0; bx < cx1; bx += VEC)
                 STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + bottom * BW + bx));
         // Vertical pass where this level is still needed, inside the screen.
@@ -253,7 +300,7 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
         fill_cols(dst, BW, vy0, vy1, left, right);
         // Pixels that drop l + 1 bands show this level.
         uchar want = (uchar)(l + 1);
-        for (int y = 0; y < ye - ty0; ++y) {
+        for (int y = ylo[l]; y <= yhi[l]; ++y) {
             __global const uchar *drow = d_map + (size_t)(ty0 + y) * W + tx0;
             __local float *arow = acc + y * TX;
             __local const float *lrow = dst + (PY + y) * BW + PX;

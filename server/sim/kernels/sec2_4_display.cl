@@ -73,9 +73,9 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
     float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
     rgb8_t out;
-    out.r = pow8_pos(CLAMP(a + t * er, 0.0f, 1.0f), P->gamma);
-    out.g = pow8_pos(CLAMP(a + t * eg, 0.0f, 1.0f), P->gamma);
-    out.b = pow8_pos(CLAMP(a + t * eb, 0.0f, 1.0f), P->gamma);
+    out.r = pow8_unit(CLAMP(a + t * er, 0.0f, 1.0f), P->gamma);
+    out.g = pow8_unit(CLAMP(a + t * eg, 0.0f, 1.0f), P->gamma);
+    out.b = pow8_unit(CLAMP(a + t * eb, 0.0f, 1.0f), P->gamma);
     return out;
 }
 
