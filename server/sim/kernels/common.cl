@@ -227,17 +227,22 @@ inline float8 exp8(float8 x) {
     return y * AS_FLOAT8((TO_INT8(n) + 127) << 23);
 }
 
-inline float8 log8(float8 x) {
-    // x = m 2^e with m in [sqrt(1/2), sqrt(2)); ln m = 2 atanh(t), t = (m - 1) / (m + 1),
-    // |t| < 0.172: the series to t^7 is within 1e-7 relative.
+// x = m 2^e with m in [sqrt(1/2), sqrt(2)): sets *e and returns atanh(t) = (ln m) / 2,
+// t = (m - 1) / (m + 1), |t| < 0.172: the series to t^7 is within 1e-7 relative.
+inline float8 half_log_mantissa8(float8 x, int8 *e) {
     int8 bits = AS_INT8(x);
-    int8 e = ((bits - 0x3f3504f3) >> 23);  // exponent after moving m into [sqrt(1/2), sqrt(2))
-    float8 m = AS_FLOAT8(bits - (e << 23));
+    *e = ((bits - 0x3f3504f3) >> 23);  // exponent after moving m into [sqrt(1/2), sqrt(2))
+    float8 m = AS_FLOAT8(bits - (*e << 23));
     float8 t = (m - 1.0f) / (m + 1.0f);
     float8 u = t * t;
     float8 p = u * (1.0f / 7.0f) + 1.0f / 5.0f;
     p = p * u + 1.0f / 3.0f;
-    p = p * u * t + t;
+    return p * u * t + t;
+}
+
+inline float8 log8(float8 x) {
+    int8 e;
+    float8 p = half_log_mantissa8(x, &e);
     float8 fe = TO_FLOAT8(e);
     return (p + p) + fe * 0.693359375f - fe * 2.12194440e-4f;
 }
@@ -264,14 +269,8 @@ inline float8 pow8_pos(float8 x, float y) {
 // (log2 from the same series as log8 in one FMA; 2^f on [-0.5, 0.5], Cephes' exp2f, with the
 // rounding of y <= 0 done by one conversion), within a few ulp.
 inline float8 pow8_unit(float8 x, float y) {
-    int8 bits = AS_INT8(MAX(x, FLT_MIN));
-    int8 e = ((bits - 0x3f3504f3) >> 23);
-    float8 m = AS_FLOAT8(bits - (e << 23));
-    float8 t = (m - 1.0f) / (m + 1.0f);
-    float8 u = t * t;
-    float8 p = u * (1.0f / 7.0f) + 1.0f / 5.0f;
-    p = p * u + 1.0f / 3.0f;
-    p = p * u * t + t;
+    int8 e;
+    float8 p = half_log_mantissa8(MAX(x, FLT_MIN), &e);
     float8 z = y * (p * 2.885390082f + TO_FLOAT8(e));  // y log2 x <= 0; 2.885 = 2 / ln 2
     int8 n = TO_INT8(z - 0.5f);                         // round(z), toward zero from below
     float8 f = z - TO_FLOAT8(n);
