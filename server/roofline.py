@@ -280,7 +280,9 @@ def profiling_queue(ctx):
 
 
 def _event_s(ev) -> float:
-    return (ev.profile.end - ev.profile.start) * 1e-9
+    """A launch's time by its profiling event, at least 1 ns: a coarse device timer can read a
+    short kernel as 0, and rates are divided by these times."""
+    return max(ev.profile.end - ev.profile.start, 1) * 1e-9
 
 
 @dataclass

@@ -22,8 +22,6 @@ from gazehdr import batch
 from gazehdr.cli import main
 from gazehdr.render import RenderRequest, render_request
 
-pytest.importorskip("dask.distributed")
-
 TINY = {"width": 64, "height": 36, "fps": 10.0, "seconds": 0.5, "backend": "opencl"}
 TINY_ARGS = ["--size", "64x36", "--fps", "10", "--seconds", "0.5", "--quiet"]
 MANIFEST = """

@@ -341,7 +341,8 @@ def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path) -> None:
     import threading
     import time
 
-    loopback = pytest.importorskip("lsl_loopback")  # sets LSLAPICFG: loopback only
+    import lsl_loopback as loopback  # sets LSLAPICFG (loopback only) as it is imported
+
     pylsl = loopback.pylsl
     xy = [("x", "both", "ScreenX", "pixels"), ("y", "both", "ScreenY", "pixels")]
     info = loopback.stream_info("ServeLoop", "Gaze", xy, rate=100, source_id="serve-loop")

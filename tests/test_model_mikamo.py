@@ -486,11 +486,12 @@ def test_no_olive_blob_in_a_letterboxed_split_pane(backend: str, tmp_path: Path)
     scene's light, and only counting the bars in (the bug) made it one, an olive blob over the
     bar. So the bar right of the lamp's columns (x >= 16) must stay black: v < 0.02 (with
     the bars counted it reached ~0.9). The left pane's own (Jacobs) afterimage is not checked."""
+    import cv2
+
     from gazehdr.eye import Eye
     from gazehdr.scenes.image import ImageScene
     from gazehdr.sim.models import Models
 
-    cv2 = pytest.importorskip("cv2")
     image = np.full((32, 128, 3), 1000.0, np.float32)
     image[:, :13] = 3000.0
     path = tmp_path / "wide.pfm"

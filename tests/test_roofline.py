@@ -110,3 +110,13 @@ def test_bench_roofline_prints_a_line_per_stage(capsys) -> None:
 def test_roofline_refuses_models() -> None:
     with pytest.raises(SystemExit):
         main(["--roofline", "--models", "all"])
+
+
+def test_a_launch_the_timer_reads_as_zero_counts_one_nanosecond() -> None:
+    """Rates divide by launch times; a coarse device timer can give a short kernel start == end."""
+    from types import SimpleNamespace
+
+    from gazehdr.roofline import _event_s
+
+    assert _event_s(SimpleNamespace(profile=SimpleNamespace(start=7, end=7))) == 1e-9
+    assert _event_s(SimpleNamespace(profile=SimpleNamespace(start=0, end=2500))) == 2.5e-6
