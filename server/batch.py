@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gazehdr import atomic
 from gazehdr.render import RenderRequest, render_request
 from gazehdr.sim.models import Models
 
@@ -209,16 +210,6 @@ def is_finished(job: Job, out_root: str | Path) -> bool:
         return False
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """`path` holds `text` whole or is as it was: a temporary file renamed over it."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -254,7 +245,7 @@ def render_job(job: Job, out_root: str) -> dict[str, Any]:
         "gazehdr": _version(),
         "notes": notes,
     }
-    write_atomically(folder / MANIFEST_NAME, json.dumps(manifest, indent=1) + "\n")
+    atomic.write_text(folder / MANIFEST_NAME, json.dumps(manifest, indent=1) + "\n")
     return {"id": job.id, "frames": summary.frames, "wall_seconds": summary.wall_seconds}
 
 

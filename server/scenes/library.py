@@ -13,7 +13,6 @@ the pixels already loaded, without reading the file again.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import re
@@ -22,6 +21,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+from gazehdr import atomic
 from gazehdr.scenes import Scene, builtin_names, open_scene
 from gazehdr.scenes.decoding import SceneError
 from gazehdr.scenes.estimate import check_kind
@@ -230,10 +230,4 @@ class SceneLibrary:
     def _write_settings(self, name: str, values: dict[str, Any]) -> None:
         path = self._sidecar(name)
         assert path is not None  # an upload exists, so there is an upload folder
-        tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-        try:
-            tmp.write_text(json.dumps(values))
-            os.replace(tmp, path)
-        finally:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+        atomic.write_text(path, json.dumps(values))
