@@ -23,6 +23,7 @@ import numpy as np
 from gazehdr.scenes import Scene
 from gazehdr.sim import Geometry, Params, Simulator
 from gazehdr.sim.models import Models
+from gazehdr.sim.simulator import WarpLayers
 
 
 def pane_params(params: Params, width: int, pane_width: int) -> Params:
@@ -117,11 +118,12 @@ class Eye:
             sim.reset()
 
     def step(
-        self, dt: float, gaze: tuple[float, float], eyes_open: bool, output: str = "float32"
+        self, dt: float, gaze: tuple[float, float], eyes_open: bool, output: str | None = "float32"
     ) -> list[np.ndarray]:
         """Advance every pane by `dt` s looking at `gaze`; each pane's frame, in `output`
-        (`Simulator.step`'s encodings). The step is split where the scene changes, and each
-        part sees the scene as it is at the part's start."""
+        (`Simulator.step`'s encodings; None: no frame, for a late gaze warp only, see
+        `warp_layers`). The step is split where the scene changes, and each part sees the
+        scene as it is at the part's start."""
         pane_gaze = self.pane_gaze(gaze)
         start = self.time
         end = start + dt
@@ -132,9 +134,17 @@ class Eye:
             self._follow_scene()
         self._follow_scene()
         rest = dt if self.time == start else max(0.0, end - self.time)
+        if output is None:
+            for sim in self.sims:
+                sim.advance(rest, gaze=pane_gaze, eyes_open=eyes_open)
+            return []
         return [
             sim.step(rest, gaze=pane_gaze, eyes_open=eyes_open, output=output) for sim in self.sims
         ]
+
+    def warp_layers(self) -> list[WarpLayers]:
+        """Each pane's last step as a late gaze warp sends it (`Simulator.warp_layers`)."""
+        return [sim.warp_layers() for sim in self.sims]
 
     def _follow_scene(self) -> None:
         """Load the scene as it is now, if that differs from what the panes see."""

@@ -97,6 +97,7 @@ class Viewer:
         self.sent = self.acks = 0
         self._credit = asyncio.Event()
         self.maps = False  # whether it asked for scene maps (binary notes)
+        self.warp = False  # whether it asked for late-warp frames (gazehdr.warp)
         #: Its task waits on the mailbox with credit: a frame put now is on its way at once.
         self.taking = False
 
@@ -147,7 +148,9 @@ class Viewer:
             if frame is None:
                 continue
             started = time.monotonic()
-            message = frame.message(self.mailbox.dropped)
+            message = frame.message(self.mailbox.dropped, self.warp)
+            if message is None:  # made before this viewer switched warp: the next one fits
+                continue
             await self._send_bytes(message)
             self.sent += 1
             sent = time.monotonic()
@@ -183,12 +186,18 @@ class LiveSession:
         self._log_lock = threading.Lock()
 
     def _tick(
-        self, dt: float, controls: list[tuple[Control, float]], maps: bool = False
+        self,
+        dt: float,
+        controls: list[tuple[Control, float]],
+        maps: bool = False,
+        warp: tuple[bool, bool] = (True, False),
     ) -> tuple[Frame, list[Note]]:
         """One step, on the worker thread, with what it journaled published and appended to the
-        log; `maps`: a viewer inspects (decided on the event loop, which owns the viewers). A
+        log; `maps`: a viewer inspects, `warp`: whether viewers want (plain frames, late-warp
+        layers) (both decided on the event loop, which owns the viewers). A
         log that cannot be written stops recording, not the session; the viewers are told."""
-        frame, notes = self.session.tick(dt, controls)
+        plain, warp_layers = warp
+        frame, notes = self.session.tick(dt, controls, plain=plain, warp=warp_layers)
         if maps:  # made only for viewers that inspect
             scene_map = self.session.scene_map()
             if scene_map is not self.scene_map:
@@ -272,10 +281,11 @@ class LiveSession:
             last = started
             controls, self.controls = self.controls, []
             maps = any(v.maps for v in self.viewers)
+            warp = (any(not v.warp for v in self.viewers), any(v.warp for v in self.viewers))
             # The step's own future, awaited directly: the task resumes at the loop's next turn
             # after the step ends (each extra hop, a task or a shield, costs a turn, and with
             # the GIL shared every turn can wait for another thread).
-            work = _STEPPER.submit(self._tick, dt, controls, maps)
+            work = _STEPPER.submit(self._tick, dt, controls, maps, warp)
             try:
                 frame, notes = await asyncio.wrap_future(work)
             except asyncio.CancelledError:

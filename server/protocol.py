@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gazehdr import warp
 from gazehdr.drivers.wire import as_float, load_typed_json
 from gazehdr.sim.layout import encode_output
 
@@ -36,6 +37,9 @@ class Encoding(IntEnum):
 
     f16 = 1  # RGB half floats: 11 significant bits, finer still in the darks
     rgb10a2 = 2  # 10 bits per channel packed in a u32, as WebGL2's RGB10_A2 texture takes it
+    #: The late gaze warp (gazehdr.warp): what compose makes before Eq. 12 and the afterimage
+    #: maps, composed by the viewer at its newest gaze. Per viewer (`Warp`), never a session's.
+    warp = 16
 
 
 #: The `Simulator.step` output that is each encoding's payload.
@@ -152,6 +156,8 @@ def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:
         bool(flags & FLAG_SPLIT),
     )  # fmt: skip
     payload = memoryview(data)[header_bytes:]
+    if header.encoding is Encoding.warp:  # as the viewer shows it at the frame's own gaze
+        return header, warp.compose(warp.unpack(payload, w, h)).astype(np.float32)
     if header.encoding is Encoding.f16:
         v = np.frombuffer(payload, "<f2", count=w * h * 3).reshape(h, w, 3)
         return header, v.astype(np.float32)
@@ -233,6 +239,14 @@ class SceneMaps:
 
 
 @dataclass(frozen=True)
+class Warp:
+    """Whether this viewer wants late-warp frames (encoding `warp`) instead of the session's
+    encoding. Handled per viewer."""
+
+    on: bool
+
+
+@dataclass(frozen=True)
 class Ack:
     """The viewer took frame `frame`: flow control, handled per viewer, not by the session."""
 
@@ -241,7 +255,7 @@ class Ack:
 
 Control = (
     Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | SceneSettings | SceneMaps
-    | Reset | Ack
+    | Warp | Reset | Ack
 )  # fmt: skip
 SCENE_SETTINGS = {"scale": ((int, float), "a number"), "kind": (str, "a string"),
                   "layer": (str, "a string")}  # fmt: skip
@@ -322,12 +336,14 @@ def parse_control(data: str | bytes) -> Control:
         return _scene_settings(msg)
     if kind == "scene_maps":
         return SceneMaps(_field(msg, "send", bool, "true or false"))
+    if kind == "warp":
+        return Warp(_field(msg, "on", bool, "true or false"))
     if kind == "reset":
         return Reset()
     if kind == "ack":
         return Ack(_field(msg, "frame", int, "an integer"))
     known = (
         "viewport, gaze, eyes, scene, model, gaze_source, params, scene_settings, scene_maps, "
-        "reset, ack"
+        "warp, reset, ack"
     )
     raise ProtocolError(f"unknown message type {kind!r}; known: {known}", kind)

@@ -72,6 +72,7 @@ from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change, param_info
+from gazehdr.warp import pack as pack_warp
 
 #: Tracks a session follows by name alone (a recording is `replay:NAME`, from the server's
 #: recordings).
@@ -124,8 +125,19 @@ class Frame:
     encode_seconds: float
     #: When the gaze this frame is the first to use reached the server (None: no new gaze).
     gaze_received_at: float | None
+    #: The same frame as late-warp layers (`gazehdr.warp`), made when a viewer asked for them.
+    warp: bytes | None = None
 
-    def message(self, dropped: int) -> bytes:
+    def message(self, dropped: int, warp: bool = False) -> bytes | None:
+        """The frame's message, as late-warp layers if `warp`; None when the step did not make
+        that form (the viewer switched between the step and the send: it takes the next)."""
+        if warp:
+            if self.warp is None:
+                return None
+            head = dataclasses.replace(self.header, dropped=dropped, encoding=Encoding.warp)
+            return head.pack() + self.warp
+        if not self.payload:
+            return None
         return dataclasses.replace(self.header, dropped=dropped).pack() + self.payload
 
 
@@ -290,8 +302,16 @@ class Session:
 
     # --- the step -----------------------------------------------------------------------------
 
-    def tick(self, dt: float, controls: list[tuple[Control, float]]) -> tuple[Frame, list[Note]]:
-        """Apply `controls` (each with its arrival time), step by `dt` s, encode the frame.
+    def tick(
+        self,
+        dt: float,
+        controls: list[tuple[Control, float]],
+        *,
+        plain: bool = True,
+        warp: bool = False,
+    ) -> tuple[Frame, list[Note]]:
+        """Apply `controls` (each with its arrival time), step by `dt` s, encode the frame:
+        in the session's encoding if `plain` (a viewer wants it), as late-warp layers if `warp`.
 
         Returns the frame and the messages for the viewers: a `state` when something they
         show changed, an `error` for each control refused (the session goes on unchanged), and
@@ -317,7 +337,7 @@ class Session:
             notes.append({"type": "error", "message": str(e), "in": "scene"})
         if changed:
             notes.append({"type": "state", **self.state()})
-        return self._advance(dt), notes
+        return self._advance(dt, plain or not warp, warp), notes
 
     def scene_map(self) -> bytes:
         """The scene map of what the eye looks at now (`SceneMap`, packed): made again only
@@ -523,7 +543,7 @@ class Session:
             self._log(sessionlog.GazeEvent(kind, self._blinks, t))
         self._journaled = (point, eyes_open)
 
-    def _advance(self, dt: float) -> Frame:
+    def _advance(self, dt: float, plain: bool = True, warp: bool = False) -> Frame:
         started = self.clock()
         previous, self.reading = self.reading, self._input.at(self.sim.time)
         new_gaze_at = self.reading.received_at
@@ -531,10 +551,13 @@ class Session:
             new_gaze_at = None
         self._log_gaze()
         eyes_open = self.reading.eyes_open
-        outs = self.eye.step(dt, self.gaze, eyes_open, SIM_OUTPUT[self.settings.encoding])
+        output = SIM_OUTPUT[self.settings.encoding] if plain else None
+        outs = self.eye.step(dt, self.gaze, eyes_open, output)
+        layers = self.eye.warp_layers() if warp else None
         stepped = self.clock()
         w, h = self.size
-        data = payload(side_by_side(outs, w))  # the device already encoded each pane
+        data = payload(side_by_side(outs, w)) if plain else b""  # each pane encoded already
+        warp_data = None if layers is None else pack_warp(layers, w, self.params)
         encoded = self.clock()
         sim = self.sim
         gx, gy = sim.gaze
@@ -555,7 +578,7 @@ class Session:
             split=len(self.eye.sims) == 2,
         )
         self.frame += 1
-        return Frame(header, data, stepped - started, encoded - stepped, new_gaze_at)
+        return Frame(header, data, stepped - started, encoded - stepped, new_gaze_at, warp_data)
 
 
 def _check_split_width(size: tuple[int, int]) -> None:

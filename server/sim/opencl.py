@@ -528,3 +528,17 @@ class OpenCLBackend:
         v = np.empty(shape(lay), kind)
         cl.enqueue_copy(self.queue, v, b[buf_name])
         return v
+
+    def warp_layers(self, eyes: float) -> tuple[np.ndarray, np.ndarray]:
+        """What a late gaze warp sends (`gazehdr.warp`): linear RGB before Eq. 12 as H×W×3
+        half floats made on the device (kernel compose_base), and the afterimage maps of the whole
+        retina grid (6×grid_h×grid_w float32): the viewer may look anywhere before the next
+        frame. Reuses compose_half's buffer: call it after compose, never between."""
+        lay, b = self.lay, self.buf
+        self.k["compose_base"](
+            self.queue, self.rows8(), None, self.P, b["G"], self.rho_full(), b["A"],
+            np.int32(lay.width), np.int32(lay.height), np.float32(eyes), b["v16"],
+        )  # fmt: skip
+        rgb = np.empty((lay.height, lay.width, 3), np.float16)
+        cl.enqueue_copy(self.queue, rgb, b["v16"])
+        return rgb, self.get("maps")

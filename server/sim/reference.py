@@ -360,11 +360,10 @@ def foveal_blind_spot(G, rho, fill, gaze, lay: Layout, p: Params) -> np.ndarray:
     return G + w * (rgb - G)
 
 
-def compose(
-    G, rho, maps, A, gaze, eyes: float, lay: Layout, p: Params, visibility: float = 1.0
-) -> np.ndarray:
-    """Tone curve with Purkinje (Eq. 13), hue shift, afterimages (Eq. 12) seen with
-    `visibility` (Sec. 5's boost) times the foveal fall-off, gamut, gamma."""
+def compose_base(G, rho, A, eyes: float, lay: Layout, p: Params) -> np.ndarray:
+    """The first half of `compose`: tone curve with Purkinje (Eq. 13) and hue shift, linear RGB
+    (3×H×W) before Eq. 12. Nothing here depends on the gaze: a late gaze warp sends it (RGB,
+    not LMS: LMS_TO_RGB's large coefficients would magnify a half float's rounding)."""
     X, Y = screen_coords(lay)
     G = eyes * G
     rc = np.clip(bilinear(rho[None], X / lay.cell, Y / lay.cell)[0], 0.0, 1.0)
@@ -372,16 +371,34 @@ def compose(
     ys = np.tensordot(np.asarray(p.w_S), G, axes=1)
     R = tone(rc * yp + (1 - rc) * ys, A, p)  # Purkinje: mesopic luminance into Eq. 1
     ratio = rc * G / np.maximum(yp, p.Y_min) + (1 - rc) * np.asarray(p.k_s)[:, None, None]
-    J = R * ratio
+    return R * ratio
+
+
+def apply_afterimages(
+    rgb, maps, gaze, lay: Layout, p: Params, visibility: float = 1.0
+) -> np.ndarray:
+    """The second half of `compose`: the afterimage maps (Eq. 12) read at pixel - gaze and
+    seen with `visibility` (Sec. 5's boost) times the foveal fall-off, gamut, gamma; H×W×3.
+    The oracle of the viewer's late gaze warp (web/warp.js), which runs it at a newer gaze."""
+    X, Y = screen_coords(lay)
     gx = (X - gaze[0]) / lay.cell + lay.grid_w / 2
     gy = (Y - gaze[1]) / lay.cell + lay.grid_h / 2
     m = bilinear(maps, gx, gy, border=(1.0, 1.0, 1.0, 0.0, 0.0, 0.0))
     sig_f = lay.px(p.fovea_sigma_deg)
     f = visibility * np.exp(-((X - gaze[0]) ** 2 + (Y - gaze[1]) ** 2) / (2 * sig_f * sig_f))
-    lms = np.tensordot(RGB_TO_LMS, J, axes=1) * (1 + f * (m[:3] - 1))
+    lms = np.tensordot(RGB_TO_LMS, rgb, axes=1) * (1 + f * (m[:3] - 1))
     J = np.tensordot(LMS_TO_RGB, lms, axes=1) + f * m[3:]
     J = gamut_map(J, p.w_P)
     return np.power(J, p.gamma).transpose(1, 2, 0)
+
+
+def compose(
+    G, rho, maps, A, gaze, eyes: float, lay: Layout, p: Params, visibility: float = 1.0
+) -> np.ndarray:
+    """Tone curve with Purkinje (Eq. 13), hue shift, afterimages (Eq. 12) seen with
+    `visibility` (Sec. 5's boost) times the foveal fall-off, gamut, gamma."""
+    rgb = compose_base(G, rho, A, eyes, lay, p)
+    return apply_afterimages(rgb, maps, gaze, lay, p, visibility)
 
 
 # --- the backend ---------------------------------------------------------------------------------
@@ -458,3 +475,10 @@ class ReferenceBackend:
         v = compose(a["G"], a["rho"], a["maps"], self.A, gaze, eyes, self.lay, self.p, visibility)
         a["v"] = v.astype(np.float32)
         return a["v"]
+
+    def warp_layers(self, eyes: float) -> tuple[np.ndarray, np.ndarray]:
+        """What a late gaze warp sends (`gazehdr.warp`): linear RGB before Eq. 12 (H×W×3) and the
+        afterimage maps of the whole retina grid (6×grid_h×grid_w), both float32."""
+        a = self.a
+        rgb = compose_base(a["G"], a["rho"], self.A, eyes, self.lay, self.p)
+        return rgb.transpose(1, 2, 0).astype(np.float32), a["maps"].astype(np.float32)

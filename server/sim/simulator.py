@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,6 +27,20 @@ from gazehdr.sim.models import Models, make_stages
 from gazehdr.sim.params import Params
 
 BACKENDS = ("opencl", "reference")
+
+
+@dataclass(frozen=True)
+class WarpLayers:
+    """One pane's frame as a late gaze warp sends it (`Simulator.warp_layers`)."""
+
+    rgb: np.ndarray  # H×W×3 float16: linear RGB before Eq. 12 (reference.compose_base)
+    maps: np.ndarray  # 6×grid_h×grid_w float32: the afterimage maps, centred on `gaze`
+    gaze: tuple[float, float]  # the step's gaze, pane px
+    visibility: float  # Sec. 5's boost: the foveal fall-off's peak
+    cell: int  # screen px per retina cell
+    fovea_sigma_px: float  # the foveal fall-off's sigma, screen px
+
+
 _DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}
 MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no longer a frame)
 
@@ -71,6 +86,7 @@ class Simulator:
         # Set by reset: the next step settles the eye at its own gaze (and dt) first.
         self._settle_pending = True
         self._boost_since = -math.inf  # time of the last blink's end or saccade (Sec. 5)
+        self._visibility = 1.0  # the afterimages' visibility at the last step (Sec. 5's boost)
         self.load_scene(np.zeros((height, width, 3), np.float32))
 
     # --- properties ---------------------------------------------------------------------------
@@ -208,11 +224,33 @@ class Simulator:
         `output` "float16" or "rgb10a2" returns `v` encoded for the viewer (see
         `layout.encode_output`); the OpenCL backend encodes on the device, so the host never
         makes a pass over the frame."""
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        self.advance(dt, gaze, eyes_open)
+        b = self._backend
+        if output != "float32" and b.name == "opencl":
+            return b.compose(self._gaze, self._eyes, _DEVICE_OUTPUT[output], self._visibility)
+        return encode_output(b.compose(self._gaze, self._eyes, visibility=self._visibility), output)
+
+    def warp_layers(self) -> WarpLayers:
+        """The last step's frame as a late gaze warp sends it (`gazehdr.warp`): the parts of
+        compose that stay on the screen, and the retina-locked afterimage maps the viewer
+        applies at its newest gaze. Call it after `step` or `advance`."""
+        rgb, maps = self._backend.warp_layers(self._eyes)
+        lay = self.layout
+        return WarpLayers(
+            np.asarray(rgb, np.float16), np.asarray(maps, np.float32), self._gaze,
+            self._visibility, lay.cell, lay.px(self.params.fovea_sigma_deg),
+        )  # fmt: skip
+
+    def advance(
+        self, dt: float, gaze: Sequence[float] | None = None, eyes_open: bool = True
+    ) -> None:
+        """`step` without its compose: the eye advanced, no frame made (a late gaze warp
+        composes in the viewer; `warp_layers`)."""
         dt = float(dt)
         if not (math.isfinite(dt) and 0.0 <= dt <= MAX_DT):
             raise ValueError(f"dt must be a finite number of seconds in [0, {MAX_DT}], got {dt}")
-        if output not in OUTPUTS:
-            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
         previous, was_open = self._gaze, self._eyes
         if gaze is not None:
             self._gaze = self._check_gaze(gaze)
@@ -231,12 +269,9 @@ class Simulator:
             if blind_spot_strength(self.params) > 0:
                 b.blind_spot(self._gaze)
         p = self.params
-        visibility = 1.0 + p.afterimage_boost * math.exp(
+        self._visibility = 1.0 + p.afterimage_boost * math.exp(
             -(self.time - self._boost_since) / p.afterimage_boost_s
         )
-        if output != "float32" and b.name == "opencl":
-            return b.compose(self._gaze, self._eyes, _DEVICE_OUTPUT[output], visibility)
-        return encode_output(b.compose(self._gaze, self._eyes, visibility=visibility), output)
 
     # --- internals ----------------------------------------------------------------------------
 

@@ -9,11 +9,11 @@ inline float8 gamut_t(float8 a, float8 e, float8 t) {
     return (e != 0.0f && lim < t) ? lim : t;
 }
 
-inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
-                       __global const float *rho_full, __global const float *maps,
-                       __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
-                       float gx, float gy, float eyes, __global const float *fovea, int x,
-                       int y) {
+// The first half of compose8: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
+// What a late gaze warp sends (compose_base): none of it depends on the gaze.
+inline rgb8_t base8(__constant const params_t *P, __global const float *G,
+                    __global const float *rho_full, __global const float *A, int W, int H,
+                    float eyes, int x, int y) {
     size_t row = (size_t)y * W, plane = (size_t)W * H;
     float8 r = eyes * load8_row(G + row, x, W);
     float8 g = eyes * load8_row(G + plane + row, x, W);
@@ -22,8 +22,18 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     float8 yp = dot8(P->w_P, r, g, b), ys = dot8(P->w_S, r, g, b);
     float8 R = tone8(P, ln_sigma_n_of(P, A[0]), rc * yp + (1.0f - rc) * ys);  // Eq. 1 + Purkinje
     float8 ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);        // hue shift
-    rgb8_t lms = mat8_mul(P->rgb2lms, ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
-                          ratio * b + grey * P->k_s[2]);
+    rgb8_t J = {ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
+                ratio * b + grey * P->k_s[2]};
+    return J;
+}
+
+inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
+                       __global const float *rho_full, __global const float *maps,
+                       __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
+                       float gx, float gy, float eyes, __global const float *fovea, int x,
+                       int y) {
+    rgb8_t J0 = base8(P, G, rho_full, A, W, H, eyes, x, y);
+    rgb8_t lms = mat8_mul(P->rgb2lms, J0.r, J0.g, J0.b);
     // Afterimage maps at the retinal position of this pixel; off the grid: equilibrium.
     float8 px = (float)x + 0.5f + LANE_F;
     float py = y + 0.5f;
@@ -112,11 +122,8 @@ __kernel void compose(COMPOSE_ARGS, __global float *v) {
     if (n > 16) store8_part(o + 16, q2, n - 16);
 }
 
-// The same as IEEE half floats (round to nearest even), for frames sent as float16.
-__kernel void compose_half(COMPOSE_ARGS, __global half *v) {
-    int x = get_global_id(0) * VEC, y = get_global_id(1);
-    if (x >= W) return;
-    rgb8_t c = compose8(COMPOSE_CALL, x, y);
+// 8 pixels' RGB interleaved as IEEE half floats (round to nearest even) at pixel (x, y).
+inline void store_half_rgb8(__global half *v, rgb8_t c, int W, int x, int y) {
     __global half *o = v + 3 * ((size_t)y * W + x);
     if (x + VEC <= W) {
         INTERLEAVE(q, c)
@@ -131,6 +138,23 @@ __kernel void compose_half(COMPOSE_ARGS, __global half *v) {
     vstore8(q1, 0, tmp + 8);
     vstore8(q2, 0, tmp + 16);
     for (int i = 0; i < 3 * (W - x); ++i) vstore_half_rte(tmp[i], i, o);
+}
+
+// compose as half floats, for frames sent as float16.
+__kernel void compose_half(COMPOSE_ARGS, __global half *v) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    store_half_rgb8(v, compose8(COMPOSE_CALL, x, y), W, x, y);
+}
+
+// The late gaze warp's base layer: base8's linear RGB as H×W×3 interleaved half floats. The viewer
+// applies Eq. 12, gamut and gamma at the newest gaze (web/warp.js; reference.apply_afterimages).
+__kernel void compose_base(__constant const params_t *P, __global const float *G,
+                           __global const float *rho_full, __global const float *A, int W,
+                           int H, float eyes, __global half *v) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    store_half_rgb8(v, base8(P, G, rho_full, A, W, H, eyes, x, y), W, x, y);
 }
 
 // The same packed as WebGL2's RGB10_A2 takes it: round(1023 v) per channel (to nearest even),
