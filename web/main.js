@@ -49,6 +49,9 @@ const stats = {
   connects: 0, // sockets opened, reconnects included
 };
 const state = {}; // the last hello/state from the server
+// Late gaze warp (warp.js): afterimages placed at the newest pointer at every display refresh.
+// Off unless asked for: the panel's box, or ?warp=1 (tests and comparisons).
+let warpOn = new URLSearchParams(location.search).get('warp') === '1';
 // The gaze daemons' trackers this server has heard of, by name (state and `tracker` notes):
 // a session follows one of them by choosing gaze source `remote:NAME`.
 const trackers = new Map();
@@ -87,6 +90,7 @@ class Connection {
       stats.connects += 1;
       sendViewport();
       this.send(messages.sceneMaps(true)); // for the inspector and the false colour
+      if (warpOn) this.send(messages.warp(true));
       if (eyesClosed) this.send(messages.eyes(false));
     };
     ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(ev.data) : onBinary(ev.data));
@@ -147,8 +151,15 @@ const view = {
     inspector.toggle(on);
     panel.showView(inspector.falseColour, inspector.visible);
   },
+  /** The late gaze warp on or off (the server switches this viewer's frames). */
+  warp(on = !warpOn) {
+    warpOn = Boolean(on);
+    send(messages.warp(warpOn));
+    panel.showWarp(warpOn);
+  },
 };
 const panel = new Panel(document.getElementById('panel'), send, toast, view);
+panel.showWarp(warpOn);
 
 /** What the page waits for, until the first frame: the first frame of a new session takes
  * the server a moment (its OpenCL kernels are built on first use). */
@@ -265,7 +276,7 @@ window.addEventListener('resize', () => {
   viewportTimer = setTimeout(sendViewport, VIEWPORT_DEBOUNCE_MS);
 });
 
-let hover = null; // where the pointer is over the picture, for the inspector
+let hover = null; // where the pointer is over the picture, for the inspector and the warp
 
 window.addEventListener('pointermove', (ev) => {
   if (ev.target instanceof Element && ev.target.closest('#panel')) return; // using the panel
@@ -408,6 +419,14 @@ function trackerStatus(source) {
   return connected.length ? `${connected.length} connected, not followed` : 'not connected';
 }
 
+/** Where a warp frame places its afterimages: the newest pointer, as frame fractions, while
+ * the pointer is the gaze; else null, the frame's own gaze (a tracker's, say). */
+function warpGaze() {
+  if (!hover || !lastHeader || lastHeader.tracker_gaze) return null;
+  const [x, y] = frameFraction(hover);
+  return Number.isFinite(x) && Number.isFinite(y) ? { x, y } : null;
+}
+
 function tick(now) {
   requestAnimationFrame(tick);
   if (pending) {
@@ -417,7 +436,9 @@ function tick(now) {
   }
   renderer.fitToCSS();
   flushGaze();
-  renderer.draw(); // every display frame: the dither noise must change even without new frames
+  // Every display frame: the dither noise must change even without new frames, and a warp
+  // frame's afterimages follow the newest pointer (when the pointer is the gaze).
+  renderer.draw(undefined, warpGaze());
   stats.draws.tick(now);
   const rect = renderer.cssRect();
   hud.placeMarker(lastHeader, rect);

@@ -64,6 +64,8 @@ export class Panel {
     this.inspectorBox = el('input', { type: 'checkbox', id: 'inspector-toggle' });
     this.falseColourBox.addEventListener('change', () => this.view.falseColour(this.falseColourBox.checked));
     this.inspectorBox.addEventListener('change', () => this.view.inspector(this.inspectorBox.checked));
+    this.warpBox = el('input', { type: 'checkbox', id: 'warp-toggle' });
+    this.warpBox.addEventListener('change', () => this.view.warp(this.warpBox.checked));
     const plain = el('button', { type: 'button', id: 'plain-compare', textContent: 'Compare: plain tone curve' });
     plain.title = 'split view: the right pane without afterimages or acuity loss';
     plain.addEventListener('click', () => {
@@ -119,6 +121,7 @@ export class Panel {
       el('label', { id: 'layer-row' }, 'layer ', this.layerSelect),
       el('label', {}, this.falseColourBox, ' false colour (C)'),
       el('label', {}, this.inspectorBox, ' inspector: readout, histogram (I)'),
+      el('label', { title: 'afterimages follow the pointer at display rate, between frames' }, this.warpBox, ' late gaze warp'),
       el('label', {}, 'afterimage ', this.afterimageSelect),
       el('label', {}, 'acuity ', this.acuitySelect),
       el('label', {}, this.splitBox, ' split view: right pane'),
@@ -141,6 +144,10 @@ export class Panel {
   }
 
   /** The view toggles as the page has them (keys change them too). */
+  showWarp(on) {
+    this.warpBox.checked = on;
+  }
+
   showView(falseColour, inspector) {
     this.falseColourBox.checked = falseColour;
     this.inspectorBox.checked = inspector;

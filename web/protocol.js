@@ -1,12 +1,14 @@
 // The browser side of /ws/view (docs/protocol.md). No I/O here: bytes in, typed objects out,
 // and plain objects for the control messages, so the wire format lives in one place.
 
+import { decodeWarp } from './warp.js';
+
 export const PROTOCOL = 1;
 export const MAGIC = 'GZHF';
 /** Header size of version 1; later versions may append fields, so readers use header_bytes. */
 export const HEADER_BYTES_V1 = 56;
-export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2 });
-export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2' });
+export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2, WARP: 16 });
+export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2', 16: 'warp' });
 const BYTES_PER_PIXEL = { 1: 6, 2: 4 };
 /** The server refuses gaze outside [-3, 4] frame fractions; clamp rather than get an error. */
 const GAZE_MIN = -3;
@@ -59,6 +61,14 @@ export function decodeHeader(buffer) {
  */
 export function decodeFrame(buffer) {
   const header = decodeHeader(buffer);
+  if (header.encoding === ENCODING.WARP) { // the late gaze warp's layers (warp.js)
+    if (header.width === 0 || header.height === 0) throw new ProtocolError('empty frame');
+    try {
+      return { header, pixels: decodeWarp(buffer, header) };
+    } catch (err) {
+      throw new ProtocolError(err.message);
+    }
+  }
   const bpp = BYTES_PER_PIXEL[header.encoding];
   if (!bpp) throw new ProtocolError(`unknown frame encoding ${header.encoding}`);
   if (header.width === 0 || header.height === 0) throw new ProtocolError('empty frame');
@@ -148,6 +158,8 @@ export const messages = {
   /** The current scene's `scale` (cd/m² per unit), estimate `kind`, `layer`; null: default. */
   sceneSettings: (values) => ({ type: 'scene_settings', ...values }),
   sceneMaps: (send) => ({ type: 'scene_maps', send: Boolean(send) }),
+  /** Late gaze warp frames (encoding `warp`) to this viewer or not. */
+  warp: (on) => ({ type: 'warp', on: Boolean(on) }),
   reset: () => ({ type: 'reset' }),
   ack: (frame) => ({ type: 'ack', frame }),
 };

@@ -3,53 +3,22 @@
 // displayed frame, so the mean over time equals v and an 8-bit screen shows >8-bit darks.
 
 import { ENCODING } from './protocol.js';
-
-const VERTEX = `#version 300 es
-// One triangle covering the viewport; no vertex buffers needed.
-out vec2 v_uv;
-void main() {
-  vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
-  v_uv = p;
-  gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
-}`;
+import { DITHER, program } from './gl.js';
+import { WarpLayer } from './warp.js';
 
 const FRAGMENT = `#version 300 es
 precision highp float;
 precision highp int;
 uniform sampler2D u_frame;
-uniform uint u_counter;  // displayed-frame counter: new noise every draw
 in vec2 v_uv;
 out vec4 o_colour;
-
-// lowbias32 (C. Wellons): a full-avalanche integer hash, so neighbouring pixels, channels and
-// frames get uncorrelated noise (a sine hash or a small LCG would show patterns).
-uint lowbias32(uint x) {
-  x ^= x >> 16; x *= 0x7feb352du;
-  x ^= x >> 15; x *= 0x846ca68bu;
-  x ^= x >> 16;
-  return x;
-}
-// Top 24 bits to [0, 1): exact in a float, never reaches 1.
-float unit(uint h) { return float(h >> 8u) * (1.0 / 16777216.0); }
+${DITHER}
 
 void main() {
   // Rows arrive top row first; GL textures start at the bottom: flip here, not by copying.
   vec3 v = clamp(texture(u_frame, vec2(v_uv.x, 1.0 - v_uv.y)).rgb, 0.0, 1.0);
-  uvec2 p = uvec2(gl_FragCoord.xy);
-  uint h = lowbias32(lowbias32(lowbias32(u_counter) ^ p.x) ^ p.y) * 3u;
-  vec3 u = vec3(unit(lowbias32(h)), unit(lowbias32(h + 1u)), unit(lowbias32(h + 2u)));
-  o_colour = vec4(floor(255.0 * v + u) / 255.0, 1.0);
+  o_colour = dither(v);
 }`;
-
-function compile(gl, type, source) {
-  const shader = gl.createShader(type);
-  gl.shaderSource(shader, source);
-  gl.compileShader(shader);
-  if (!gl.getShaderParameter(shader, gl.COMPILE_STATUS)) {
-    throw new Error(`shader: ${gl.getShaderInfoLog(shader)}`);
-  }
-  return shader;
-}
 
 export class Renderer {
   /**
@@ -72,15 +41,9 @@ export class Renderer {
     this.counter = 0;
     this.frame = null; // {width, height, encoding} of the uploaded texture
 
-    const program = gl.createProgram();
-    gl.attachShader(program, compile(gl, gl.VERTEX_SHADER, VERTEX));
-    gl.attachShader(program, compile(gl, gl.FRAGMENT_SHADER, FRAGMENT));
-    gl.linkProgram(program);
-    if (!gl.getProgramParameter(program, gl.LINK_STATUS)) {
-      throw new Error(`program: ${gl.getProgramInfoLog(program)}`);
-    }
-    this.program = program;
-    this.uCounter = gl.getUniformLocation(program, 'u_counter');
+    this.program = program(gl, FRAGMENT);
+    this.uCounter = gl.getUniformLocation(this.program, 'u_counter');
+    this.warp = null; // the late gaze warp's layers and program (warp.js), made on first use
     this.vao = gl.createVertexArray();
     this.texture = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, this.texture);
@@ -95,6 +58,12 @@ export class Renderer {
    */
   upload(width, height, encoding, pixels) {
     const gl = this.gl;
+    if (encoding === ENCODING.WARP) { // pixels: warp.js's decoded layers
+      this.warp ??= new WarpLayer(gl);
+      this.warp.upload(width, height, pixels);
+      this.frame = { width, height, encoding };
+      return;
+    }
     let internal, format, type;
     if (encoding === ENCODING.F16) [internal, format, type] = [gl.RGB16F, gl.RGB, gl.HALF_FLOAT];
     else if (encoding === ENCODING.RGB10A2) {
@@ -143,8 +112,12 @@ export class Renderer {
     return { x: r.x * sx, y: r.y * sy, width: r.width * sx, height: r.height * sy };
   }
 
-  /** Draw the current frame with dither noise for `counter` (default: the next one). */
-  draw(counter = this.counter++) {
+  /**
+   * Draw the current frame with dither noise for `counter` (default: the next one). A warp
+   * frame places its afterimages at `gaze` ({x, y}, fractions of the frame; null: the
+   * frame's own gaze).
+   */
+  draw(counter = this.counter++, gaze = null) {
     const gl = this.gl;
     const { drawingBufferWidth: cw, drawingBufferHeight: ch } = gl;
     gl.viewport(0, 0, cw, ch);
@@ -153,6 +126,10 @@ export class Renderer {
     if (!this.frame) return;
     const r = this.deviceRect();
     gl.viewport(r.x, ch - r.y - r.height, r.width, r.height);
+    if (this.frame.encoding === ENCODING.WARP) {
+      this.warp.draw(counter, gaze);
+      return;
+    }
     // Magnifying: LINEAR looks better; otherwise NEAREST keeps pixels (and dithering) exact.
     const filter = r.width > this.frame.width || r.height > this.frame.height ? gl.LINEAR : gl.NEAREST;
     gl.bindTexture(gl.TEXTURE_2D, this.texture);
