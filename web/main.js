@@ -429,10 +429,11 @@ function warpGaze() {
 
 function tick(now) {
   requestAnimationFrame(tick);
-  if (pending) {
+  if (pending && !api.hold) {
     const { header: h, pixels } = pending;
     pending = null;
     renderer.upload(h.width, h.height, h.encoding, pixels);
+    api.shown = h; // the header of the frame on the screen
   }
   renderer.fitToCSS();
   flushGaze();
@@ -457,6 +458,8 @@ function tick(now) {
 const api = {
   state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers, inspector,
   sceneMap: null, sceneMaps: 0, panel, view, hud,
+  shown: null,
+  hold: false, // tests: keep showing the current frame (frames still arrive), as a stalled server
 }; // prettier-ignore
 window.gazehdr = api;
 

@@ -1,0 +1,160 @@
+"""The late gaze warp in real headless Chromium (web/warp.js; fixtures of test_browser.py).
+
+The shader, run by the viewer's own Renderer, composes a warp frame as the server does; and
+with the warp on the afterimage on the canvas follows a pointer move at the next display
+refresh while no new frame comes (the page holds its frame, as a stalled server would make it),
+where with the warp off it stays put.
+"""
+
+from __future__ import annotations
+
+import base64
+from typing import Any
+
+import numpy as np
+
+from gazehdr import warp
+from gazehdr.protocol import Encoding, FrameHeader
+from gazehdr.sim import Simulator
+from tests import test_browser
+from tests.test_browser import B64_JS, _afterimage_centroid, _serve_web
+from tests.test_sim_backends import mixed_scene
+
+browser = test_browser.browser  # the fixtures: one Chromium per module, a page per test
+open_viewer = test_browser.open_viewer
+
+DRAWS = 512  # dithered draws averaged per pixel: the mean's std is <= 0.09 codes of 1023
+
+MEAN_JS = """
+async ([b64, draws, gaze]) => {
+  const { Renderer } = await import('/renderer.js');
+  const { decodeFrame } = await import('/protocol.js');
+  const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+  const { header, pixels } = decodeFrame(bytes.buffer);
+  const canvas = document.createElement('canvas');
+  canvas.width = header.width;
+  canvas.height = header.height;
+  const r = new Renderer(canvas);
+  r.upload(header.width, header.height, header.encoding, pixels);
+  const n = header.width * header.height;
+  const sum = new Float64Array(n * 3);
+  for (let k = 0; k < draws; k++) {
+    r.draw(k, gaze);
+    const px = r.readPixels();
+    for (let i = 0; i < n; i++) for (let c = 0; c < 3; c++) sum[i * 3 + c] += px[i * 4 + c];
+  }
+  const mean = new Float32Array(sum.map((s) => s / (255 * draws)));
+  return window.__b64(mean.buffer);
+}
+"""
+
+
+def _shader_mean(page: Any, message: bytes, w: int, h: int, gaze: Any = None) -> np.ndarray:
+    """The mean over DRAWS dithered canvas read-backs (an unbiased dither: the mean is v)."""
+    b64 = base64.b64encode(message).decode()
+    data = base64.b64decode(page.evaluate(MEAN_JS, [b64, DRAWS, gaze]))
+    return np.frombuffer(data, np.float32).reshape(h, w, 3)[::-1].astype(np.float64)
+
+
+def test_warp_shader_composes_as_the_server(browser) -> None:
+    """At the frame's own gaze the canvas shows the server's frame within 2 codes of 1023 (the
+    half floats' rounding, test_warp.py) and the oracle within 0.75 (float32 in the shader and
+    the mean's noise); at another gaze, the oracle there."""
+    w, h = 48, 32
+    sim = Simulator(w, h, backend="opencl", seed=2)
+    sim.load_scene(mixed_scene(1)[::2, ::2])
+    sim.step(0.1, gaze=(16, 16))
+    sim.step(0.05, gaze=(24, 10))
+    v = sim.step(0.05, gaze=(26, 11))
+    layers = sim.warp_layers()
+    header = FrameHeader(0, 0, sim.time, 26 / w, 11 / h, sim.adaptation, 0.0, w, h, Encoding.warp)
+    message = header.pack() + warp.pack([layers], w, sim.params)
+    frame = warp.unpack(message[56:], w, h)
+    page = browser.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.add_init_script(B64_JS)
+    try:
+        _serve_web(page)
+        shown = _shader_mean(page, message, w, h)
+        assert np.abs(shown - v).max() * 1023 <= 2.0
+        assert np.abs(shown - warp.compose(frame)).max() * 1023 <= 0.75
+        moved = _shader_mean(page, message, w, h, {"x": 10.5 / w, "y": 20.5 / h})
+        oracle = warp.compose(frame, (10.5, 20.5))
+        assert np.abs(oracle - v).max() * 1023 > 50  # the afterimages moved
+        assert np.abs(moved - oracle).max() * 1023 <= 0.75
+    finally:
+        page.close()
+    assert not errors, errors
+
+
+READ_NEXT_REFRESH_JS = """
+() => new Promise((resolve) => requestAnimationFrame(() => {
+  // Runs after the viewer's own draw of this refresh (its callback was queued first).
+  const g = window.gazehdr;
+  const c = g.renderer.canvas;
+  resolve([window.__b64(g.renderer.readPixels().buffer), c.width, c.height, g.shown]);
+}))
+"""
+
+
+def _canvas_next_refresh(viewer: Any) -> tuple[np.ndarray, dict[str, Any]]:
+    """The canvas as drawn at the next display refresh (RGB in [0, 1], top row first) and the
+    header of the frame it shows."""
+    b64, w, h, shown = viewer.js(READ_NEXT_REFRESH_JS)
+    px = np.frombuffer(base64.b64decode(b64), np.uint8).reshape(h, w, 4)[::-1, :, :3]
+    return px.astype(np.float64) / 255.0, shown
+
+
+def _hold_a_closed_eyes_frame(viewer: Any, encoding: int) -> dict[str, Any]:
+    """Hold the viewer on a frame of `encoding` made with the eyes closed."""
+    viewer.js("() => { window.gazehdr.hold = false; }")
+    viewer.wait(
+        "(e) => { const s = window.gazehdr.shown; if (s && s.encoding === e && !s.eyes_open) "
+        "{ window.gazehdr.hold = true; return true; } return false; }",
+        encoding,
+    )
+    return viewer.js("() => window.gazehdr.shown")
+
+
+def test_afterimage_follows_the_pointer_between_frames(live_server, open_viewer) -> None:
+    """The `flash` scene's afterimage (as in test_browser's test_afterimage_moves_with_the_gaze),
+    eyes closed, the viewer holding one frame: with the warp on, the afterimage on the canvas
+    moves with the pointer at the very next display refresh, by the pointer's shift; with the
+    warp off (the panel's box) it stays where the held frame has it."""
+    W, H = 320, 176
+    srv = live_server(scene="flash", size=(W, H))
+    viewer = open_viewer(srv.url + "?warp=1", W, H)
+    flash = np.array([0.5 * W, 0.42 * H])
+    viewer.move_gaze(*flash)
+    h = viewer.wait("() => window.gazehdr.shown?.encoding === 16 && window.gazehdr.shown")
+    t_flash = 1.0 + 4.0 * np.ceil(max(0.0, h["time"] - 1.0) / 4.0)
+    viewer.wait("(t) => window.gazehdr.lastHeader.time > t", t_flash + 0.3, timeout=60_000)
+    shift = np.array([40.0, 30.0])
+    viewer.page.keyboard.down("Space")
+    try:
+        held = _hold_a_closed_eyes_frame(viewer, 16)
+        canvas, shown = _canvas_next_refresh(viewer)
+        before, peak0, radius0 = _afterimage_centroid(canvas)
+        viewer.page.mouse.move(*(flash + shift))
+        canvas, shown = _canvas_next_refresh(viewer)
+        after, peak1, radius1 = _afterimage_centroid(canvas)
+        assert shown["frame"] == held["frame"], "a new frame was shown: not the warp's doing"
+
+        # The warp off: a plain frame, held; the pointer moves back, the afterimage stays.
+        assert viewer.js("() => document.getElementById('warp-toggle').checked")
+        viewer.js("() => document.getElementById('warp-toggle').click()")  # the panel's box
+        plain = _hold_a_closed_eyes_frame(viewer, 1)
+        canvas, _ = _canvas_next_refresh(viewer)
+        still0, _, _ = _afterimage_centroid(canvas)
+        viewer.page.mouse.move(*flash)
+        canvas, shown = _canvas_next_refresh(viewer)
+        still1, peak2, radius2 = _afterimage_centroid(canvas)
+        assert shown["frame"] == plain["frame"]
+    finally:
+        viewer.page.keyboard.up("Space")
+    assert peak0 > 0.1 and peak1 > 0.1 and peak2 > 0.05, (peak0, peak1, peak2)
+    assert max(radius0, radius1, radius2) < 20, ("not one blob", radius0, radius1, radius2)
+    np.testing.assert_allclose(before, flash, atol=1.5)
+    np.testing.assert_allclose(after - before, shift, atol=1.0)
+    np.testing.assert_allclose(still1, still0, atol=0.5)
