@@ -597,13 +597,23 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
     return float((a * b).sum() / math.sqrt((a * a).sum() * (b * b).sum()))
 
 
-def test_dither_shader_is_unbiased_and_uncorrelated(browser) -> None:
+@contextlib.contextmanager
+def web_page(browser: Any) -> Iterator[Any]:
+    """A page on web/ served from disk (`_serve_web`), closed after, with no errors on it."""
     page = browser.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.add_init_script(B64_JS)
     try:
         _serve_web(page)
+        yield page
+    finally:
+        page.close()
+    assert not errors, errors
+
+
+def test_dither_shader_is_unbiased_and_uncorrelated(browser) -> None:
+    with web_page(browser) as page:
         size, frames = 32, 256
 
         # f16: values between two 8-bit levels, rounded to half precision; the expected mean
@@ -624,9 +634,6 @@ def test_dither_shader_is_unbiased_and_uncorrelated(browser) -> None:
         ends = [int(x) for x in np.array([0.0, 1.0, 0.0], np.float16).view(np.uint16)]
         out = _dither(page, 1, ends, 8, 16)
         assert (out[..., 0] == 0).all() and (out[..., 1] == 255).all() and (out[..., 2] == 0).all()
-    finally:
-        page.close()
-    assert not errors, errors
 
 
 def _check_dither(out: np.ndarray, v: np.ndarray, correlations: bool = True) -> None:

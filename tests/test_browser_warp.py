@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 
 from gazehdr import warp
-from gazehdr.protocol import Encoding, FrameHeader
+from gazehdr.protocol import HEADER_BYTES, Encoding, FrameHeader
 from gazehdr.sim import Simulator
 from tests import test_browser
-from tests.test_browser import B64_JS, _afterimage_centroid, _serve_web
+from tests.test_browser import _afterimage_centroid, web_page
 from tests.test_sim_backends import mixed_scene
 
 browser = test_browser.browser  # the fixtures: one Chromium per module, a page per test
@@ -69,13 +69,8 @@ def test_warp_shader_composes_as_the_server(browser) -> None:
     layers = sim.warp_layers()
     header = FrameHeader(0, 0, sim.time, 26 / w, 11 / h, sim.adaptation, 0.0, w, h, Encoding.warp)
     message = header.pack() + warp.pack([layers], w, sim.params)
-    frame = warp.unpack(message[56:], w, h)
-    page = browser.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.add_init_script(B64_JS)
-    try:
-        _serve_web(page)
+    frame = warp.unpack(message[HEADER_BYTES:], w, h)
+    with web_page(browser) as page:
         shown = _shader_mean(page, message, w, h)
         assert np.abs(shown - v).max() * 1023 <= 2.0
         assert np.abs(shown - warp.compose(frame)).max() * 1023 <= 0.75
@@ -83,9 +78,6 @@ def test_warp_shader_composes_as_the_server(browser) -> None:
         oracle = warp.compose(frame, (10.5, 20.5))
         assert np.abs(oracle - v).max() * 1023 > 50  # the afterimages moved
         assert np.abs(moved - oracle).max() * 1023 <= 0.75
-    finally:
-        page.close()
-    assert not errors, errors
 
 
 READ_NEXT_REFRESH_JS = """
