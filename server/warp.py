@@ -57,27 +57,26 @@ def pack(panes: Sequence[WarpLayers], width: int, params: Params) -> bytes:
         raise ValueError(f"a warp frame has 1 or {MAX_PANES} panes, not {len(panes)}")
     first = panes[0]
     h, pw, _ = first.rgb.shape
-    grid_h, grid_w = first.maps.shape[1:]
+    grid_h, grid_w = first.maps.shape[1:3]
     head = _HEAD.pack(
         len(panes), pw, grid_w, grid_h, first.cell, first.fovea_sigma_px, params.gamma,
         *params.w_P, *RGB_TO_LMS.ravel(), *LMS_TO_RGB.ravel(),
     )  # fmt: skip
     rows = [_PANE.pack(*p.gaze, p.visibility, 0.0) for p in panes]
     rows += [_PANE.pack(0, 0, 0, 0)] * (MAX_PANES - len(panes))
-    rgb = np.zeros((h, width, 3), "<f2")  # an odd last column in split view: black
-    for i, p in enumerate(panes):
-        rgb[:, i * pw : (i + 1) * pw] = p.rgb
-    # Per pane, gain - 1 then the additive term, each grid_h×grid_w×3 interleaved (one texture
-    # of RGB texels, the panes' images stacked: web/warp.js).
-    maps = [_interleaved(p.maps) for p in panes]
-    return b"".join([head, *rows, rgb.tobytes(), *maps])
+    if len(panes) == 1 and pw == width:
+        rgb = first.rgb
+    else:
+        rgb = np.zeros((h, width, 3), np.float16)  # an odd last column in split view: black
+        for i, p in enumerate(panes):
+            rgb[:, i * pw : (i + 1) * pw] = p.rgb
+    # Per pane, gain - 1 then the additive term, each grid_h×grid_w×3 (one texture of RGB
+    # texels, the panes' images stacked: web/warp.js).
+    return b"".join([head, *rows, _le(rgb), *(_le(p.maps) for p in panes)])
 
 
-def _interleaved(maps: np.ndarray) -> bytes:
-    planes = np.concatenate([maps[:3] - np.float32(1.0), maps[3:]])
-    return np.ascontiguousarray(
-        planes.reshape(2, 3, *maps.shape[1:]).transpose(0, 2, 3, 1), "<f2"
-    ).tobytes()
+def _le(halves: np.ndarray) -> bytes:
+    return np.ascontiguousarray(halves, "<f2").tobytes()
 
 
 def unpack(payload: bytes | memoryview, width: int, height: int) -> WarpFrame:
@@ -92,14 +91,20 @@ def unpack(payload: bytes | memoryview, width: int, height: int) -> WarpFrame:
     at += rgb.nbytes
     maps = []
     for _ in range(n):
-        m = np.frombuffer(payload, "<f2", 6 * grid_h * grid_w, at).astype(np.float32)
-        at += m.nbytes // 2
-        planar = m.reshape(2, grid_h, grid_w, 3).transpose(0, 3, 1, 2).reshape(6, grid_h, grid_w)
-        maps.append(np.concatenate([planar[:3] + 1.0, planar[3:]]))
+        m = np.frombuffer(payload, "<f2", 6 * grid_h * grid_w, at)
+        at += m.nbytes
+        maps.append(planar(m.reshape(2, grid_h, grid_w, 3)))
     return WarpFrame(
         rgb.astype(np.float32), maps, [(r[0], r[1]) for r in rows], [r[2] for r in rows],
         pw, round(cell), sigma, gamma, w_P,  # type: ignore[arg-type]
     )  # fmt: skip
+
+
+def planar(maps: np.ndarray) -> np.ndarray:
+    """`WarpLayers.maps` (gain - 1, additive; 2×grid_h×grid_w×3) as the simulator's planar
+    6×grid_h×grid_w maps, float32."""
+    m = maps.astype(np.float32).transpose(0, 3, 1, 2).reshape(6, *maps.shape[1:3])
+    return np.concatenate([m[:3] + 1.0, m[3:]])
 
 
 def compose(frame: WarpFrame, gaze: tuple[float, float] | None = None) -> np.ndarray:

@@ -530,10 +530,11 @@ class OpenCLBackend:
         return v
 
     def warp_layers(self, eyes: float) -> tuple[np.ndarray, np.ndarray]:
-        """What a late gaze warp sends (`gazehdr.warp`): linear RGB before Eq. 12 as H×W×3
-        half floats made on the device (kernel compose_base), and the afterimage maps of the whole
-        retina grid (6×grid_h×grid_w float32): the viewer may look anywhere before the next
-        frame. Reuses compose_half's buffer: call it after compose, never between."""
+        """What a late gaze warp sends (`gazehdr.warp`), made on the device: linear RGB before
+        Eq. 12 as H×W×3 half floats (kernel compose_base), and the afterimage maps of the whole
+        retina grid (the viewer may look anywhere before the next frame) as gain - 1 and the
+        additive term, 2×grid_h×grid_w×3 half floats (kernel warp_maps). Reuses compose_half's
+        buffer: call it after compose, never between."""
         lay, b = self.lay, self.buf
         self.k["compose_base"](
             self.queue, self.rows8(), None, self.P, b["G"], self.rho_full(), b["A"],
@@ -541,4 +542,15 @@ class OpenCLBackend:
         )  # fmt: skip
         rgb = np.empty((lay.height, lay.width, 3), np.float16)
         cl.enqueue_copy(self.queue, rgb, b["v16"])
-        return rgb, self.get("maps")
+        self._full_maps()
+        if "warp_maps" not in b:
+            b["warp_maps"] = cl.Buffer(
+                self.ctx, cl.mem_flags.READ_WRITE, 12 * lay.grid_w * lay.grid_h
+            )
+        self.k["warp_maps"](
+            self.queue, (_round_up(lay.grid_w, ROW_GROUP), lay.grid_h), None, b["maps"],
+            np.int32(lay.grid_w), np.int32(lay.grid_h), b["warp_maps"],
+        )  # fmt: skip
+        maps = np.empty((2, lay.grid_h, lay.grid_w, 3), np.float16)
+        cl.enqueue_copy(self.queue, maps, b["warp_maps"])
+        return rgb, maps

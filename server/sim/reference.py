@@ -477,8 +477,12 @@ class ReferenceBackend:
         return a["v"]
 
     def warp_layers(self, eyes: float) -> tuple[np.ndarray, np.ndarray]:
-        """What a late gaze warp sends (`gazehdr.warp`): linear RGB before Eq. 12 (H×W×3) and the
-        afterimage maps of the whole retina grid (6×grid_h×grid_w), both float32."""
+        """What a late gaze warp sends (`gazehdr.warp`): linear RGB before Eq. 12 (H×W×3) and
+        the afterimage maps of the whole retina grid as gain - 1 and the additive term
+        (2×grid_h×grid_w×3; gain - 1: a small gain keeps half floats' significant bits), both
+        half floats (the OpenCL kernels compose_base and warp_maps)."""
         a = self.a
         rgb = compose_base(a["G"], a["rho"], self.A, eyes, self.lay, self.p)
-        return rgb.transpose(1, 2, 0).astype(np.float32), a["maps"].astype(np.float32)
+        m = np.concatenate([a["maps"][:3] - 1.0, a["maps"][3:]])
+        maps = m.reshape(2, 3, *m.shape[1:]).transpose(0, 2, 3, 1)
+        return rgb.transpose(1, 2, 0).astype(np.float16), maps.astype(np.float16)

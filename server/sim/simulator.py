@@ -34,7 +34,9 @@ class WarpLayers:
     """One pane's frame as a late gaze warp sends it (`Simulator.warp_layers`)."""
 
     rgb: np.ndarray  # H×W×3 float16: linear RGB before Eq. 12 (reference.compose_base)
-    maps: np.ndarray  # 6×grid_h×grid_w float32: the afterimage maps, centred on `gaze`
+    #: 2×grid_h×grid_w×3 float16, the afterimage maps centred on `gaze`: gain - 1 (Eq. 11's
+    #: per cone), then the additive linear RGB term
+    maps: np.ndarray
     gaze: tuple[float, float]  # the step's gaze, pane px
     visibility: float  # Sec. 5's boost: the foveal fall-off's peak
     cell: int  # screen px per retina cell
@@ -239,7 +241,7 @@ class Simulator:
         rgb, maps = self._backend.warp_layers(self._eyes)
         lay = self.layout
         return WarpLayers(
-            np.asarray(rgb, np.float16), np.asarray(maps, np.float32), self._gaze,
+            np.asarray(rgb, np.float16), np.asarray(maps, np.float16), self._gaze,
             self._visibility, lay.cell, lay.px(self.params.fovea_sigma_deg),
         )  # fmt: skip
 

@@ -174,3 +174,16 @@ __kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
     vstore8(q, 0, tmp);
     for (int i = 0; i < W - x; ++i) o[i] = tmp[i];
 }
+
+// The late gaze warp's maps for the viewer (gazehdr.warp): from the planar maps, gain - 1 then
+// the additive term, each grid_h×grid_w×3 interleaved half floats (one RGB texture). Gain - 1:
+// a small gain keeps half floats' 11 significant bits. One work-item per cell.
+__kernel void warp_maps(__global const float *maps, int grid_w, int grid_h, __global half *out) {
+    int j = get_global_id(0), i = get_global_id(1);
+    if (j >= grid_w || i >= grid_h) return;
+    size_t gp = (size_t)grid_w * grid_h, at = (size_t)i * grid_w + j;
+    for (int c = 0; c < 3; ++c) {
+        vstore_half_rte(maps[c * gp + at] - 1.0f, 3 * at + c, out);
+        vstore_half_rte(maps[(3 + c) * gp + at], 3 * (gp + at) + c, out);
+    }
+}
