@@ -61,15 +61,18 @@ async ([plainB64, warpB64, draws]) => {
     const r = new Renderer(canvas);
     const gl = r.gl;
     const up = [], draw = [];
+    const px = new Uint8Array(4);
+    const sync = () => gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px); // waits for all
     for (let k = 0; k < draws; k++) {
+      sync();
       let t = performance.now();
       const { header: h, pixels } = decodeFrame(buffer);
       r.upload(h.width, h.height, h.encoding, pixels);
-      gl.finish();
+      sync();
       up.push(performance.now() - t);
       t = performance.now();
       r.draw(k, { x: 0.3 + 0.01 * k, y: 0.5 });
-      gl.finish();
+      sync();
       draw.push(performance.now() - t);
     }
     const med = (a) => a.sort((x, y) => x - y)[a.length >> 1];
@@ -81,7 +84,8 @@ async ([plainB64, warpB64, draws]) => {
 
 
 def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> dict[str, Any]:
-    """Median ms to decode + upload a frame and to draw it (gl.finish after each) in headless
+    """Median ms to decode + upload a frame and to draw it (a 1-pixel read-back after each
+    waits for the GL work: gl.finish need not) in headless
     Chromium, plain against warp; Chromium as tests/test_browser.py starts it."""
     from playwright.sync_api import sync_playwright
 
