@@ -14,9 +14,11 @@ from typing import Any
 import numpy as np
 
 from gazehdr import warp
-from gazehdr.protocol import HEADER_BYTES, Encoding, FrameHeader
+from gazehdr.protocol import HEADER_BYTES, Encoding, FrameHeader, Gaze, decode_frame, parse_control
+from gazehdr.session import SessionSettings
 from gazehdr.sim import Simulator
 from tests import test_browser
+from tests.sessions import new_session
 from tests.test_browser import _afterimage_centroid, web_page
 from tests.test_sim_backends import mixed_scene
 
@@ -78,6 +80,32 @@ def test_warp_shader_composes_as_the_server(browser) -> None:
         oracle = warp.compose(frame, (10.5, 20.5))
         assert np.abs(oracle - v).max() * 1023 > 50  # the afterimages moved
         assert np.abs(moved - oracle).max() * 1023 <= 0.75
+
+
+def test_warp_shader_warps_each_pane_in_split_view(browser) -> None:
+    """Split view: the right pane (no afterimages) and the left (jacobs) side by side, an odd
+    last column black; the pointer over the right half warps both panes as the server maps it."""
+    w, h = 81, 32
+    session = new_session(SessionSettings(width=w, height=h, scene="flash", backend="opencl"))
+    session.apply(parse_control('{"type": "model", "split": {"afterimage": "none"}}'))
+    session.pointer.take(Gaze(0.25, 0.42, 1), 0.0)
+    for _ in range(30):  # through the flash at t = 1 s, gaze on it
+        frame, _ = session.tick(0.05, [], plain=True, warp=True)
+    session.pointer.take(Gaze(0.3, 0.5, 2), 0.0)
+    frame, _ = session.tick(0.05, [], plain=True, warp=True)
+    message = frame.message(0, warp=True)
+    assert message is not None
+    _, plain = decode_frame(frame.message(0))
+    layers = warp.unpack(message[HEADER_BYTES:], w, h)
+    with web_page(browser) as page:
+        shown = _shader_mean(page, message, w, h)
+        assert np.abs(shown - plain).max() * 1023 <= 2.0
+        pointer = {"x": 60.5 / w, "y": 8.5 / h}  # over the right pane: pane x 60.5 - 40
+        moved = _shader_mean(page, message, w, h, pointer)
+    oracle = warp.compose(layers, (60.5 - w // 2, 8.5))
+    assert np.abs(oracle - plain).max() * 1023 > 50  # the left pane's afterimage moved
+    assert np.abs(moved - oracle).max() * 1023 <= 0.75
+    assert (moved[:, -1] == 0).all()
 
 
 READ_NEXT_REFRESH_JS = """
