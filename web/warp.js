@@ -90,16 +90,20 @@ void main() {
   vec2 fr = u - u0;
   ivec2 i0 = ivec2(u0), grid = ivec2(u_grid);
   int row0 = 2 * pane * grid.y;
-  vec3 gain = vec3(0.0), add = vec3(0.0);
-  for (int dy = 0; dy < 2; ++dy) {
-    for (int dx = 0; dx < 2; ++dx) {
-      ivec2 c = i0 + ivec2(dx, dy);
-      if (c.x < 0 || c.y < 0 || c.x >= grid.x || c.y >= grid.y) continue;
-      float w = (dx == 0 ? 1.0 - fr.x : fr.x) * (dy == 0 ? 1.0 - fr.y : fr.y);
-      gain += w * texelFetch(u_maps, ivec2(c.x, row0 + c.y), 0).rgb;
-      add += w * texelFetch(u_maps, ivec2(c.x, row0 + grid.y + c.y), 0).rgb;
-    }
-  }
+  // The four taps, clamped into the grid; a tap off the grid weighs 0.
+  ivec2 lo = clamp(i0, ivec2(0), grid - 1), hi = clamp(i0 + 1, ivec2(0), grid - 1);
+  vec2 in0 = vec2(greaterThanEqual(i0, ivec2(0))) * vec2(lessThan(i0, grid));
+  vec2 in1 = vec2(greaterThanEqual(i0 + 1, ivec2(0))) * vec2(lessThan(i0 + 1, grid));
+  vec2 w0 = (1.0 - fr) * in0, w1 = fr * in1;
+  vec3 gain = w0.y * (w0.x * texelFetch(u_maps, ivec2(lo.x, row0 + lo.y), 0).rgb
+                      + w1.x * texelFetch(u_maps, ivec2(hi.x, row0 + lo.y), 0).rgb)
+            + w1.y * (w0.x * texelFetch(u_maps, ivec2(lo.x, row0 + hi.y), 0).rgb
+                      + w1.x * texelFetch(u_maps, ivec2(hi.x, row0 + hi.y), 0).rgb);
+  int row1 = row0 + grid.y;
+  vec3 add = w0.y * (w0.x * texelFetch(u_maps, ivec2(lo.x, row1 + lo.y), 0).rgb
+                     + w1.x * texelFetch(u_maps, ivec2(hi.x, row1 + lo.y), 0).rgb)
+           + w1.y * (w0.x * texelFetch(u_maps, ivec2(lo.x, row1 + hi.y), 0).rgb
+                     + w1.x * texelFetch(u_maps, ivec2(hi.x, row1 + hi.y), 0).rgb);
   float f = u_visibility[pane] * exp(-dot(d, d) / (2.0 * u_sigma * u_sigma));
   vec3 lms = (J * u_rgb2lms) * (1.0 + f * gain);
   J = lms * u_lms2rgb + f * add;
