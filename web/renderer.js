@@ -126,12 +126,13 @@ export class Renderer {
     if (!this.frame) return;
     const r = this.deviceRect();
     gl.viewport(r.x, ch - r.y - r.height, r.width, r.height);
+    // Magnifying: LINEAR looks better; otherwise NEAREST keeps pixels (and dithering) exact.
+    const magnified = r.width > this.frame.width || r.height > this.frame.height;
     if (this.frame.encoding === ENCODING.WARP) {
-      this.warp.draw(counter, gaze);
+      this.warp.draw(counter, gaze, magnified);
       return;
     }
-    // Magnifying: LINEAR looks better; otherwise NEAREST keeps pixels (and dithering) exact.
-    const filter = r.width > this.frame.width || r.height > this.frame.height ? gl.LINEAR : gl.NEAREST;
+    const filter = magnified ? gl.LINEAR : gl.NEAREST;
     gl.bindTexture(gl.TEXTURE_2D, this.texture);
     if (filter !== this.filter) {
       gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, filter);

@@ -55,6 +55,7 @@ precision highp int;
 uniform highp sampler2D u_rgb;   // linear RGB before Eq. 12, frame px, top row first
 uniform highp sampler2D u_maps;  // per pane: gain - 1 (grid_h rows), then the additive term
 uniform vec2 u_size;             // frame px
+uniform bool u_smooth;           // the frame is magnified: sample it between pixels
 uniform float u_pane_w;
 uniform int u_panes;
 uniform vec2 u_grid;             // retina grid cells
@@ -78,13 +79,16 @@ float gamut_t(float a, float e, float t) {
 }
 
 void main() {
-  ivec2 p = min(ivec2(vec2(v_uv.x, 1.0 - v_uv.y) * u_size), ivec2(u_size) - 1);
-  int pane = (u_panes == 2 && float(p.x) >= u_pane_w) ? 1 : 0;
-  if (float(p.x) >= u_pane_w * float(u_panes)) { o_colour = dither(vec3(0.0)); return; }
-  vec3 J = texelFetch(u_rgb, p, 0).rgb;
+  // Frame px from the top-left: a pixel's centre, or where a magnified frame is sampled
+  // (bilinearly, as renderer.js draws a plain frame then).
+  vec2 at = vec2(v_uv.x, 1.0 - v_uv.y) * u_size;
+  vec2 q = u_smooth ? at : floor(min(at, u_size - 0.5)) + 0.5;
+  int pane = (u_panes == 2 && q.x >= u_pane_w) ? 1 : 0;
+  if (q.x >= u_pane_w * float(u_panes)) { o_colour = dither(vec3(0.0)); return; }
+  vec3 J = u_smooth ? texture(u_rgb, q / u_size).rgb : texelFetch(u_rgb, ivec2(q), 0).rgb;
   // Eq. 12's maps at this pixel's retinal position, pixel - gaze; off the grid: equilibrium
   // (gain - 1 = 0, nothing added), as compose's border taps.
-  vec2 d = vec2(float(p.x) - float(pane) * u_pane_w, float(p.y)) + 0.5 - u_gaze;
+  vec2 d = vec2(q.x - float(pane) * u_pane_w, q.y) - u_gaze;
   vec2 u = d / u_cell + 0.5 * u_grid - 0.5;
   vec2 u0 = floor(u);
   vec2 fr = u - u0;
@@ -118,7 +122,7 @@ void main() {
   o_colour = dither(v);
 }`;
 
-const UNIFORMS = ['u_rgb', 'u_maps', 'u_size', 'u_pane_w', 'u_panes', 'u_grid', 'u_cell', 'u_sigma',
+const UNIFORMS = ['u_rgb', 'u_maps', 'u_size', 'u_smooth', 'u_pane_w', 'u_panes', 'u_grid', 'u_cell', 'u_sigma',
   'u_gamma', 'u_wP', 'u_rgb2lms', 'u_lms2rgb', 'u_gaze', 'u_visibility', 'u_counter'];
 
 /** A warp frame's textures and the program that composes it at a gaze. */
@@ -153,7 +157,9 @@ export class WarpLayer {
     return [x, gaze.y * L.height];
   }
 
-  draw(counter, gaze) {
+  /** Draw at `gaze` (frame fractions; null: the frame's own) with dither noise `counter`;
+   * `magnified`: the frame is drawn larger than it is, sampled bilinearly. */
+  draw(counter, gaze, magnified = false) {
     const gl = this.gl;
     const L = this.layers;
     const u = this.u;
@@ -162,6 +168,10 @@ export class WarpLayer {
     gl.bindTexture(gl.TEXTURE_2D, this.maps);
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_2D, this.rgb);
+    const filter = magnified ? gl.LINEAR : gl.NEAREST;
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, filter);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
+    gl.uniform1i(u.u_smooth, magnified ? 1 : 0);
     gl.uniform1i(u.u_rgb, 0);
     gl.uniform1i(u.u_maps, 1);
     gl.uniform2f(u.u_size, L.width, L.height);
