@@ -139,13 +139,16 @@ export class WarpLayer {
 
   upload(width, height, layers) {
     const gl = this.gl;
-    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
-    gl.bindTexture(gl.TEXTURE_2D, this.rgb);
-    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, width, height, 0, gl.RGB, gl.HALF_FLOAT, layers.rgb);
-    gl.bindTexture(gl.TEXTURE_2D, this.maps);
     const rows = 2 * layers.panes * layers.gridH;
-    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, layers.gridW, rows, 0, gl.RGB, gl.HALF_FLOAT, layers.maps);
-    this.layers = { ...layers, width, height, rgb: null, maps: null };
+    const old = this.layers;
+    const same = old && old.width === width && old.height === height && old.gridW === layers.gridW && old.rows === rows;
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1); // rows of 6·width bytes
+    for (const [tex, w, h, data] of [[this.rgb, width, height, layers.rgb], [this.maps, layers.gridW, rows, layers.maps]]) {
+      gl.bindTexture(gl.TEXTURE_2D, tex);
+      if (same) gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RGB, gl.HALF_FLOAT, data);
+      else gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGB16F, w, h, 0, gl.RGB, gl.HALF_FLOAT, data);
+    }
+    this.layers = { ...layers, width, height, rows, rgb: null, maps: null };
   }
 
   /** The pane px of a gaze given as frame fractions, as the server maps it (eye.pane_gaze). */
