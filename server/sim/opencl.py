@@ -421,21 +421,38 @@ class OpenCLBackend:
         return j0, i0, j1, i1
 
     def _maps(self, gaze, window) -> None:
+        self._map_cells(gaze, window)
+        full = window == (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
+        self._maps_partial = None if full else tuple(gaze)
+
+    def _map_cells(self, gaze, window) -> None:
+        """The maps of the cells (j0, i0, j1, i1), inclusive (a row's last 8 may run over j1)."""
         b = self.buf
         j0, i0, j1, i1 = window
+        if j1 < j0 or i1 < i0:
+            return
         self.k["afterimage_maps"](
             self.queue, (-(-(j1 - j0 + 1) // VEC), i1 - i0 + 1), None, self.P, b["down"],
             b["surround"], b["state"], b["maps"], b["A"], *self.grid_args(gaze), np.int32(j0),
             np.int32(i0),
         )  # fmt: skip
-        full = window == (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
-        self._maps_partial = None if full else tuple(gaze)
 
     def _full_maps(self) -> None:
-        """Complete the afterimage maps of the last retina step (all of the grid)."""
-        if self._maps_partial is not None:
-            lay = self.lay
-            self._maps(self._maps_partial, (0, 0, lay.grid_w - 1, lay.grid_h - 1))
+        """Complete the afterimage maps of the last retina step: the grid around the screen's
+        window (made with the step), in four bands (above, below, left, right of it)."""
+        gaze = self._maps_partial
+        if gaze is None:
+            return
+        j0, i0, j1, i1 = self._screen_window(gaze)
+        w, h = self.lay.grid_w - 1, self.lay.grid_h - 1
+        for band in (
+            (0, 0, w, i0 - 1),
+            (0, i1 + 1, w, h),
+            (0, i0, j0 - 1, i1),
+            (j1 + 1, i0, w, i1),
+        ):
+            self._map_cells(gaze, band)
+        self._maps_partial = None
 
     def acuity(self, noise: NoiseFrame) -> None:
         lay, b = self.lay, self.buf
