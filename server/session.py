@@ -93,6 +93,7 @@ SCENE_KINDS = {
 PARAM_INFO_JSON = param_info()
 #: What a session tells its viewers: JSON notes, and binary scene maps (`SceneMap`).
 Note = dict[str, Any] | bytes
+Arrived = list[tuple[Control, float]]  # control messages and when each arrived
 
 
 @dataclass(frozen=True)
@@ -131,14 +132,11 @@ class Frame:
     def message(self, dropped: int, warp: bool = False) -> bytes | None:
         """The frame's message, as late-warp layers if `warp`; None when the step did not make
         that form (the viewer switched between the step and the send: it takes the next)."""
-        if warp:
-            if self.warp is None:
-                return None
-            head = dataclasses.replace(self.header, dropped=dropped, encoding=Encoding.warp)
-            return head.pack() + self.warp
-        if not self.payload:
+        body = self.warp if warp else self.payload or None
+        if body is None:
             return None
-        return dataclasses.replace(self.header, dropped=dropped).pack() + self.payload
+        encoding = Encoding.warp if warp else self.header.encoding
+        return dataclasses.replace(self.header, dropped=dropped, encoding=encoding).pack() + body
 
 
 def fit_size(budget: tuple[int, int], viewport: tuple[int, int]) -> tuple[int, int]:
@@ -303,12 +301,7 @@ class Session:
     # --- the step -----------------------------------------------------------------------------
 
     def tick(
-        self,
-        dt: float,
-        controls: list[tuple[Control, float]],
-        *,
-        plain: bool = True,
-        warp: bool = False,
+        self, dt: float, controls: Arrived, plain: bool = True, warp: bool = False
     ) -> tuple[Frame, list[Note]]:
         """Apply `controls` (each with its arrival time), step by `dt` s, encode the frame:
         in the session's encoding if `plain` (a viewer wants it), as late-warp layers if `warp`.
