@@ -17,7 +17,7 @@ import pytest
 from gazehdr import warp
 from gazehdr.protocol import Encoding, ProtocolError, Warp, decode_frame, parse_control
 from gazehdr.session import SessionSettings
-from gazehdr.sim import Simulator
+from gazehdr.sim import Params, Simulator
 from tests.sessions import new_session
 from tests.test_sim_backends import H, W, magnitude, mixed_scene
 
@@ -82,3 +82,18 @@ def test_warp_control() -> None:
     assert parse_control('{"type": "warp", "on": true}') == Warp(True)
     with pytest.raises(ProtocolError, match="'on' must be true or false"):
         parse_control('{"type": "warp", "on": 1}')
+
+
+@pytest.mark.parametrize("backend", ["reference", "opencl"])
+def test_no_inf_in_half_floats(backend: str) -> None:
+    """A strong gain (j2 = 5: gains up to 1e10, beyond a half float's 65504) is sent clamped
+    to the largest half, never as Inf, and the viewer's composition stays finite."""
+    sim = Simulator(W, H, backend=backend, seed=2, params=Params(j2=5.0))
+    sim.load_scene(mixed_scene(1))
+    sim.step(0.1, gaze=(W / 3, H / 2))
+    sim.step(0.05, gaze=(W / 2, H / 3))
+    layers = sim.warp_layers()
+    assert np.isfinite(layers.maps).all() and np.isfinite(layers.rgb).all()
+    assert np.abs(layers.maps.astype(np.float32)).max() == 65504.0
+    frame = warp.unpack(warp.pack([layers], W, sim.params), W, H)
+    assert np.isfinite(warp.compose(frame)).all()

@@ -485,4 +485,6 @@ class ReferenceBackend:
         rgb = compose_base(a["G"], a["rho"], self.A, eyes, self.lay, self.p)
         m = np.concatenate([a["maps"][:3] - 1.0, a["maps"][3:]])
         maps = m.reshape(2, 3, *m.shape[1:]).transpose(0, 2, 3, 1)
-        return rgb.transpose(1, 2, 0).astype(np.float16), maps.astype(np.float16)
+        top = float(np.finfo(np.float16).max)  # as the kernels: a half float never Inf
+        rgb, maps = (np.clip(x, -top, top).astype(np.float16) for x in (rgb, maps))
+        return rgb.transpose(1, 2, 0), maps

@@ -147,6 +147,8 @@ __kernel void compose_half(COMPOSE_ARGS, __global half *v) {
     store_half_rgb8(v, compose8(COMPOSE_CALL, x, y), W, x, y);
 }
 
+#define HALF_MAX 65504.0f  // the largest finite half float
+
 // The late gaze warp's base layer: base8's linear RGB as H×W×3 interleaved half floats. The viewer
 // applies Eq. 12, gamut and gamma at the newest gaze (web/warp.js; reference.apply_afterimages).
 __kernel void compose_base(__constant const params_t *P, __global const float *G,
@@ -154,7 +156,11 @@ __kernel void compose_base(__constant const params_t *P, __global const float *G
                            int H, float eyes, __global half *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    store_half_rgb8(v, base8(P, G, rho_full, A, W, H, eyes, x, y), W, x, y);
+    rgb8_t J = base8(P, G, rho_full, A, W, H, eyes, x, y);
+    J.r = MIN(J.r, HALF_MAX);  // J >= 0; a half float never Inf
+    J.g = MIN(J.g, HALF_MAX);
+    J.b = MIN(J.b, HALF_MAX);
+    store_half_rgb8(v, J, W, x, y);
 }
 
 // The same packed as WebGL2's RGB10_A2 takes it: round(1023 v) per channel (to nearest even),
@@ -177,13 +183,15 @@ __kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
 
 // The late gaze warp's maps for the viewer (gazehdr.warp): from the planar maps, gain - 1 then
 // the additive term, each grid_h×grid_w×3 interleaved half floats (one RGB texture). Gain - 1:
-// a small gain keeps half floats' 11 significant bits. One work-item per cell.
+// a small gain keeps half floats' 11 significant bits; within +-HALF_MAX: never an Inf. One
+// work-item per cell.
 __kernel void warp_maps(__global const float *maps, int grid_w, int grid_h, __global half *out) {
     int j = get_global_id(0), i = get_global_id(1);
     if (j >= grid_w || i >= grid_h) return;
     size_t gp = (size_t)grid_w * grid_h, at = (size_t)i * grid_w + j;
     for (int c = 0; c < 3; ++c) {
-        vstore_half_rte(maps[c * gp + at] - 1.0f, 3 * at + c, out);
-        vstore_half_rte(maps[(3 + c) * gp + at], 3 * (gp + at) + c, out);
+        vstore_half_rte(CLAMP(maps[c * gp + at] - 1.0f, -HALF_MAX, HALF_MAX), 3 * at + c, out);
+        vstore_half_rte(CLAMP(maps[(3 + c) * gp + at], -HALF_MAX, HALF_MAX), 3 * (gp + at) + c,
+                        out);
     }
 }
