@@ -237,7 +237,7 @@ def test_controls_change_the_session_and_errors_do_not_stop_it(live_server) -> N
         assert (await client.note("state"))["params"]["j1"] == 0.5
         for bad, what in [
             ("{oops", "malformed JSON"),
-            ('{"type": "warp"}', "unknown message type"),
+            ('{"type": "teleport"}', "unknown message type"),
             ('{"type": "gaze", "x": NaN, "y": 0, "seq": 1}', "NaN"),
             ('{"type": "scene", "name": "../../etc/passwd"}', "not allowed"),
             ('{"type": "scene", "name": "nowhere"}', "no scene named"),
