@@ -29,7 +29,7 @@ KEYS = (
 )  # fmt: skip
 TYPES = (
     "viewport", "gaze", "eyes", "scene", "model", "gaze_source", "params", "scene_settings",
-    "scene_maps", "reset", "ack", "hello", "samples", "event", "echo", "welcome", "error",
+    "scene_maps", "warp", "reset", "ack", "hello", "samples", "event", "echo", "welcome", "error",
     "sample", "fixation_start", "fixation_end", "blink_start", "blink_end", "note", "clock",
 )  # fmt: skip
 #: Values that break code assuming a type or a range.
