@@ -17,6 +17,15 @@ from pathlib import Path
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 
+def _finite(value: float) -> bool:
+    """math.isfinite, but False for an int too large for a float (a log can hold 10**400),
+    where math.isfinite would raise OverflowError."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 @dataclass(frozen=True)
 class ScreenGeometry:
     """Viewing geometry of the tracked screen; defaults give about 64 px per degree.
@@ -39,7 +48,7 @@ class ScreenGeometry:
             "viewing_distance_m",
         ):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
+            if not (_finite(value) and value > 0):
                 raise ValueError(f"geometry {name} must be a finite positive number, got {value}")
 
     @property

@@ -372,6 +372,12 @@ def test_a_whole_but_malformed_last_line_is_an_error_not_a_truncation(tmp_path: 
         ({"version": 3}, "version", "this reader reads versions 1 and 2"),
         ({"version": True}, "version", "this reader reads versions 1 and 2"),
         ({"screen": {"screen_width_px": 10}}, "screen", "exactly"),
+        # an int too large for a float: a clear error, not math.isfinite's OverflowError (fuzz)
+        (
+            {"screen": {**header().to_json()["screen"], "screen_width_px": 10**400}},
+            "screen",
+            "finite positive",
+        ),
         ({"clock": {"source": "x", "offset_ns": "1"}}, "clock.offset_ns", "integer"),
         ({"extra": 1}, "extra", "unknown field"),
     ],
