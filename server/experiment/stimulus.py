@@ -1,0 +1,146 @@
+"""One interval of a trial, rendered by the simulator on its own clock, and shown at an intensity.
+
+An interval is a clip: the eye, settled in the dark, sees the stimulus image for `on` s, then
+black for `off` s (the afterimage shows there), in fixed steps of 1/fps looking at the fixation
+target. Each phase lasts a whole number of steps (`Design.frames`: a duration that is not a
+multiple of the step is rounded to the nearest one, at least one, and the simulation sees the
+rounded duration, so what is simulated is what is shown; the measured durations say so).
+
+A clip depends on the condition's look (parameters, models), not on the intensity: as the paper's
+stimuli, the intensity scales the image on the display ("before intensity scaling", Sec. 4.2),
+and the afterimage of the black phase is the look's. So a run renders each look once, and
+clips are kept per process (`clip`), which makes the headless path fast.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gazehdr.experiment.design import Design, Look, make_scene
+from gazehdr.eye import Eye
+from gazehdr.sim import Params
+from gazehdr.sim.layout import encode_output
+from gazehdr.sim.models import Models
+
+PHASES = ("on", "off")
+_CLIPS_KEPT = 8
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """The scene of one clip: black until `start`, `image` until `end`, black after. Its
+    boundaries are the simulation times that whole steps reach, so no step is split."""
+
+    image: np.ndarray
+    start: float
+    end: float
+    name: str = "experiment-stimulus"
+    animated: bool = True
+
+    def state_at(self, t: float) -> int:
+        return int(t >= self.start) + int(t >= self.end)
+
+    def next_change(self, t: float) -> float | None:
+        return self.start if t < self.start else self.end if t < self.end else None
+
+    def render(self, t: float, width: int, height: int) -> np.ndarray:
+        if self.state_at(t) == 1:
+            return self.image.copy()
+        return np.zeros_like(self.image)
+
+
+@dataclass(frozen=True)
+class Clip:
+    """Display values `v` (float16, H×W×3, the simulator's output) of every frame, the
+    simulation time each frame starts at (from the first frame of the stimulus), and its phase;
+    `end` is when the last frame ends. `gamma` undoes v = J^gamma for scaling."""
+
+    frames: np.ndarray
+    times: np.ndarray
+    phases: tuple[str, ...]
+    end: float
+    gamma: float
+    w_P: tuple[float, float, float]
+    scene_ratio: float  # mean / max luminance of the stimulus image: what "mean" scales to
+
+    def measured(self) -> dict[str, float]:
+        """Each phase's duration from the frames' times: the first frame of the next phase (or
+        the clip's end) minus the first frame of the phase."""
+        firsts = [self.times[self.phases.index(p)] for p in PHASES]
+        return {"on": float(firsts[1] - firsts[0]), "off": float(self.end - firsts[1])}
+
+    def shown(self, intensity: float, design: Design) -> np.ndarray:
+        """The frames at `intensity` (cd/m^2) on the design's monitor, as RGB10_A2 words: each
+        stimulus frame scaled in linear light so that its peak (or mean) luminance is what the
+        intensity asks for; the black phase as rendered (J = 1 is the monitor's white)."""
+        v = self.frames.astype(np.float32)
+        for i, phase in enumerate(self.phases):
+            if phase != "on":
+                continue
+            J = np.power(v[i], 1.0 / self.gamma)
+            Y = J @ np.asarray(self.w_P, np.float32)
+            have = float(Y.max() if design.scale == "peak" else Y.mean())
+            want = intensity / design.display_white
+            if design.scale == "mean":
+                want *= self.scene_ratio
+            v[i] = np.power(np.clip(J * (want / max(have, 1e-30)), 0.0, 1.0), self.gamma)
+        return encode_output(v, "rgb10a2")
+
+
+_cache: OrderedDict[tuple[Any, ...], Clip] = OrderedDict()
+_lock = threading.Lock()
+
+
+def clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Clip:
+    """The clip of `look` (rendered once per process for the same design, size and backend)."""
+    key = (
+        design.scene, repr(sorted(design.scene_options.items())), design.at,
+        design.frames(design.on), design.frames(design.off), design.fps, design.fixation,
+        design.render_seed, look.key(), tuple(size), backend,
+    )  # fmt: skip
+    with _lock:
+        if key in _cache:
+            _cache.move_to_end(key)
+            return _cache[key]
+    made = render_clip(design, look, size, backend)
+    with _lock:
+        _cache[key] = made
+        while len(_cache) > _CLIPS_KEPT:
+            _cache.popitem(last=False)
+    return made
+
+
+def render_clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Clip:
+    """Step the eye through one interval. It starts settled on black; the first step (black)
+    is not shown, so the stimulus starts at a time whole steps reach, as does the black."""
+    w, h = size
+    params = Params.from_dict(look.params)
+    image = make_scene(design.scene, design.scene_options).render(design.at, w, h)
+    n_on, n_off, dt = design.frames(design.on), design.frames(design.off), design.dt
+    ticks = [0.0]
+    for _ in range(1 + n_on + n_off):
+        ticks.append(ticks[-1] + dt)  # the times the eye's clock reaches, bit for bit
+    scene = Timeline(image, ticks[1], ticks[1 + n_on])
+    eye = Eye(
+        scene, (w, h), params, [Models.parse(look.model)], backend=backend,
+        seed=design.render_seed, gaze=design.fixation, eyes_open=True,
+    )  # fmt: skip
+    eye.step(dt, design.fixation, True)  # settled on black: the lead step, not shown
+    frames, times, phases = [], [], []
+    for _ in range(n_on + n_off):
+        t = eye.time
+        phases.append(PHASES[scene.state_at(t) - 1])
+        times.append(t - ticks[1])
+        (v,) = eye.step(dt, design.fixation, True)
+        frames.append(v.astype(np.float16))
+    Y = image @ np.asarray(params.w_P, np.float32)
+    return Clip(
+        frames=np.stack(frames), times=np.asarray(times), phases=tuple(phases),
+        end=eye.time - ticks[1], gamma=params.gamma, w_P=params.w_P,
+        scene_ratio=float(Y.mean() / max(float(Y.max()), 1e-30)),
+    )  # fmt: skip
