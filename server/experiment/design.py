@@ -301,11 +301,11 @@ class _Reader:
         self.done(exclusion, "exclusion.")
         self.done(data, "")
         return Design(
-            name=name, title=title, scene=scene, scene_options=options, at=float(at), on=on, off=off,
-            scale=scale, standard=standard, tests=tests, conditions=conditions, blocks=blocks,
-            display_white=white, fps=fps, size=size, fixation=fixation, keys=keys, texts=texts,
-            exclusion_block=block, min_correct=float(min_correct), render_seed=seed,
-            source=self.where,
+            name=name, title=title, scene=scene, scene_options=options, at=float(at), on=on,
+            off=off, scale=scale, standard=standard, tests=tests, conditions=conditions,
+            blocks=blocks, display_white=white, fps=fps, size=size, fixation=fixation,
+            keys=keys, texts=texts, exclusion_block=block, min_correct=float(min_correct),
+            render_seed=seed, source=self.where,
         )  # fmt: skip
 
     def conditions(self, table: dict[str, Any]) -> dict[str, Condition]:
@@ -342,7 +342,7 @@ class _Reader:
                 raise self.fail(path + "repeats", repeats, "must be a table condition = count")
             for cond, n in repeats.items():
                 if cond not in conditions:
-                    raise self.fail(f"{path}repeats.{cond}", n, "names no condition in [conditions]")
+                    raise self.fail(f"{path}repeats.{cond}", n, "no such condition in [conditions]")
                 if not isinstance(n, int) or isinstance(n, bool) or n < 2 or n % 2:
                     raise self.fail(
                         f"{path}repeats.{cond}", n,
