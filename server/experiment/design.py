@@ -138,7 +138,10 @@ def load_design(source: str | Path) -> Design:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
-        raise DesignError(f"{path}: cannot read the design: {e.strerror}") from None
+        presets = ", ".join(f"{k} ({v})" for k, v in PRESETS.items())
+        raise DesignError(
+            f"{path}: cannot read the design: {e.strerror} (the presets: {presets})"
+        ) from None
     return parse_design(text, str(path))
 
 

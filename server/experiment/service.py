@@ -1,0 +1,177 @@
+"""The experiment's routes on `gazehdr serve` (`serve --experiment` / `gazehdr experiment run`):
+the page at /experiment and its API under /api/experiment, which needs the credential for every
+call, reads included (`gazehdr.security.PRIVATE_READS`): a run's trials, answers and gaze are
+an observer's data, and starting a run or answering changes state.
+
+The page asks for the current trial (JSON: its number, the frames' times and phases), fetches
+its frames (binary: the viewer's frame messages, docs/protocol.md, one after another; a frame
+equal to the one before is sent once and shown again), plays them, takes the key press with
+its time from the prompt, and posts the answer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import secrets
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, HTTPException
+from fastapi.responses import FileResponse, Response
+from pydantic import BaseModel, Field
+
+from gazehdr.experiment.design import Design
+from gazehdr.experiment.runner import ExperimentRun, RunError
+from gazehdr.protocol import Encoding, FrameHeader
+
+PAGE = "experiment.html"
+MAX_RUNS = 16
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """What `serve` runs: the design, where the results go, the frame size and backend, and
+    the seed of each run (None: a new one per run, recorded in its log and announced)."""
+
+    design: Design
+    out_dir: Path
+    size: tuple[int, int] | None = None
+    backend: str = "opencl"
+    seed: int | None = None
+
+
+class StartRun(BaseModel):
+    observer: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9]+$")
+    run: int | None = Field(default=None, ge=1, le=999)
+    consent: bool
+
+
+class Answer(BaseModel):
+    trial: int = Field(ge=1)
+    key: str = Field(min_length=1, max_length=16)
+    response_time: float = Field(ge=0, le=3600)
+
+
+class _Runs:
+    """The runs of this server, by id, each used under its own lock (rendering is a thread)."""
+
+    def __init__(self) -> None:
+        self.runs: dict[str, tuple[ExperimentRun, threading.Lock]] = {}
+
+    def get(self, rid: str) -> tuple[ExperimentRun, threading.Lock]:
+        try:
+            return self.runs[rid]
+        except KeyError:
+            raise HTTPException(404, f"no run {rid!r}") from None
+
+
+def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any) -> None:
+    """Add the page and the API to `app` (before its static files are mounted)."""
+    design, runs = config.design, _Runs()
+
+    @app.get("/experiment", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(web_dir / PAGE, media_type="text/html")
+
+    @app.get("/api/experiment")
+    async def describe() -> dict[str, Any]:
+        t = design.texts
+        return {
+            "name": design.name, "title": design.title, "keys": list(design.keys),
+            "fixation": list(design.fixation), "fps": design.fps,
+            "texts": {f: getattr(t, f) for f in t.__dataclass_fields__},
+            "trials": sum(b.trials for b in design.blocks),
+        }  # fmt: skip
+
+    @app.post("/api/experiment/runs", status_code=201)
+    async def start(body: StartRun) -> dict[str, Any]:
+        if not body.consent:
+            raise HTTPException(400, "consent: the observer has not consented")
+        if len(runs.runs) >= MAX_RUNS:
+            raise HTTPException(503, f"this server has {MAX_RUNS} runs already; restart it")
+        seed = config.seed if config.seed is not None else secrets.randbelow(2**31)
+        try:
+            run = ExperimentRun(
+                design, body.observer, config.out_dir, seed=seed, size=config.size,
+                backend=config.backend, run=body.run,
+            )  # fmt: skip
+        except (ValueError, FileExistsError) as e:
+            raise HTTPException(409 if isinstance(e, FileExistsError) else 400, str(e)) from None
+        rid = secrets.token_urlsafe(9)
+        runs.runs[rid] = (run, threading.Lock())
+        return {"run": rid, "seed": seed, "trials": len(run.trials)}
+
+    @app.get("/api/experiment/runs/{rid}")
+    async def status(rid: str) -> dict[str, Any]:
+        run, _ = runs.get(rid)
+        return {
+            "observer": run.observer_id, "answered": len(run.rows), "trials": len(run.trials),
+            "finished": run.finished, "excluded": run.excluded, "score": run.score,
+            "result": None if run.result is None else str(run.result),
+        }  # fmt: skip
+
+    def presented(rid: str) -> tuple[ExperimentRun, Any]:
+        run, lock = runs.get(rid)
+        with lock:
+            try:
+                return run, run.present()
+            except RunError as e:
+                raise HTTPException(409, str(e)) from None
+
+    @app.get("/api/experiment/runs/{rid}/trial")
+    async def trial(rid: str) -> dict[str, Any]:
+        run, shown = await asyncio.to_thread(presented, rid)
+        frames = shown.frames(design)
+        t = shown.trial
+        return {
+            "trial": t.number, "of": len(run.trials), "block": t.block_name,
+            "feedback": t.feedback, "end": shown.end(),
+            "frames": [[time, interval, phase] for time, interval, phase, _ in frames],
+        }  # fmt: skip
+
+    @app.get("/api/experiment/runs/{rid}/trial/frames")
+    async def trial_frames(rid: str) -> Response:
+        _, shown = await asyncio.to_thread(presented, rid)
+        body = await asyncio.to_thread(_frame_messages, shown, design)
+        return Response(body, media_type="application/octet-stream")
+
+    @app.post("/api/experiment/runs/{rid}/response")
+    async def respond(rid: str, body: Answer) -> dict[str, Any]:
+        run, lock = runs.get(rid)
+        feed = trackers.sole_connected()
+        gaze = None if feed is None else (feed.reading.x, feed.reading.y)
+
+        def answer() -> Any:
+            with lock:
+                return run.respond(body.key, body.response_time, body.trial, gaze)
+
+        try:
+            out = await asyncio.to_thread(answer)
+        except RunError as e:
+            raise HTTPException(409, str(e)) from None
+        except ValueError as e:
+            raise HTTPException(400, str(e)) from None
+        return {
+            "correct": out.correct, "feedback": out.feedback, "finished": out.finished,
+            "excluded": out.excluded, "score": run.score,
+        }  # fmt: skip
+
+
+def _frame_messages(shown: Any, design: Design) -> bytes:
+    """The trial's frames as frame messages, each with its run time; a frame identical to the
+    one before is left out (the page shows the last one it has until the next time)."""
+    out, last = [], None
+    for i, (t, _, _, words) in enumerate(shown.frames(design)):
+        data = words.astype("<u4").tobytes()
+        if data == last:
+            continue
+        last = data
+        h, w = words.shape
+        header = FrameHeader(
+            frame=i, gaze_seq=0, time=t, gaze_x=design.fixation[0], gaze_y=design.fixation[1],
+            adaptation=0.0, rho=0.0, width=w, height=h, encoding=Encoding.rgb10a2,
+        )  # fmt: skip
+        out.append(header.pack() + data)
+    return b"".join(out)
