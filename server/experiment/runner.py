@@ -54,13 +54,13 @@ class Presented:
         return self.onset + sum(c.end for c in self.clips)
 
     def frames(self, design: Design) -> list[tuple[float, int, str, np.ndarray]]:
-        """(run time, interval, phase, RGB10_A2 frame) of every frame, in order."""
+        """(run time, interval, phase, float16 `v`) of every frame, in order."""
         out, start = [], self.onset
         for interval, (c, intensity) in enumerate(
             zip(self.clips, self.trial.intensities, strict=True), 1
         ):
-            for t, phase, words in zip(c.times, c.phases, c.shown(intensity, design), strict=True):
-                out.append((start + float(t), interval, phase, words))
+            for t, phase, v in zip(c.times, c.phases, c.shown(intensity, design), strict=True):
+                out.append((start + float(t), interval, phase, v))
             start += c.end
         return out
 

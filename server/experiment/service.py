@@ -163,15 +163,15 @@ def _frame_messages(shown: Any, design: Design) -> bytes:
     """The trial's frames as frame messages, each with its run time; a frame identical to the
     one before is left out (the page shows the last one it has until the next time)."""
     out, last = [], None
-    for i, (t, _, _, words) in enumerate(shown.frames(design)):
-        data = words.astype("<u4").tobytes()
+    for i, (t, _, _, v) in enumerate(shown.frames(design)):
+        data = v.astype("<f2").tobytes()
         if data == last:
             continue
         last = data
-        h, w = words.shape
+        h, w = v.shape[:2]
         header = FrameHeader(
             frame=i, gaze_seq=0, time=t, gaze_x=design.fixation[0], gaze_y=design.fixation[1],
-            adaptation=0.0, rho=0.0, width=w, height=h, encoding=Encoding.rgb10a2,
+            adaptation=0.0, rho=0.0, width=w, height=h, encoding=Encoding.f16,
         )  # fmt: skip
         out.append(header.pack() + data)
     return b"".join(out)

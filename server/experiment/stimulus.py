@@ -75,9 +75,12 @@ class Clip:
         return {"on": float(firsts[1] - firsts[0]), "off": float(self.end - firsts[1])}
 
     def shown(self, intensity: float, design: Design) -> np.ndarray:
-        """The frames at `intensity` (cd/m^2) on the design's monitor, as RGB10_A2 words: each
+        """The frames at `intensity` (cd/m^2) on the design's monitor, as float16 `v`: each
         stimulus frame scaled in linear light so that its peak (or mean) luminance is what the
-        intensity asks for; the black phase as rendered (J = 1 is the monitor's white)."""
+        intensity asks for; the black phase as rendered (J = 1 is the monitor's white). Half
+        floats, not 10-bit words: 4.2's stimuli sit in the lowest 2 % of the monitor's range,
+        where 10 bits would move a mean by several per cent; the page dithers them to the
+        display's depth (Sec. 2.4)."""
         v = self.frames.astype(np.float32)
         for i, phase in enumerate(self.phases):
             if phase != "on":
@@ -89,7 +92,7 @@ class Clip:
             if design.scale == "mean":
                 want *= self.scene_ratio
             v[i] = np.power(np.clip(J * (want / max(have, 1e-30)), 0.0, 1.0), self.gamma)
-        return encode_output(v, "rgb10a2")
+        return encode_output(v, "float16")
 
 
 _cache: OrderedDict[tuple[Any, ...], Clip] = OrderedDict()
