@@ -83,7 +83,7 @@ def test_the_loader_refuses_what_is_not_toml_or_missing(tmp_path: Path) -> None:
         parse_design('name = "a"\n')
     with pytest.raises(DesignError, match="the presets: afterimage-brightness"):
         load_design(tmp_path / "absent.toml")
-    with pytest.raises(DesignError, match="4.4: cannot read the design"):
+    with pytest.raises(DesignError, match=r"4\.4: cannot read the design"):
         load_design("4.4")  # not a preset: a path, which is not there
     with pytest.raises(DesignError, match="no preset 'moon'"):
         preset_path("moon")

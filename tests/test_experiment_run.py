@@ -103,11 +103,16 @@ def test_a_simulated_observer_runs_the_whole_afterimage_preset(tmp_path: Path) -
     onsets = [float(r["onset"]) for r in got]
     assert np.allclose(np.diff(onsets), 2 * 2.55)
     # the observer's bias shows: at equal intensity it picks the manipulated test far less often
-    at_zero = {c: [r["chose_test"] == "1" for r in got if r["condition"] == c
-                   and r["test_intensity"] == "27.0"] for c in ("control", "manipulated")}  # fmt: skip
-    assert np.mean(at_zero["manipulated"]) < 0.2 < 0.3 < np.mean(at_zero["control"])
+    equal = [r for r in got if r["test_intensity"] == "27.0"]
+    rate = {
+        c: np.mean([r["chose_test"] == "1" for r in equal if r["condition"] == c])
+        for c in ("control", "manipulated")
+    }
+    assert rate["manipulated"] < 0.2 < 0.3 < rate["control"]
     participants = rows(tmp_path / "participants.tsv")
-    assert participants == [{"participant_id": "sub-sim", "training_score": "1.0", "excluded": "false"}]
+    assert participants == [
+        {"participant_id": "sub-sim", "training_score": "1.0", "excluded": "false"}
+    ]
     sidecar = json.loads(path.with_suffix(".json").read_text())
     assert set(BEH_COLUMNS) <= set(sidecar) and sidecar["response_time"]["Units"] == "s"
     validate(tmp_path)
