@@ -3,7 +3,7 @@
 // renderer (temporal dithering), ask, time the key press from the prompt, post the answer.
 // window.gazehdrExperiment exposes the state for tests and for the experimenter's console.
 
-import { decodeFrame, decodeHeader } from './protocol.js';
+import { decodeFrame, decodeHeader, ENCODING } from './protocol.js';
 import { Renderer } from './renderer.js';
 
 const $ = (id) => document.getElementById(id);
@@ -65,7 +65,7 @@ function splitFrames(buffer) {
   const byIndex = new Map();
   for (let at = 0; at < buffer.byteLength; ) {
     const h = decodeHeader(buffer.slice(at, at + 64));
-    const size = h.header_bytes + h.width * h.height * 4;
+    const size = h.header_bytes + h.width * h.height * (h.encoding === ENCODING.F16 ? 6 : 4);
     byIndex.set(h.frame, decodeFrame(buffer.slice(at, at + size)));
     at += size;
   }

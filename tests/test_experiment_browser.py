@@ -1,0 +1,121 @@
+"""The experiment's page in real headless Chromium against a real server (the fixtures of
+tests/test_browser.py): a simulated observer answers a short run by key presses, and the
+results, participants and session log hold what happened; the API refuses a caller without the
+credential."""
+
+from __future__ import annotations
+
+import csv
+import json
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gazehdr.drivers.sessionlog import read_session_log
+from gazehdr.experiment.design import parse_design
+from gazehdr.experiment.observer import SimulatedObserver
+from gazehdr.experiment.schedule import schedule
+from gazehdr.experiment.service import ExperimentConfig
+from tests.test_bids_dataset import validate
+from tests.test_browser import WAIT_MS, browser  # noqa: F401 -- the browser fixture
+from tests.test_experiment_design import TINY
+
+SIZE = (48, 27)
+SEED = 5
+DESIGN = parse_design(TINY.replace("control = 4", "control = 2"), "tiny.toml")
+
+
+def _config(tmp_path: Path) -> ExperimentConfig:
+    return ExperimentConfig(DESIGN, tmp_path / "results", SIZE, "reference", SEED)
+
+
+def _call(url: str, method: str = "GET", body: Any = None, auth: dict | None = None) -> int:
+    data = None if body is None else json.dumps(body).encode()
+    headers = {"Content-Type": "application/json", **(auth or {})}
+    request = urllib.request.Request(url, data, headers, method=method)
+    try:
+        with urllib.request.urlopen(request, timeout=30) as r:
+            return r.status
+    except urllib.error.HTTPError as e:
+        return e.code
+
+
+def test_the_experiment_api_needs_the_credential(live_server, tmp_path: Path) -> None:
+    server = live_server(experiment=_config(tmp_path))
+    api = f"{server.url}/api/experiment"
+    start = {"observer": "a1", "consent": True}
+    assert _call(api) == 401
+    assert _call(f"{api}/runs", "POST", start) == 401
+    assert _call(f"{api}/runs/x/trial") == 401
+    assert _call(f"{api}/runs/x/response", "POST", {"trial": 1, "key": "1", "response_time": 1}) == 401
+    assert _call(api, auth={"Authorization": "Bearer wrong"}) == 401
+    assert _call(api, auth=server.auth) == 200
+    assert _call(f"{api}/runs", "POST", {**start, "consent": False}, server.auth) == 400
+    assert _call(f"{api}/runs", "POST", {**start, "observer": "a-1"}, server.auth) == 422
+    assert _call(f"{api}/runs/nope/trial", auth=server.auth) == 404
+    assert _call(f"{server.url}/experiment") == 200  # the page itself is public
+    assert not (tmp_path / "results" / "sub-a1").exists()
+
+
+def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp_path) -> None:  # noqa: F811
+    server = live_server(experiment=_config(tmp_path))
+    trials = schedule(DESIGN, SEED)
+    observer = SimulatedObserver({"control": 0.05}, sigma=0.1, lapse=0.0, seed=3)
+    page = browser.new_page(viewport={"width": 480, "height": 270})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    try:
+        page.goto(f"{server.url}/experiment")  # loopback: the page gives the browser its cookie
+        page.wait_for_function("() => window.gazehdrExperiment.design", timeout=WAIT_MS)
+        page.fill("#observer", "web1")
+        page.check("#agree")
+        page.click("#begin")
+        page.wait_for_function(
+            "() => window.gazehdrExperiment.state === 'instructions'", timeout=WAIT_MS
+        )
+        page.keyboard.press("Space")
+        pressed = []
+        for trial in trials:
+            page.wait_for_function(
+                "(n) => window.gazehdrExperiment.state === 'prompt' "
+                "&& window.gazehdrExperiment.trial === n",
+                arg=trial.number,
+                timeout=WAIT_MS,
+            )
+            chose = observer.chooses_test(trial.log_relative_intensity, trial.condition)
+            key = DESIGN.keys[(trial.test_interval if chose else 3 - trial.test_interval) - 1]
+            page.wait_for_timeout(30)  # a response time the page can measure
+            page.keyboard.press(key)
+            pressed.append(key)
+        page.wait_for_function("() => window.gazehdrExperiment.state === 'done'", timeout=WAIT_MS)
+        ex = page.evaluate("() => window.gazehdrExperiment")
+        message = page.text_content("#message-text")
+    finally:
+        page.close()
+    assert not errors, errors
+    assert message == DESIGN.texts.thanks and ex["result"]["finished"] and not ex["result"]["excluded"]
+    assert ex["shown"] >= len(trials) * 2 * 3  # every frame of both intervals: 1 flash + 2 black
+    results = tmp_path / "results"
+    with (results / "sub-web1/beh/sub-web1_task-tiny_beh.tsv").open(encoding="utf-8") as f:
+        rows = list(csv.DictReader(f, delimiter="\t"))
+    assert [r["response_key"] for r in rows] == pressed
+    assert [int(r["test_interval"]) for r in rows] == [t.test_interval for t in trials]
+    times = [float(r["response_time"]) for r in rows]
+    assert all(0.02 < t < 30 for t in times)
+    assert times == pytest.approx([a["response_time"] for a in ex["answers"]], abs=1e-9)
+    for r in rows:
+        assert float(r["flash_duration"]) == pytest.approx(0.05)
+        assert float(r["black_duration"]) == pytest.approx(0.1)
+    with (results / "participants.tsv").open(encoding="utf-8") as f:
+        (participant,) = csv.DictReader(f, delimiter="\t")
+    assert participant["participant_id"] == "sub-web1" and participant["excluded"] == "false"
+    log = read_session_log(results / "sourcedata/sub-web1/sub-web1_task-tiny_sessionlog.jsonl")
+    notes = [json.loads(n.text) for n in log.notes]
+    answers = [n for n in notes if n["event"] == "response"]
+    assert [a["key"] for a in answers] == pressed
+    assert [a["response_time"] for a in answers] == pytest.approx(times)
+    assert log.header.tracker["via"] == "browser" and len(log.samples) == len(trials)
+    validate(results)
