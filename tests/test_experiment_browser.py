@@ -50,7 +50,8 @@ def test_the_experiment_api_needs_the_credential(live_server, tmp_path: Path) ->
     assert _call(api) == 401
     assert _call(f"{api}/runs", "POST", start) == 401
     assert _call(f"{api}/runs/x/trial") == 401
-    assert _call(f"{api}/runs/x/response", "POST", {"trial": 1, "key": "1", "response_time": 1}) == 401
+    answer = {"trial": 1, "key": "1", "response_time": 1.0}
+    assert _call(f"{api}/runs/x/response", "POST", answer) == 401
     assert _call(api, auth={"Authorization": "Bearer wrong"}) == 401
     assert _call(api, auth=server.auth) == 200
     assert _call(f"{api}/runs", "POST", {**start, "consent": False}, server.auth) == 400
@@ -96,7 +97,8 @@ def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp
     finally:
         page.close()
     assert not errors, errors
-    assert message == DESIGN.texts.thanks and ex["result"]["finished"] and not ex["result"]["excluded"]
+    assert message == DESIGN.texts.thanks
+    assert ex["result"]["finished"] and not ex["result"]["excluded"]
     assert ex["shown"] >= len(trials) * 2 * 3  # every frame of both intervals: 1 flash + 2 black
     results = tmp_path / "results"
     with (results / "sub-web1/beh/sub-web1_task-tiny_beh.tsv").open(encoding="utf-8") as f:
