@@ -352,7 +352,7 @@ def _import(args: argparse.Namespace, extra: list[str]) -> int:
 def _experiment(args: argparse.Namespace, extra: list[str]) -> int:
     from gazehdr.experiment.cli import main as experiment_main
 
-    return experiment_main(extra)
+    return experiment_main(extra, data_dir=_data_dir(None))
 
 
 def _export(args: argparse.Namespace, extra: list[str]) -> int:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -75,7 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser  # fmt: skip
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, data_dir: Path | None = None) -> int:
+    """`gazehdr experiment ...`; `data_dir` is serve's (`gazehdr.cli` passes it)."""
     args = build_parser().parse_args(argv)
     design = load_design(args.design)
     if args.headless:
@@ -94,19 +94,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if args.simulated_observer:
         raise ValueError("--simulated-observer answers only --headless runs")
-    from gazehdr.cli import _data_dir
     from gazehdr.experiment.service import ExperimentConfig
     from gazehdr.serve import serve
 
+    if data_dir is None:
+        raise ValueError("serving needs serve's data folder: run it as 'gazehdr experiment'")
     experiment = ExperimentConfig(design, args.out, args.size, args.backend, args.seed)
     return serve(
         host=args.host, port=args.port, scene="flash", scale=None, gaze="mouse", fps=30.0,
         size=(640, 360), fit_viewport=True, params_file=None,
-        token=args.token or os.environ.get("GAZEHDR_TOKEN") or None, data_dir=_data_dir(None),
+        token=args.token or os.environ.get("GAZEHDR_TOKEN") or None, data_dir=data_dir,
         allow_origins=(), encoding="f16", backend=args.backend, seed=0, auth=not args.no_auth,
         experiment=experiment,
     )  # fmt: skip
-
-
-if __name__ == "__main__":
-    sys.exit(main())
