@@ -108,6 +108,8 @@ def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp
     times = [float(r["response_time"]) for r in rows]
     assert all(0.02 < t < 30 for t in times)
     assert times == pytest.approx([a["response_time"] for a in ex["answers"]], abs=1e-9)
+    late = [int(r["frames_late"]) for r in rows]
+    assert late == [a["frames_late"] for a in ex["answers"]]
     for r in rows:
         assert float(r["flash_duration"]) == pytest.approx(0.05)
         assert float(r["black_duration"]) == pytest.approx(0.1)

@@ -144,7 +144,7 @@ def test_the_session_log_holds_every_trial_response_and_the_fixation_gaze(tmp_pa
         run.respond("x")
     with pytest.raises(RunError, match="trial 5 is not the one waiting"):
         run.respond("1", 0.5, trial_number=5)
-    run.respond("2", 0.25, trial_number=1, tracker_gaze=(0.4, 0.6))
+    run.respond("2", 0.25, trial_number=1, tracker_gaze=(0.4, 0.6), frames_late=2)
     while run.current is not None:
         run.present()
         run.respond("1", 0.5)
@@ -159,13 +159,14 @@ def test_the_session_log_holds_every_trial_response_and_the_fixation_gaze(tmp_pa
     first = next(n for n in notes if n["event"] == "response")
     assert first == {"event": "response", "trial": 1, "key": "2", "response_time": 0.25,
                      "chose_test": shown.trial.test_interval == 2,
-                     "correct": shown.trial.correct(2)}  # fmt: skip
+                     "correct": shown.trial.correct(2), "frames_late": 2}  # fmt: skip
     assert {"event": "tracker_gaze", "x": 0.4, "y": 0.6} in notes
     assert len(log.samples) == 12 and {(s.x, s.y) for s in log.samples} == {(960.0, 540.0)}
     # the responses' times move the run clock on: trial 2 starts after trial 1's answer
     got = rows(run.result)
     assert float(got[1]["onset"]) == pytest.approx(2 * 0.15 + 0.25)
-    assert got[0]["response_time"] == "0.25"
+    assert got[0]["response_time"] == "0.25" and got[0]["frames_late"] == "2"
+    assert got[1]["frames_late"] == "n/a"
 
 
 def test_a_run_refuses_a_folder_that_is_not_a_dataset_and_an_existing_run(tmp_path: Path) -> None:

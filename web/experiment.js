@@ -60,41 +60,89 @@ function nextKey(allowed) {
   });
 }
 
-/** The unique frames of a trial, by frame index (a missing index repeats the one before). */
-function splitFrames(buffer) {
-  const byIndex = new Map();
-  for (let at = 0; at < buffer.byteLength; ) {
-    const h = decodeHeader(buffer.slice(at, at + 64));
-    const size = h.header_bytes + h.width * h.height * (h.encoding === ENCODING.F16 ? 6 : 4);
-    byIndex.set(h.frame, decodeFrame(buffer.slice(at, at + size)));
-    at += size;
-  }
-  return byIndex;
+/**
+ * A trial's frames as they arrive (frame messages one after another; a frame equal to the one
+ * before is not sent): `frames` by index, `last` the newest index in, `done` when all are.
+ * Frames come in index order, so index i is in when `done || last >= i`.
+ */
+function streamFrames(response) {
+  const got = { frames: new Map(), last: -1, done: false, failed: null };
+  const reader = response.body.getReader();
+  let pending = new Uint8Array(0);
+  (async () => {
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      const data = new Uint8Array(pending.length + value.length);
+      data.set(pending);
+      data.set(value, pending.length);
+      let at = 0;
+      while (data.length - at >= 8) {
+        const headerBytes = new DataView(data.buffer, at + 6, 2).getUint16(0, true);
+        if (data.length - at < headerBytes) break;
+        const h = decodeHeader(data.slice(at, at + headerBytes).buffer);
+        const size = headerBytes + h.width * h.height * (h.encoding === ENCODING.F16 ? 6 : 4);
+        if (data.length - at < size) break;
+        const frame = decodeFrame(data.slice(at, at + size).buffer);
+        got.frames.set(frame.header.frame, frame);
+        got.last = frame.header.frame;
+        at += size;
+      }
+      pending = data.slice(at);
+    }
+  })()
+    .catch((e) => {
+      got.failed = e;
+    })
+    .finally(() => {
+      got.done = true;
+    });
+  return got;
 }
 
-/** Play the frames at their simulation times; resolves when the last one has had its time. */
-function play(trial, frames) {
+const has = (got, i) => got.done || got.last >= i;
+const LEAD_S = 1.0; // playback starts with this much of the trial in (or all of it)
+
+/**
+ * Play the frames at their simulation times; resolves with the number of frames that were
+ * not in when their time came (the one before was held longer: 0 is a trial as rendered).
+ */
+async function play(trial, got) {
   const times = trial.frames.map((f) => f[0] - trial.frames[0][0]);
   const total = trial.end - trial.frames[0][0];
+  const lead = times.findIndex((t) => t >= LEAD_S);
+  while (!has(got, lead < 0 ? times.length - 1 : lead)) {
+    if (got.failed) throw got.failed;
+    await new Promise((r) => setTimeout(r, 10));
+  }
   return new Promise((resolve) => {
     let start = null;
     let current = -1;
+    let late = 0;
+    let lateUpTo = -1; // frames up to this index were counted late already
     const tick = (now) => {
       if (start === null) start = now;
       const elapsed = (now - start) / 1000;
       if (elapsed >= total) {
         renderer.frame = null; // the prompt is black
         renderer.draw();
-        resolve();
+        resolve(late);
         return;
       }
       let i = current < 0 ? 0 : current;
       while (i + 1 < times.length && times[i + 1] <= elapsed) i++;
+      const wanted = i;
+      while (i > current && !has(got, i)) i--;
+      if (wanted > Math.max(i, lateUpTo)) {
+        late += wanted - Math.max(i, lateUpTo);
+        lateUpTo = wanted;
+      }
       if (i !== current) {
         let k = i;
-        while (!frames.has(k)) k--;
-        const { header, pixels } = frames.get(k);
+        while (!got.frames.has(k)) k--;
+        const { header, pixels } = got.frames.get(k);
         renderer.upload(header.width, header.height, header.encoding, pixels);
+        for (const old of got.frames.keys()) if (old < k) got.frames.delete(old);
         current = i;
         ex.shown++;
       }
@@ -111,18 +159,18 @@ async function trialLoop() {
   for (;;) {
     show('loading', '');
     const trial = await (await api(`/runs/${run}/trial`)).json();
-    const frames = splitFrames(await (await api(`/runs/${run}/trial/frames`)).arrayBuffer());
+    const got = streamFrames(await api(`/runs/${run}/trial/frames`));
     ex.trial = trial.trial;
     show('playing');
-    await play(trial, frames);
+    const late = await play(trial, got);
     show('prompt', design.texts.question);
     const prompt = performance.now();
     const { key, at } = await nextKey(design.keys);
     const rt = (at - prompt) / 1000;
     const out = await (await post(`/runs/${run}/response`, {
-      trial: trial.trial, key, response_time: rt,
+      trial: trial.trial, key, response_time: rt, frames_late: late,
     })).json();
-    ex.answers.push({ trial: trial.trial, key, response_time: rt, ...out });
+    ex.answers.push({ trial: trial.trial, key, response_time: rt, frames_late: late, ...out });
     if (out.feedback) {
       show('feedback', out.feedback);
       await new Promise((r) => setTimeout(r, 700));

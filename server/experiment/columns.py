@@ -52,4 +52,8 @@ BEH_COLUMNS: dict[str, Column] = {
     "black_duration": Column(
         "how long the black screen after the stimulus lasted, measured the same way", "s"
     ),
+    "frames_late": Column(
+        "frames of the trial the browser did not have in time (it held the frame before "
+        "longer): 0 is a trial shown as rendered; n/a without a browser"
+    ),
 }

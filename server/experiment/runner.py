@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,16 +54,20 @@ class Presented:
     def end(self) -> float:
         return self.onset + sum(c.end for c in self.clips)
 
-    def frames(self, design: Design) -> list[tuple[float, int, str, np.ndarray]]:
-        """(run time, interval, phase, float16 `v`) of every frame, in order."""
+    def timeline(self) -> list[tuple[float, int, str]]:
+        """(run time, interval, phase) of every frame, in order."""
         out, start = [], self.onset
-        for interval, (c, intensity) in enumerate(
-            zip(self.clips, self.trial.intensities, strict=True), 1
-        ):
-            for t, phase, v in zip(c.times, c.phases, c.shown(intensity, design), strict=True):
-                out.append((start + float(t), interval, phase, v))
+        for interval, c in enumerate(self.clips, 1):
+            out += [(start + float(t), interval, p) for t, p in zip(c.times, c.phases, strict=True)]
             start += c.end
         return out
+
+    def frames(self, design: Design) -> Iterator[tuple[float, int, str, np.ndarray]]:
+        """`timeline()` with each frame's float16 `v`, made an interval at a time."""
+        times = iter(self.timeline())
+        for c, intensity in zip(self.clips, self.trial.intensities, strict=True):
+            for v in c.shown(intensity, design):
+                yield (*next(times), v)
 
 
 @dataclass(frozen=True)
@@ -177,9 +182,11 @@ class ExperimentRun:
         response_time: float | None = None,
         trial_number: int | None = None,
         tracker_gaze: tuple[float, float] | None = None,
+        frames_late: int | None = None,
     ) -> Outcome:
         """The answer to the presented trial: `key` (one of the design's two), `response_time`
-        (s from the prompt, as the page measured it; None headless)."""
+        (s from the prompt, as the page measured it) and `frames_late` (frames the page did not
+        have in time); both None headless."""
         trial, shown = self.current, self.presented
         if trial is None or shown is None or shown.trial != trial:
             raise RunError("no trial is waiting for an answer; present one first")
@@ -202,12 +209,13 @@ class ExperimentRun:
             "chose_test": int(trial.chose_test(interval)),
             "correct": None if trial.condition != "training" or correct is None else int(correct),
             "palette_choice": None, "response_time": response_time, "onset": shown.onset,
-            "flash_duration": flash, "black_duration": black,
+            "flash_duration": flash, "black_duration": black, "frames_late": frames_late,
         })  # fmt: skip
         if tracker_gaze is not None:
             self._note("tracker_gaze", x=tracker_gaze[0], y=tracker_gaze[1])
         self._note("response", trial=trial.number, key=key, response_time=response_time,
-                   chose_test=trial.chose_test(interval), correct=correct)  # fmt: skip
+                   chose_test=trial.chose_test(interval), correct=correct,
+                   frames_late=frames_late)  # fmt: skip
         self.scored.append((trial, correct))
         self.index += 1
         self.presented = None

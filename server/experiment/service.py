@@ -14,12 +14,13 @@ from __future__ import annotations
 import asyncio
 import secrets
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, HTTPException
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel, Field
 
 from gazehdr.experiment.design import Design
@@ -27,6 +28,7 @@ from gazehdr.experiment.runner import ExperimentRun, RunError
 from gazehdr.protocol import Encoding, FrameHeader
 
 PAGE = "experiment.html"
+BINARY = "application/octet-stream"
 MAX_RUNS = 16
 
 
@@ -52,6 +54,7 @@ class Answer(BaseModel):
     trial: int = Field(ge=1)
     key: str = Field(min_length=1, max_length=16)
     response_time: float = Field(ge=0, le=3600)
+    frames_late: int | None = Field(default=None, ge=0, le=10**6)
 
 
 class _Runs:
@@ -123,19 +126,17 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
     @app.get("/api/experiment/runs/{rid}/trial")
     async def trial(rid: str) -> dict[str, Any]:
         run, shown = await asyncio.to_thread(presented, rid)
-        frames = shown.frames(design)
         t = shown.trial
         return {
             "trial": t.number, "of": len(run.trials), "block": t.block_name,
             "feedback": t.feedback, "end": shown.end(),
-            "frames": [[time, interval, phase] for time, interval, phase, _ in frames],
+            "frames": [list(frame) for frame in shown.timeline()],
         }  # fmt: skip
 
     @app.get("/api/experiment/runs/{rid}/trial/frames")
-    async def trial_frames(rid: str) -> Response:
+    async def trial_frames(rid: str) -> StreamingResponse:
         _, shown = await asyncio.to_thread(presented, rid)
-        body = await asyncio.to_thread(_frame_messages, shown, design)
-        return Response(body, media_type="application/octet-stream")
+        return StreamingResponse(_frame_messages(shown, design), media_type=BINARY)
 
     @app.post("/api/experiment/runs/{rid}/response")
     async def respond(rid: str, body: Answer) -> dict[str, Any]:
@@ -145,7 +146,7 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
 
         def answer() -> Any:
             with lock:
-                return run.respond(body.key, body.response_time, body.trial, gaze)
+                return run.respond(body.key, body.response_time, body.trial, gaze, body.frames_late)
 
         try:
             out = await asyncio.to_thread(answer)
@@ -159,10 +160,11 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
         }  # fmt: skip
 
 
-def _frame_messages(shown: Any, design: Design) -> bytes:
-    """The trial's frames as frame messages, each with its run time; a frame identical to the
-    one before is left out (the page shows the last one it has until the next time)."""
-    out, last = [], None
+def _frame_messages(shown: Any, design: Design) -> Iterator[bytes]:
+    """The trial's frames as frame messages, each with its run time, as they are made (the
+    page starts once it has the first second); a frame identical to the one before is left
+    out (the page shows the last one it has until the next one's time)."""
+    last = None
     for i, (t, _, _, v) in enumerate(shown.frames(design)):
         data = v.astype("<f2").tobytes()
         if data == last:
@@ -173,5 +175,4 @@ def _frame_messages(shown: Any, design: Design) -> bytes:
             frame=i, gaze_seq=0, time=t, gaze_x=design.fixation[0], gaze_y=design.fixation[1],
             adaptation=0.0, rho=0.0, width=w, height=h, encoding=Encoding.f16,
         )  # fmt: skip
-        out.append(header.pack() + data)
-    return b"".join(out)
+        yield header.pack() + data
