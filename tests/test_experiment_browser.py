@@ -59,6 +59,12 @@ def test_the_experiment_api_needs_the_credential(live_server, tmp_path: Path) ->
     assert _call(f"{api}/runs/nope/trial", auth=server.auth) == 404
     assert _call(f"{server.url}/experiment") == 200  # the page itself is public
     assert not (tmp_path / "results" / "sub-a1").exists()
+    with urllib.request.urlopen(f"{server.url}/openapi.json", timeout=30) as r:
+        spec = json.load(r)
+    ours = {p: ops for p, ops in spec["paths"].items() if p.startswith("/api/experiment")}
+    assert len(ours) == 6
+    for ops in ours.values():
+        assert all(op["security"] == [{"bearer": []}, {"cookie": []}] for op in ops.values())
 
 
 def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp_path) -> None:  # noqa: F811
