@@ -78,7 +78,7 @@ class Clip:
         """The frames at `intensity` (cd/m^2) on the design's monitor, as float16 `v`: each
         stimulus frame scaled in linear light so that its peak (or mean) luminance is what the
         intensity asks for; the black phase as rendered (J = 1 is the monitor's white). Half
-        floats, not 10-bit words: 4.2's stimuli sit in the lowest 2 % of the monitor's range,
+        floats, not 10-bit words: 4.2's stimuli sit in the lowest 0.1 % of the monitor's light,
         where 10 bits would move a mean by several per cent; the page dithers them to the
         display's depth (Sec. 2.4)."""
         v = self.frames.astype(np.float32)
