@@ -175,3 +175,86 @@ def test_the_seventy_percent_rule() -> None:
     assert training_score(results, 1) == pytest.approx(0.65) and excluded(0.65, 0.7)
     assert training_score([], 1) is None and not excluded(None, 0.7)
     assert training_score([(t, None)], 1) is None  # equal intensities are not scored
+
+
+#: Sec. 4.3 in small: two flashes, then a palette of our model's and Ritschel's afterimage.
+PALETTE = """\
+name = "pal"
+[stimulus]
+scene = "flash"
+at = 1.0
+on = 0.05
+off = 0.1
+standard = 100.0
+tests = [100.0]
+[display]
+fps = 20.0
+size = [48, 27]
+[conditions.palette]
+[[blocks]]
+name = "bright"
+repeats = { palette = 1 }
+tests = [1e7]
+[[blocks]]
+name = "dim"
+repeats = { palette = 1 }
+tests = [1e5]
+[palette]
+scaled = ["halo_luminance"]
+choices = [
+  { label = "H1", flash = 1e7, model = "jacobs" },
+  { label = "C1", flash = 1e7, model = "ritschel" },
+]
+"""
+
+
+def test_the_palette_preset_is_fig_15() -> None:
+    """Sec. 4.3: flashes in three strengths (unobstructed, 4x and 32x ND), brightest first; the
+    options are our model after 1e7, 1e5, 1e4, 1e3 cd/m^2 flashes (H1-H4) and Ritschel's (C1-C4)."""
+    d = load_design("4.3")
+    assert [b.tests for b in d.blocks] == [(1e7,), (2.5e6,), (3.125e5,)]
+    assert all(b.repeats == {"palette": 1} for b in d.blocks)
+    assert [(c.label, c.flash, c.look.model) for c in d.palette] == [
+        (f"{m}{i}", f, model)
+        for m, model in (("H", "jacobs+stochastic"), ("C", "ritschel+stochastic"))
+        for i, f in enumerate((1e7, 1e5, 1e4, 1e3), 1)
+    ]
+    # a weaker flash dims its glow in step: an ND filter darkens the whole flash
+    look = d.flash_look(d.palette[3].look, 1e3)
+    assert look.scene_options == {"flash_luminance": 1e3, "halo_luminance": (10.0, 1.0)}
+    trials = schedule(d, 0)
+    assert [(t.condition, t.test, t.intensities) for t in trials] == [
+        ("palette", 1e7, (100.0,)),
+        ("palette", 2.5e6, (100.0,)),
+        ("palette", 3.125e5, (100.0,)),
+    ]
+    assert trials[0].correct(1) is None
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "says"),
+    [
+        ('label = "C1"', 'label = "H1"', "palette.choices[2].label = 'H1'"),
+        ('label = "C1"', 'label = "C 1"', "palette.choices[2].label = 'C 1'"),
+        ('model = "ritschel"', 'model = "ritschel2"', "palette.choices[2].model = 'ritschel2'"),
+        ("flash = 1e7, model", "flash = -1.0, model", "palette.choices[1].flash = -1.0"),
+        ('scaled = ["halo_luminance"]', 'scaled = ["colour"]', "palette.scaled = 'colour'"),
+        ('scaled = ["halo_luminance"]', 'option = "name"\nscaled = []', "palette.option = 'name'"),
+        ("repeats = { palette = 1 }", "repeats = { palette = 0 }", "repeats.palette = 0"),
+        ("[conditions.palette]", "[conditions.palette]\n[conditions.control]", "blocks[1]"),
+    ],
+)
+def test_the_loader_refuses_a_bad_palette(old: str, new: str, says: str) -> None:
+    text = PALETTE.replace(old, new, 1)
+    if "conditions.control" in new:
+        mixed = "repeats = { palette = 1, control = 2 }"
+        text = text.replace("repeats = { palette = 1 }", mixed, 1)
+    with pytest.raises(DesignError) as e:
+        parse_design(text, "p.toml")
+    assert says in str(e.value)
+
+
+def test_palette_trials_need_choices() -> None:
+    cut = PALETTE[: PALETTE.index("[palette]")]
+    with pytest.raises(DesignError, match=r"palette trials need \[palette\] choices"):
+        parse_design(cut)

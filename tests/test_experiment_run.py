@@ -18,9 +18,9 @@ from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.design import load_design, parse_design
 from gazehdr.experiment.observer import SimulatedObserver
 from gazehdr.experiment.runner import ExperimentRun, RunError, run_headless
-from gazehdr.experiment.stimulus import clip
+from gazehdr.experiment.stimulus import clip, palette_images
 from tests.test_bids_dataset import validate
-from tests.test_experiment_design import TINY
+from tests.test_experiment_design import PALETTE, TINY
 
 SIZE = (48, 27)
 BACKEND = "reference"
@@ -198,3 +198,41 @@ def test_the_command_line_runs_headless_and_names_bad_input(tmp_path: Path, caps
     assert "--headless needs --simulated-observer" in capsys.readouterr().err
     assert cli_main([*argv, "--run", "2", "--simulated-observer", "control"]) == 2
     assert "'control': give CONDITION=PSE" in capsys.readouterr().err
+
+
+def test_palette_trials_record_the_options_picked(tmp_path: Path) -> None:
+    """Sec. 4.3: a flash, its black, then the options picked; the 2AFC columns are n/a. The
+    options' images are the first black frame after their flash: ours coloured, Ritschel's
+    grey (the paper's point: no colour contrast), both bright after a 1e7 cd/m^2 flash."""
+    d = parse_design(PALETTE)
+    picks = {1: ["H1"], 2: ["H1", "C1"]}
+    path = run_headless(d, SimulatedObserver(), tmp_path, size=SIZE, backend=BACKEND,
+                        palette_chooser=lambda trial, labels: picks[trial.number])  # fmt: skip
+    got = rows(path)
+    assert [r["palette_choice"] for r in got] == ["H1", "H1,C1"]
+    assert [r["test_intensity"] for r in got] == ["10000000.0", "100000.0"]
+    for r in got:
+        assert r["condition"] == "palette" and r["flash_duration"] == "0.05"
+        for column in ("standard_intensity", "log_relative_intensity", "test_interval",
+                       "response_key", "chose_test", "correct"):  # fmt: skip
+            assert r[column] == "n/a", column
+    validate(tmp_path)
+    ours, ritschel = palette_images(d, SIZE, BACKEND)
+    J = [np.power(v.astype(float), 1 / 0.455) for v in (ours, ritschel)]
+    spread = [float((j.max(-1) - j.min(-1)).max()) for j in J]
+    assert min(j.max() for j in J) > 0.1 and spread[1] < 0.01 < 0.1 < spread[0]
+    with pytest.raises(ValueError, match="palette_chooser"):
+        run_headless(d, SimulatedObserver(), tmp_path / "x", size=SIZE, backend=BACKEND)
+
+
+def test_a_palette_trial_takes_only_known_options(tmp_path: Path) -> None:
+    run = ExperimentRun(parse_design(PALETTE), "p1", tmp_path, seed=0, size=SIZE, backend=BACKEND)
+    run.present()
+    for bad in ([], ["H1", "H1"], ["X9"], None):
+        with pytest.raises(ValueError, match="one or more of H1, C1"):
+            run.respond(palette=bad)
+    with pytest.raises(ValueError, match="one or more of H1, C1"):
+        run.respond("1")  # a key is no answer to a palette trial
+    run.respond(palette=["C1"], response_time=1.5)
+    run.present()
+    assert run.respond(palette=["H1"]).finished

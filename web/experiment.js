@@ -155,6 +155,36 @@ async function play(trial, got) {
   });
 }
 
+/** Sec. 4.3: the observer clicks the options like the afterimage seen, then presses Enter. */
+async function pickFromPalette() {
+  const grid = $('palette');
+  if (!grid.childElementCount) {
+    for (const label of design.palette) {
+      const option = document.createElement('figure');
+      option.dataset.label = label;
+      const img = document.createElement('img');
+      img.src = `/api/experiment/palette/${label}.png`;
+      img.alt = label;
+      const caption = document.createElement('figcaption');
+      caption.textContent = label;
+      option.append(img, caption);
+      option.addEventListener('click', () => option.classList.toggle('picked'));
+      grid.append(option);
+    }
+  }
+  for (const option of grid.children) option.classList.remove('picked');
+  grid.hidden = false;
+  document.body.classList.add('picking');
+  for (;;) {
+    const { at } = await nextKey(['Enter']);
+    const picked = [...grid.querySelectorAll('.picked')].map((o) => o.dataset.label);
+    if (picked.length) {
+      document.body.classList.remove('picking');
+      return { palette: picked, at };
+    }
+  }
+}
+
 async function trialLoop() {
   for (;;) {
     show('loading', '');
@@ -165,12 +195,14 @@ async function trialLoop() {
     const late = await play(trial, got);
     show('prompt', design.texts.question);
     const prompt = performance.now();
-    const { key, at } = await nextKey(design.keys);
-    const rt = (at - prompt) / 1000;
+    const answer = trial.palette ? await pickFromPalette() : await nextKey(design.keys);
+    $('palette').hidden = true;
+    const rt = (answer.at - prompt) / 1000;
+    const { key = null, palette = null } = answer;
     const out = await (await post(`/runs/${run}/response`, {
-      trial: trial.trial, key, response_time: rt, frames_late: late,
+      trial: trial.trial, key, palette, response_time: rt, frames_late: late,
     })).json();
-    ex.answers.push({ trial: trial.trial, key, response_time: rt, frames_late: late, ...out });
+    ex.answers.push({ trial: trial.trial, key, palette, response_time: rt, frames_late: late, ...out });
     if (out.feedback) {
       show('feedback', out.feedback);
       await new Promise((r) => setTimeout(r, 700));

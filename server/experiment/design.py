@@ -27,7 +27,11 @@ except ModuleNotFoundError:  # Python 3.10: tomli, as the batch manifest
     import tomli as tomllib  # type: ignore[no-redef]
 
 #: Preset names and the paper's section numbers they stand for.
-PRESETS = {"afterimage-brightness": "4.1", "mesopic-brightness": "4.2"}
+PRESETS = {
+    "afterimage-brightness": "4.1",
+    "mesopic-brightness": "4.2",
+    "afterimage-palette": "4.3",
+}
 SCALES = ("peak", "mean")
 _LABEL = re.compile(r"[A-Za-z0-9]+")
 _KEY = re.compile(r"[A-Za-z0-9]|Arrow(Left|Right|Up|Down)|Space")
@@ -39,13 +43,31 @@ class DesignError(ValueError):
 
 @dataclass(frozen=True)
 class Look:
-    """How one interval is rendered: `Params` overrides and the `AFTERIMAGE+ACUITY` models."""
+    """How one interval is rendered: `Params` overrides, the `AFTERIMAGE+ACUITY` models, and
+    scene options over the design's (a palette trial's flash strength)."""
 
     params: dict[str, Any] = field(default_factory=dict)
     model: str = "jacobs+stochastic"
+    scene_options: dict[str, Any] = field(default_factory=dict)
 
     def key(self) -> tuple[Any, ...]:
-        return (tuple(sorted((k, repr(v)) for k, v in self.params.items())), self.model)
+        def items(d: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+            return tuple(sorted((k, repr(v)) for k, v in d.items()))
+
+        return (items(self.params), self.model, items(self.scene_options))
+
+    def with_scene(self, **options: Any) -> Look:
+        return Look(self.params, self.model, {**self.scene_options, **options})
+
+
+@dataclass(frozen=True)
+class Choice:
+    """An option of the palette (Sec. 4.3, Fig. 15): the first frame of black after a flash of
+    `flash` cd/m^2, rendered with `look`."""
+
+    label: str
+    flash: float
+    look: Look
 
 
 @dataclass(frozen=True)
@@ -104,15 +126,31 @@ class Design:
     exclusion_block: str | None = None
     min_correct: float = 0.7
     render_seed: int = 0
+    #: Sec. 4.3: the options observers pick from, and the scene option a flash strength sets.
+    palette: tuple[Choice, ...] = ()
+    palette_option: str = "flash_luminance"
+    palette_scaled: tuple[str, ...] = ()  # scene options scaled with the flash (its glow)
     source: str = "<memory>"
 
     @property
     def dt(self) -> float:
         return 1.0 / self.fps
 
+    def flash_look(self, look: Look, flash: float) -> Look:
+        """`look` with a flash of `flash` cd/m^2 (a palette trial's, or an option's): the
+        palette option set, and the options it scales with (e.g. the flash's glow) in step."""
+        base = make_scene(self.scene, {**self.scene_options, **look.scene_options})
+        k = flash / getattr(base, self.palette_option)
+        scaled = {n: _scaled(getattr(base, n), k) for n in self.palette_scaled}
+        return look.with_scene(**{self.palette_option: flash}, **scaled)
+
     def frames(self, seconds: float) -> int:
         """Whole frames of a phase: `seconds` rounded to the nearest step, at least one."""
         return max(1, round(seconds * self.fps))
+
+
+def _scaled(value: Any, k: float) -> Any:
+    return tuple(v * k for v in value) if isinstance(value, tuple) else value * k
 
 
 def make_scene(name: str, options: dict[str, Any]) -> Any:
@@ -231,6 +269,40 @@ class _Reader:
         self.done(data, path + ".")
         return Look(dict(params), model)
 
+    def palette(self, table: dict[str, Any], scene: str, options: dict) -> tuple[Any, ...]:
+        if not table:
+            return (), "flash_luminance", ()
+        option = self.text(table, "option", "palette.", "flash_luminance")
+        scaled = table.pop("scaled", [])
+        if not isinstance(scaled, list) or not all(isinstance(n, str) for n in scaled):
+            raise self.fail("palette.scaled", scaled, "must be a list of scene option names")
+        base = make_scene(scene, options)
+        for key, names in (("option", [option]), ("scaled", scaled)):
+            for n in names:
+                value = getattr(base, n, None)
+                ok = isinstance(value, int | float) or (
+                    isinstance(value, tuple) and all(isinstance(v, int | float) for v in value)
+                )
+                if not ok or n.startswith("_"):
+                    raise self.fail(f"palette.{key}", n, f"not a luminance option of {scene}")
+        value = table.pop("choices", [])
+        if not isinstance(value, list):
+            raise self.fail("palette.choices", value, "must be an array of tables")
+        choices: list[Choice] = []
+        for i, spec in enumerate(value, 1):
+            path = f"palette.choices[{i}]"
+            if not isinstance(spec, dict):
+                raise self.fail(path, spec, "must be a table with label, flash, model")
+            spec = dict(spec)
+            label = self.text(spec, "label", path + ".")
+            if not _LABEL.fullmatch(label) or label in {c.label for c in choices}:
+                raise self.fail(path + ".label", label, "letters and digits, once each")
+            flash = self.number(spec, "flash", path + ".")
+            look = self.look(spec, path)
+            choices.append(Choice(label, flash, look))
+        self.done(table, "palette.")
+        return tuple(choices), option, tuple(scaled)
+
     def design(self, data: dict[str, Any]) -> Design:
         name = self.text(data, "name", "")
         if not _LABEL.fullmatch(name):
@@ -294,6 +366,9 @@ class _Reader:
 
         conditions = self.conditions(self.table(data, "conditions", required=True))
         blocks = self.blocks(data.pop("blocks", None), conditions, tests)
+        choices, option, scaled = self.palette(self.table(data, "palette"), scene, options)
+        if any("palette" in b.repeats for b in blocks) and not choices:
+            raise DesignError(f"{self.where}: palette trials need [palette] choices to pick from")
         exclusion = self.table(data, "exclusion")
         block = exclusion.pop("block", None)
         if block is not None and block not in {b.name for b in blocks}:
@@ -308,14 +383,15 @@ class _Reader:
             off=off, scale=scale, standard=standard, tests=tests, conditions=conditions,
             blocks=blocks, display_white=white, fps=fps, size=size, fixation=fixation,
             keys=keys, texts=texts, exclusion_block=block, min_correct=float(min_correct),
-            render_seed=seed, source=self.where,
+            render_seed=seed, palette=choices, palette_option=option, palette_scaled=scaled,
+            source=self.where,
         )  # fmt: skip
 
     def conditions(self, table: dict[str, Any]) -> dict[str, Condition]:
         out = {}
         for name, spec in table.items():
-            if name not in CONDITIONS or name == "palette":
-                known = ", ".join(c for c in CONDITIONS if c != "palette")
+            if name not in CONDITIONS:
+                known = ", ".join(CONDITIONS)
                 raise self.fail(f"conditions.{name}", spec, f"unknown condition; known: {known}")
             if not isinstance(spec, dict):
                 raise self.fail(f"conditions.{name}", spec, "must be a table")
@@ -346,7 +422,13 @@ class _Reader:
             for cond, n in repeats.items():
                 if cond not in conditions:
                     raise self.fail(f"{path}repeats.{cond}", n, "no such condition in [conditions]")
-                if not isinstance(n, int) or isinstance(n, bool) or n < 2 or n % 2:
+                if cond == "palette":
+                    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+                        raise self.fail(f"{path}repeats.{cond}", n, "must be a count >= 1")
+                    if len(repeats) > 1:
+                        raise self.fail(path + "repeats", repeats, "a palette block holds only "
+                                        "palette trials")  # fmt: skip
+                elif not isinstance(n, int) or isinstance(n, bool) or n < 2 or n % 2:
                     raise self.fail(
                         f"{path}repeats.{cond}", n,
                         "must be an even count >= 2: half the trials show the test first",

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,7 +43,7 @@ class Presented:
     """A trial as shown: its two clips at their intensities, from `onset` on the run clock."""
 
     trial: Trial
-    clips: tuple[Clip, Clip]
+    clips: tuple[Clip, ...]
     onset: float
 
     def durations(self) -> tuple[float, float]:
@@ -154,10 +154,12 @@ class ExperimentRun:
             return self.presented
         condition = self.design.conditions[trial.condition]
         looks = [condition.test, condition.standard]
-        if trial.test_interval == 2:
+        if trial.palette:  # one interval: the flash at the trial's strength
+            looks = [self.design.flash_look(condition.test, trial.test)]
+        elif trial.test_interval == 2:
             looks.reverse()
         clips = tuple(clip(self.design, look, self.size, self.backend) for look in looks)
-        shown = Presented(trial, clips, self.clock)  # type: ignore[arg-type]
+        shown = Presented(trial, clips, self.clock)
         self.presented = shown
         w, h = self.design.fixation
         g = Params().geometry
@@ -178,26 +180,27 @@ class ExperimentRun:
 
     def respond(
         self,
-        key: str,
+        key: str | None = None,
         response_time: float | None = None,
         trial_number: int | None = None,
         tracker_gaze: tuple[float, float] | None = None,
         frames_late: int | None = None,
+        palette: Sequence[str] | None = None,
     ) -> Outcome:
-        """The answer to the presented trial: `key` (one of the design's two), `response_time`
-        (s from the prompt, as the page measured it) and `frames_late` (frames the page did not
-        have in time); both None headless."""
+        """The answer to the presented trial: `key` (one of the design's two), or for a palette
+        trial the labels of the options picked; `response_time` (s from the prompt, as the page
+        measured it) and `frames_late` (frames the page did not have in time): None headless."""
         trial, shown = self.current, self.presented
         if trial is None or shown is None or shown.trial != trial:
             raise RunError("no trial is waiting for an answer; present one first")
         if trial_number is not None and trial_number != trial.number:
             raise RunError(f"trial {trial_number} is not the one waiting ({trial.number})")
-        if key not in self.design.keys:
-            raise ValueError(f"key {key!r} is not an answer; press {' or '.join(self.design.keys)}")
         if response_time is not None and not (math.isfinite(response_time) and response_time >= 0):
             raise ValueError(f"response_time must be seconds >= 0, got {response_time!r}")
-        interval = self.design.keys.index(key) + 1
-        correct = trial.correct(interval)
+        answer = self._palette_answer(palette) if trial.palette else self._key_answer(trial, key)
+        if palette is not None and not trial.palette:
+            raise ValueError("only a palette trial is answered with palette choices")
+        correct = answer.pop("_correct")
         if response_time is not None:
             self.clock += response_time
         flash, black = shown.durations()
@@ -205,17 +208,15 @@ class ExperimentRun:
             "trial": trial.number, "block": trial.block, "condition": trial.condition,
             "standard_intensity": trial.standard, "test_intensity": trial.test,
             "log_relative_intensity": round(trial.log_relative_intensity, 6),
-            "test_interval": trial.test_interval, "response_key": key,
-            "chose_test": int(trial.chose_test(interval)),
-            "correct": None if trial.condition != "training" or correct is None else int(correct),
-            "palette_choice": None, "response_time": response_time, "onset": shown.onset,
-            "flash_duration": flash, "black_duration": black, "frames_late": frames_late,
+            "test_interval": trial.test_interval, "correct": correct, "palette_choice": None,
+            "response_time": response_time, "onset": shown.onset, "flash_duration": flash,
+            "black_duration": black, "frames_late": frames_late, **answer,
         })  # fmt: skip
         if tracker_gaze is not None:
             self._note("tracker_gaze", x=tracker_gaze[0], y=tracker_gaze[1])
+        logged = {k: v for k, v in answer.items() if k in ("palette_choice", "chose_test")}
         self._note("response", trial=trial.number, key=key, response_time=response_time,
-                   chose_test=trial.chose_test(interval), correct=correct,
-                   frames_late=frames_late)  # fmt: skip
+                   **logged, correct=correct, frames_late=frames_late)  # fmt: skip
         self.scored.append((trial, correct))
         self.index += 1
         self.presented = None
@@ -230,6 +231,27 @@ class ExperimentRun:
             texts.right if correct else texts.wrong
         )  # fmt: skip
         return Outcome(correct, feedback, self.finished, self.excluded)
+
+    def _key_answer(self, trial: Trial, key: str | None) -> dict[str, Any]:
+        if key not in self.design.keys:
+            raise ValueError(f"key {key!r} is not an answer; press {' or '.join(self.design.keys)}")
+        interval = self.design.keys.index(key) + 1
+        correct = trial.correct(interval) if trial.condition == "training" else None
+        return {"response_key": key, "chose_test": int(trial.chose_test(interval)),
+                "_correct": correct}  # fmt: skip
+
+    def _palette_answer(self, palette: Sequence[str] | None) -> dict[str, Any]:
+        labels = [c.label for c in self.design.palette]
+        picked = list(palette or [])
+        if not picked or len(set(picked)) != len(picked) or not set(picked) <= set(labels):
+            raise ValueError(
+                f"a palette trial is answered with one or more of {', '.join(labels)}, each "
+                f"once; got {picked!r}"
+            )
+        return {
+            "palette_choice": ",".join(picked), "standard_intensity": None,
+            "log_relative_intensity": None, "test_interval": None, "_correct": None,
+        }  # fmt: skip
 
     @property
     def score(self) -> float | None:
@@ -263,15 +285,22 @@ def run_headless(
     observer_id: str = "sim",
     backend: str = "opencl",
     run: int | None = None,
+    palette_chooser: Callable[[Trial, list[str]], Sequence[str]] | None = None,
 ) -> Path:
     """Run `design` answered by `observer` through the same trial code as the page, without a
-    browser; the path of the `_beh.tsv` written under `out_dir` (a BIDS dataset root)."""
+    browser; the path of the `_beh.tsv` written under `out_dir` (a BIDS dataset root).
+    Palette trials (Sec. 4.3) are answered by `palette_chooser(trial, labels)`."""
     if not isinstance(design, Design):
         design = load_design(design)
     r = ExperimentRun(design, observer_id, out_dir, seed=seed, size=size, backend=backend,
                       run=run, source="simulated observer")  # fmt: skip
     while r.current is not None:
         trial = r.present().trial
+        if trial.palette:
+            if palette_chooser is None:
+                raise ValueError("palette trials need a palette_chooser: the observer answers 2AFC")
+            r.respond(palette=palette_chooser(trial, [c.label for c in design.palette]))
+            continue
         chose = observer.chooses_test(trial.log_relative_intensity, trial.condition)
         interval = trial.test_interval if chose else 3 - trial.test_interval
         r.respond(design.keys[interval - 1])

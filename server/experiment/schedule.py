@@ -20,18 +20,24 @@ class Trial:
     block: int  # from 1
     block_name: str
     condition: str
-    standard: float  # cd/m^2
-    test: float  # cd/m^2
-    test_interval: int  # 1 or 2
+    standard: float  # cd/m^2 on screen; a palette trial's: its flash image's
+    test: float  # cd/m^2 on screen; a palette trial's: the simulated flash's luminance
+    test_interval: int  # 1 or 2; a palette trial has one interval
     feedback: bool
+
+    @property
+    def palette(self) -> bool:
+        return self.condition == "palette"
 
     @property
     def log_relative_intensity(self) -> float:
         return math.log10(self.test / self.standard)
 
     @property
-    def intensities(self) -> tuple[float, float]:
-        """The intensities of interval 1 and 2."""
+    def intensities(self) -> tuple[float, ...]:
+        """The on-screen intensities of the intervals."""
+        if self.palette:
+            return (self.standard,)
         return (self.test, self.standard) if self.test_interval == 1 else (self.standard, self.test)
 
     def chose_test(self, interval: int) -> bool:
@@ -40,7 +46,7 @@ class Trial:
 
     def correct(self, interval: int) -> bool | None:
         """Whether the brighter image was chosen; None when test and standard are equal."""
-        if self.test == self.standard:
+        if self.palette or self.test == self.standard:
             return None
         return self.chose_test(interval) == (self.test > self.standard)
 
@@ -54,8 +60,8 @@ def schedule(design: Design, seed: int) -> list[Trial]:
             (condition, test, interval)
             for condition, n in block.repeats.items()
             for test in block.tests
-            for interval in (1, 2)
-            for _ in range(n // 2)
+            for interval in ((1,) if condition == "palette" else (1, 2))
+            for _ in range(n if condition == "palette" else n // 2)
         ]
         for i in rng.permutation(len(cells)):
             condition, test, interval = cells[i]

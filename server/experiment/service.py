@@ -12,6 +12,7 @@ its time from the prompt, and posts the answer.
 from __future__ import annotations
 
 import asyncio
+import io
 import secrets
 import threading
 from collections.abc import Iterator
@@ -19,12 +20,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from fastapi import FastAPI, HTTPException
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import FileResponse, Response, StreamingResponse
+from PIL import Image
 from pydantic import BaseModel, Field
 
+from gazehdr.dither import dither8
 from gazehdr.experiment.design import Design
 from gazehdr.experiment.runner import ExperimentRun, RunError
+from gazehdr.experiment.stimulus import palette_images
 from gazehdr.protocol import Encoding, FrameHeader
 
 PAGE = "experiment.html"
@@ -52,7 +57,8 @@ class StartRun(BaseModel):
 
 class Answer(BaseModel):
     trial: int = Field(ge=1)
-    key: str = Field(min_length=1, max_length=16)
+    key: str | None = Field(default=None, min_length=1, max_length=16)
+    palette: list[str] | None = Field(default=None, min_length=1, max_length=64)
     response_time: float = Field(ge=0, le=3600)
     frames_late: int | None = Field(default=None, ge=0, le=10**6)
 
@@ -86,7 +92,26 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
             "fixation": list(design.fixation), "fps": design.fps,
             "texts": {f: getattr(t, f) for f in t.__dataclass_fields__},
             "trials": sum(b.trials for b in design.blocks),
+            "palette": [c.label for c in design.palette],
         }  # fmt: skip
+
+    pngs: dict[str, bytes] = {}
+    lock = threading.Lock()
+
+    def palette_png(label: str) -> bytes:
+        with lock:
+            if not pngs:
+                size = config.size or design.size
+                images = palette_images(design, size, config.backend)
+                pngs.update(zip((c.label for c in design.palette), map(_png, images), strict=True))
+        return pngs[label]
+
+    @app.get("/api/experiment/palette/{label}.png", response_class=Response,
+             responses={200: {"content": {"image/png": {}}}})  # fmt: skip
+    async def palette(label: str) -> Response:
+        if label not in {c.label for c in design.palette}:
+            raise HTTPException(404, f"no palette option {label!r}")
+        return Response(await asyncio.to_thread(palette_png, label), media_type="image/png")
 
     @app.post("/api/experiment/runs", status_code=201)
     async def start(body: StartRun) -> dict[str, Any]:
@@ -129,7 +154,7 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
         t = shown.trial
         return {
             "trial": t.number, "of": len(run.trials), "block": t.block_name,
-            "feedback": t.feedback, "end": shown.end(),
+            "feedback": t.feedback, "end": shown.end(), "palette": t.palette,
             "frames": [list(frame) for frame in shown.timeline()],
         }  # fmt: skip
 
@@ -146,7 +171,9 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
 
         def answer() -> Any:
             with lock:
-                return run.respond(body.key, body.response_time, body.trial, gaze, body.frames_late)
+                return run.respond(
+                    body.key, body.response_time, body.trial, gaze, body.frames_late, body.palette
+                )
 
         try:
             out = await asyncio.to_thread(answer)
@@ -158,6 +185,13 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
             "correct": out.correct, "feedback": out.feedback, "finished": out.finished,
             "excluded": out.excluded, "score": run.score,
         }  # fmt: skip
+
+
+def _png(v: np.ndarray) -> bytes:
+    """An option's image as an 8-bit PNG, dithered as the renderer dithers (seeded)."""
+    out = io.BytesIO()
+    Image.fromarray(dither8(v, np.random.default_rng(0))).save(out, format="PNG")
+    return out.getvalue()
 
 
 def _frame_messages(shown: Any, design: Design) -> Iterator[bytes]:

@@ -118,12 +118,23 @@ def clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Cli
     return made
 
 
+def palette_images(design: Design, size: tuple[int, int], backend: str) -> list[np.ndarray]:
+    """Each palette option's image (Fig. 15): the first frame of black after its flash, the
+    afterimage's initial appearance, as display values."""
+    images = []
+    for choice in design.palette:
+        c = clip(design, design.flash_look(choice.look, choice.flash), size, backend)
+        images.append(c.frames[c.phases.index("off")].astype(np.float32))
+    return images
+
+
 def render_clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Clip:
     """Step the eye through one interval. It starts settled on black; the first step (black)
     is not shown, so the stimulus starts at a time whole steps reach, as does the black."""
     w, h = size
     params = Params.from_dict(look.params)
-    image = make_scene(design.scene, design.scene_options).render(design.at, w, h)
+    options = {**design.scene_options, **look.scene_options}
+    image = make_scene(design.scene, options).render(design.at, w, h)
     n_on, n_off, dt = design.frames(design.on), design.frames(design.off), design.dt
     ticks = [0.0]
     for _ in range(1 + n_on + n_off):
