@@ -21,7 +21,7 @@ from gazehdr.experiment.schedule import schedule
 from gazehdr.experiment.service import ExperimentConfig
 from tests.test_bids_dataset import validate
 from tests.test_browser import WAIT_MS, browser  # noqa: F401 -- the browser fixture
-from tests.test_experiment_design import TINY
+from tests.test_experiment_design import PALETTE, TINY
 
 SIZE = (48, 27)
 SEED = 5
@@ -62,7 +62,7 @@ def test_the_experiment_api_needs_the_credential(live_server, tmp_path: Path) ->
     with urllib.request.urlopen(f"{server.url}/openapi.json", timeout=30) as r:
         spec = json.load(r)
     ours = {p: ops for p, ops in spec["paths"].items() if p.startswith("/api/experiment")}
-    assert len(ours) == 6
+    assert len(ours) == 7
     for ops in ours.values():
         assert all(op["security"] == [{"bearer": []}, {"cookie": []}] for op in ops.values())
 
@@ -129,3 +129,49 @@ def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp
     assert [a["response_time"] for a in answers] == pytest.approx(times)
     assert log.header.tracker["via"] == "browser" and len(log.samples) == len(trials)
     validate(results)
+
+
+def test_an_observer_picks_afterimages_from_the_palette(live_server, browser, tmp_path) -> None:  # noqa: F811
+    """Sec. 4.3 through the page: after each flash, the options' images load, clicks pick
+    them, Enter answers; the results hold the labels picked."""
+    design = parse_design(PALETTE, "pal.toml")
+    config = ExperimentConfig(design, tmp_path / "results", SIZE, "reference", SEED)
+    server = live_server(experiment=config)
+    page = browser.new_page(viewport={"width": 480, "height": 270})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    try:
+        page.goto(f"{server.url}/experiment")
+        page.wait_for_function("() => window.gazehdrExperiment.design", timeout=WAIT_MS)
+        page.fill("#observer", "pal1")
+        page.check("#agree")
+        page.click("#begin")
+        page.wait_for_function(
+            "() => window.gazehdrExperiment.state === 'instructions'", timeout=WAIT_MS
+        )
+        page.keyboard.press("Space")
+        for number, labels in ((1, ["C1"]), (2, ["H1", "C1"])):
+            page.wait_for_function(
+                "(n) => window.gazehdrExperiment.state === 'prompt' "
+                "&& window.gazehdrExperiment.trial === n "
+                "&& [...document.querySelectorAll('#palette img')].every((i) => i.complete "
+                "&& i.naturalWidth > 0)",
+                arg=number,
+                timeout=WAIT_MS,
+            )
+            page.keyboard.press("Enter")  # nothing picked yet: no answer
+            for label in labels:
+                page.click(f"#palette figure[data-label={label}]")
+            page.keyboard.press("Enter")
+        page.wait_for_function("() => window.gazehdrExperiment.state === 'done'", timeout=WAIT_MS)
+        answers = page.evaluate("() => window.gazehdrExperiment.answers")
+    finally:
+        page.close()
+    assert not errors, errors
+    assert [a["palette"] for a in answers] == [["C1"], ["H1", "C1"]]
+    beh = tmp_path / "results/sub-pal1/beh/sub-pal1_task-pal_beh.tsv"
+    with beh.open(encoding="utf-8") as f:
+        rows = list(csv.DictReader(f, delimiter="\t"))
+    assert [r["palette_choice"] for r in rows] == ["C1", "H1,C1"]
+    assert all(float(r["response_time"]) > 0 for r in rows)
+    validate(tmp_path / "results")
