@@ -225,7 +225,9 @@ async function main() {
     e.preventDefault();
     try {
       const started = await (await post('/runs', {
-        observer: $('observer').value, consent: $('agree').checked,
+        observer: $('observer').value,
+        consent: $('agree').checked,
+        run: $('run').value ? Number($('run').value) : null,
       })).json();
       run = ex.run = started.run;
     } catch (err) {

@@ -12,6 +12,7 @@ its time from the prompt, and posts the answer.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import io
 import secrets
 import threading
@@ -34,7 +35,7 @@ from gazehdr.protocol import Encoding, FrameHeader
 
 PAGE = "experiment.html"
 BINARY = "application/octet-stream"
-MAX_RUNS = 16
+MAX_RUNS = 16  # in progress at once; a finished run is forgotten (its results are written)
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
         return {
             "name": design.name, "title": design.title, "keys": list(design.keys),
             "fixation": list(design.fixation), "fps": design.fps,
-            "texts": {f: getattr(t, f) for f in t.__dataclass_fields__},
+            "texts": dataclasses.asdict(t),
             "trials": sum(b.trials for b in design.blocks),
             "palette": [c.label for c in design.palette],
         }  # fmt: skip
@@ -117,8 +118,10 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
     async def start(body: StartRun) -> dict[str, Any]:
         if not body.consent:
             raise HTTPException(400, "consent: the observer has not consented")
+        for rid in [rid for rid, (run, _) in runs.runs.items() if run.finished]:
+            del runs.runs[rid]  # written: nothing more to ask of it
         if len(runs.runs) >= MAX_RUNS:
-            raise HTTPException(503, f"this server has {MAX_RUNS} runs already; restart it")
+            raise HTTPException(503, f"{MAX_RUNS} runs are in progress already; finish one first")
         seed = config.seed if config.seed is not None else secrets.randbelow(2**31)
         try:
             run = ExperimentRun(
