@@ -10,6 +10,7 @@ import pytest
 
 from gazehdr.experiment.design import DesignError, load_design, parse_design, preset_path
 from gazehdr.experiment.schedule import Trial, excluded, schedule, training_score
+from gazehdr.experiment.stimulus import trial_looks
 
 #: The smallest valid design; each refusal below changes one line of it.
 TINY = """\
@@ -111,6 +112,13 @@ def test_the_paper_presets_have_its_blocks_and_counts(preset: str) -> None:
     assert d.conditions["control"].test == d.conditions["control"].standard
     assert d.conditions["manipulated"].test != d.conditions["manipulated"].standard
     assert d.conditions["manipulated"].standard == d.conditions["control"].standard
+
+
+@pytest.mark.parametrize(("preset", "looks"), [("4.1", 2), ("4.2", 2), ("4.3", 3)])
+def test_a_run_renders_one_clip_per_look(preset: str, looks: int) -> None:
+    """The clips depend on the look, not the intensity: 4.1's weak and strong afterimages,
+    4.2's photopic and mesopic renderings, 4.3's three flash strengths."""
+    assert len(trial_looks(load_design(preset))) == looks
 
 
 def test_the_presets_timing_and_intensities_are_the_papers() -> None:

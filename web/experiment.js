@@ -188,7 +188,13 @@ async function pickFromPalette() {
 async function trialLoop() {
   for (;;) {
     show('loading', '');
-    const trial = await (await api(`/runs/${run}/trial`)).json();
+    const slow = setTimeout(() => show('loading', 'Preparing the images…'), 500);
+    let trial;
+    try {
+      trial = await (await api(`/runs/${run}/trial`)).json();
+    } finally {
+      clearTimeout(slow);
+    }
     const got = streamFrames(await api(`/runs/${run}/trial/frames`));
     ex.trial = trial.trial;
     show('playing');

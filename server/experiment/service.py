@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import io
+import logging
 import secrets
 import threading
 from collections.abc import Iterator
@@ -30,9 +31,10 @@ from pydantic import BaseModel, Field
 from gazehdr.dither import dither8
 from gazehdr.experiment.design import Design
 from gazehdr.experiment.runner import ExperimentRun, RunError
-from gazehdr.experiment.stimulus import palette_images
+from gazehdr.experiment.stimulus import clip, palette_images, trial_looks
 from gazehdr.protocol import Encoding, FrameHeader
 
+log = logging.getLogger("gazehdr.experiment")
 PAGE = "experiment.html"
 BINARY = "application/octet-stream"
 MAX_RUNS = 16  # in progress at once; a finished run is forgotten (its results are written)
@@ -81,6 +83,17 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
     """Add the page and the API to `app` (before its static files are mounted)."""
     design, runs = config.design, _Runs()
 
+    def warm() -> None:
+        """Render every clip (and the palette) now, so the first observer does not wait."""
+        size = config.size or design.size
+        try:
+            for look in trial_looks(design):
+                clip(design, look, size, config.backend)
+            if design.palette:
+                palette_png(design.palette[0].label)
+        except Exception:  # the trial that needs it will say what is wrong
+            log.exception("could not render the experiment's stimuli ahead")
+
     @app.get("/experiment", include_in_schema=False)
     async def page() -> FileResponse:
         return FileResponse(web_dir / PAGE, media_type="text/html")
@@ -106,6 +119,8 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
                 images = palette_images(design, size, config.backend)
                 pngs.update(zip((c.label for c in design.palette), map(_png, images), strict=True))
         return pngs[label]
+
+    threading.Thread(target=warm, name="experiment-warm", daemon=True).start()
 
     @app.get("/api/experiment/palette/{label}.png", response_class=Response,
              responses={200: {"content": {"image/png": {}}}})  # fmt: skip

@@ -106,13 +106,11 @@ def clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Cli
         design.frames(design.on), design.frames(design.off), design.fps, design.fixation,
         design.render_seed, look.key(), tuple(size), backend,
     )  # fmt: skip
-    with _lock:
+    with _lock:  # one render at a time: a second caller of a clip waits for it, not again
         if key in _cache:
             _cache.move_to_end(key)
             return _cache[key]
-    made = render_clip(design, look, size, backend)
-    with _lock:
-        _cache[key] = made
+        made = _cache[key] = render_clip(design, look, size, backend)
         while len(_cache) > _CLIPS_KEPT:
             _cache.popitem(last=False)
     return made
@@ -120,12 +118,26 @@ def clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Cli
 
 def palette_images(design: Design, size: tuple[int, int], backend: str) -> list[np.ndarray]:
     """Each palette option's image (Fig. 15): the first frame of black after its flash, the
-    afterimage's initial appearance, as display values."""
+    afterimage's initial appearance, as display values. Not kept: its caller keeps them."""
     images = []
     for choice in design.palette:
-        c = clip(design, design.flash_look(choice.look, choice.flash), size, backend)
+        c = render_clip(design, design.flash_look(choice.look, choice.flash), size, backend)
         images.append(c.frames[c.phases.index("off")].astype(np.float32))
     return images
+
+
+def trial_looks(design: Design) -> list[Look]:
+    """Every look a run of `design` renders a clip of, once each."""
+    looks: dict[tuple[Any, ...], Look] = {}
+    for block in design.blocks:
+        for name in block.repeats:
+            condition = design.conditions[name]
+            if name == "palette":
+                found = [design.flash_look(condition.test, test) for test in block.tests]
+            else:
+                found = [condition.test, condition.standard]
+            looks.update((look.key(), look) for look in found)
+    return list(looks.values())
 
 
 def render_clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Clip:
