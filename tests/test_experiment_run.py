@@ -17,7 +17,8 @@ from gazehdr.drivers.sessionlog import read_session_log
 from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.design import load_design, parse_design
 from gazehdr.experiment.observer import SimulatedObserver
-from gazehdr.experiment.runner import ExperimentRun, RunError, run_headless
+from gazehdr.experiment.runner import ExperimentRun, Presented, RunError, run_headless
+from gazehdr.experiment.schedule import Trial
 from gazehdr.experiment.stimulus import clip, palette_images
 from tests.test_bids_dataset import validate
 from tests.test_experiment_design import PALETTE, TINY
@@ -64,16 +65,25 @@ def test_a_duration_off_the_step_is_rounded_and_the_measure_says_so() -> None:
 
 
 def test_mesopic_tests_match_the_control_mean_and_lose_colour() -> None:
-    """4.2: the manipulated test (mesopic colour and acuity, no Purkinje) is shown at the mean
-    pixel value of the control at the same intensity, and its colours are closer together
+    """4.2: the standard's (photopic) rendering has its white tile, its brightest part, at the
+    intensity; the manipulated test (mesopic colour and acuity, no Purkinje) is shown at the mean
+    pixel value of that rendering at the same intensity, and its colours are closer together
     (the patches fade towards one dull purple)."""
     d = load_design("4.2")
     control = clip(d, d.conditions["control"].test, SIZE, BACKEND)
     mesopic = clip(d, d.conditions["manipulated"].test, SIZE, BACKEND)
     assert control.measured() == pytest.approx({"on": 1.25, "off": 0.75}, abs=d.dt / 2)
-    a, b = control.shown(0.055, d)[0], mesopic.shown(0.055, d)[0]
-    assert luminance(a).mean() == pytest.approx(luminance(b).mean(), rel=0.005)
-    assert luminance(control.shown(0.075, d)[0]).mean() > luminance(a).mean() * 1.2
+    a, b = control.shown(0.055, d)[0], mesopic.shown(0.055, d, like=control)[0]
+    assert luminance(a).max() == pytest.approx(0.055 / d.display_white, rel=0.01)  # white tile
+    assert luminance(b).mean() == pytest.approx(luminance(a).mean(), rel=0.005)
+    brighter = luminance(control.shown(0.075, d)[0]).mean()
+    assert brighter == pytest.approx(luminance(a).mean() * 0.075 / 0.055, rel=0.01)
+    # and a trial as the page gets it: the manipulated test matched to its own standard
+    trial = Trial(1, 3, "final", "manipulated", 0.055, 0.055, 2, False)
+    frames = list(Presented(trial, (control, mesopic), 0.0).frames(d))
+    first = [next(v for _, k, phase, v in frames if k == i and phase == "on") for i in (1, 2)]
+    assert luminance(first[1]).mean() == pytest.approx(luminance(first[0]).mean(), rel=0.005)
+    assert luminance(first[1]).max() < luminance(first[0]).max()  # no tile at the intensity
 
     def spread(v: np.ndarray) -> float:
         J = np.power(v.astype(float), 1 / 0.455)

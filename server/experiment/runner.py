@@ -63,10 +63,12 @@ class Presented:
         return out
 
     def frames(self, design: Design) -> Iterator[tuple[float, int, str, np.ndarray]]:
-        """`timeline()` with each frame's float16 `v`, made an interval at a time."""
+        """`timeline()` with each frame's float16 `v`, made an interval at a time; `mean`
+        scaling matches the standard's rendering (interval 3 - test_interval)."""
         times = iter(self.timeline())
+        standard = self.clips[-1 if len(self.clips) == 1 else 2 - self.trial.test_interval]
         for c, intensity in zip(self.clips, self.trial.intensities, strict=True):
-            for v in c.shown(intensity, design):
+            for v in c.shown(intensity, design, like=standard):
                 yield (*next(times), v)
 
 

@@ -66,7 +66,6 @@ class Clip:
     end: float
     gamma: float
     w_P: tuple[float, float, float]
-    scene_ratio: float  # mean / max luminance of the stimulus image: what "mean" scales to
 
     def measured(self) -> dict[str, float]:
         """Each phase's duration from the frames' times: the first frame of the next phase (or
@@ -74,24 +73,39 @@ class Clip:
         firsts = [self.times[self.phases.index(p)] for p in PHASES]
         return {"on": float(firsts[1] - firsts[0]), "off": float(self.end - firsts[1])}
 
-    def shown(self, intensity: float, design: Design) -> np.ndarray:
-        """The frames at `intensity` (cd/m^2) on the design's monitor, as float16 `v`: each
-        stimulus frame scaled in linear light so that its peak (or mean) luminance is what the
-        intensity asks for; the black phase as rendered (J = 1 is the monitor's white). Half
-        floats, not 10-bit words: 4.2's stimuli sit in the lowest 0.1 % of the monitor's light,
-        where 10 bits would move a mean by several per cent; the page dithers them to the
-        display's depth (Sec. 2.4)."""
+    def luminance(self, i: int) -> np.ndarray:
+        """Linear luminance of frame `i` as rendered (J = 1: the monitor's white)."""
+        J = np.power(self.frames[i].astype(np.float32), 1.0 / self.gamma)
+        return J @ np.asarray(self.w_P, np.float32)
+
+    def mean_over_peak(self) -> np.ndarray:
+        """Per stimulus frame, its mean luminance over its peak: what `mean` scaling matches."""
+        ratios = [float(Y.mean() / max(float(Y.max()), 1e-30))
+                  for Y in map(self.luminance, range(self.phases.count("on")))]  # fmt: skip
+        return np.asarray(ratios)
+
+    def shown(self, intensity: float, design: Design, like: Clip | None = None) -> np.ndarray:
+        """The frames at `intensity` (cd/m^2) on the design's monitor, as float16 `v`, each
+        stimulus frame scaled in linear light: `peak`, so that its brightest pixel has the
+        intensity; `mean`, so that its mean luminance is that of `like` (the standard's
+        rendering: default this one) scaled to that peak: a manipulated test at the mean pixel
+        value of the standard's rendering at the same intensity. The black phase as rendered
+        (J = 1 is the monitor's white). Half floats, not 10-bit words: 4.2's stimuli sit in
+        the lowest 0.1 % of the monitor's light, where 10 bits would move a mean by several per
+        cent; the page dithers them to the display's depth (Sec. 2.4)."""
         v = self.frames.astype(np.float32)
+        ratios = (like or self).mean_over_peak() if design.scale == "mean" else None
         for i, phase in enumerate(self.phases):
             if phase != "on":
                 continue
-            J = np.power(v[i], 1.0 / self.gamma)
-            Y = J @ np.asarray(self.w_P, np.float32)
-            have = float(Y.max() if design.scale == "peak" else Y.mean())
+            Y = self.luminance(i)
             want = intensity / design.display_white
-            if design.scale == "mean":
-                want *= self.scene_ratio
-            v[i] = np.power(np.clip(J * (want / max(have, 1e-30)), 0.0, 1.0), self.gamma)
+            if ratios is None:
+                have = float(Y.max())
+            else:
+                have, want = float(Y.mean()), want * ratios[min(i, len(ratios) - 1)]
+            gain = (want / max(have, 1e-30)) ** self.gamma  # (k J)^gamma = k^gamma v
+            v[i] = np.clip(v[i] * gain, 0.0, 1.0)
         return encode_output(v, "float16")
 
 
@@ -164,9 +178,7 @@ def render_clip(design: Design, look: Look, size: tuple[int, int], backend: str)
         times.append(t - ticks[1])
         (v,) = eye.step(dt, design.fixation, True)
         frames.append(v.astype(np.float16))
-    Y = image @ np.asarray(params.w_P, np.float32)
     return Clip(
         frames=np.stack(frames), times=np.asarray(times), phases=tuple(phases),
         end=eye.time - ticks[1], gamma=params.gamma, w_P=params.w_P,
-        scene_ratio=float(Y.mean() / max(float(Y.max()), 1e-30)),
     )  # fmt: skip
