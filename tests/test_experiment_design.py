@@ -66,6 +66,7 @@ def test_the_tiny_design_loads() -> None:
         ("repeats = { control = 4 }", "repeats = { other = 4 }", "repeats.other = 4"),
         ('block = "training"', 'block = "warmup"', "exclusion.block = 'warmup'"),
         ("feedback = true", 'feedback = "yes"', "blocks[1].feedback = 'yes'"),
+        ("feedback = true", "feedback = true\nintro = 3", "blocks[1].intro = 3"),
         ("fps = 20.0", "fps = 20.0\nbrightness = 3", "display.brightness = 3: unknown key"),
         ('name = "tiny"', 'name = "tiny"\ncolour = 1', "colour = 1: unknown key"),
     ],
@@ -105,6 +106,7 @@ def test_the_paper_presets_have_its_blocks_and_counts(preset: str) -> None:
     assert training.trials == 20 and training.feedback and set(training.repeats) == {"training"}
     assert min(training.tests) < d.standard < max(training.tests)
     assert control.repeats == {"control": 20} and control.trials == 100
+    assert "brightness settings" in final.intro  # "the experimenter claimed to adjust" them
     assert final.repeats == {"manipulated": 30, "control": 10} and final.trials == 200
     assert len(d.tests) == 5 and d.standard in d.tests
     assert d.exclusion_block == "training" and d.min_correct == 0.7

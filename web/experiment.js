@@ -104,8 +104,9 @@ const has = (got, i) => got.done || got.last >= i;
 const LEAD_S = 1.0; // playback starts with this much of the trial in (or all of it)
 
 /**
- * Play the frames at their simulation times; resolves with the number of frames that were
- * not in when their time came (the one before was held longer: 0 is a trial as rendered).
+ * Play the frames at their simulation times; resolves with the number of frames not shown at
+ * their time: not yet received, or passed over when the display loop came late (the one before
+ * was held longer: 0 is a trial as rendered).
  */
 async function play(trial, got) {
   const times = trial.frames.map((f) => f[0] - trial.frames[0][0]);
@@ -119,13 +120,14 @@ async function play(trial, got) {
     let start = null;
     let current = -1;
     let late = 0;
-    let lateUpTo = -1; // frames up to this index were counted late already
+    let lateUpTo = -1; // frames up to this index are counted already
     const tick = (now) => {
       if (start === null) start = now;
       const elapsed = (now - start) / 1000;
       if (elapsed >= total) {
         renderer.frame = null; // the prompt is black
         renderer.draw();
+        late += times.length - 1 - Math.max(current, lateUpTo); // never shown at all
         resolve(late);
         return;
       }
@@ -133,10 +135,10 @@ async function play(trial, got) {
       while (i + 1 < times.length && times[i + 1] <= elapsed) i++;
       const wanted = i;
       while (i > current && !has(got, i)) i--;
-      if (wanted > Math.max(i, lateUpTo)) {
-        late += wanted - Math.max(i, lateUpTo);
-        lateUpTo = wanted;
-      }
+      // Every frame due by now but the one shown, not yet received or passed over because
+      // this loop came late, is late: counted once each.
+      for (let j = Math.max(current, lateUpTo) + 1; j <= wanted; j++) if (j !== i) late++;
+      lateUpTo = Math.max(lateUpTo, wanted);
       if (i !== current) {
         let k = i;
         while (!got.frames.has(k)) k--;
@@ -196,6 +198,10 @@ async function trialLoop() {
       clearTimeout(slow);
     }
     const got = streamFrames(await api(`/runs/${run}/trial/frames`));
+    if (trial.intro) {
+      show('intro', `${trial.intro} (Press Space to go on.)`);
+      await nextKey(['Space']);
+    }
     ex.trial = trial.trial;
     show('playing');
     const late = await play(trial, got);

@@ -53,7 +53,8 @@ BEH_COLUMNS: dict[str, Column] = {
         "how long the black screen after the stimulus lasted, measured the same way", "s"
     ),
     "frames_late": Column(
-        "frames of the trial the browser did not have in time (it held the frame before "
-        "longer): 0 is a trial shown as rendered; n/a without a browser"
+        "frames of the trial the browser did not show at their time: not yet received, or "
+        "passed over when its display loop came late (the frame before stayed longer); 0 is a "
+        "trial shown as rendered; n/a without a browser"
     ),
 }

@@ -86,6 +86,7 @@ class Block:
     repeats: dict[str, int]
     tests: tuple[float, ...]
     feedback: bool = False
+    intro: str | None = None  # shown before the block's first trial, until Space
 
     @property
     def trials(self) -> int:
@@ -438,8 +439,9 @@ class _Reader:
             feedback = spec.pop("feedback", False)
             if not isinstance(feedback, bool):
                 raise self.fail(path + "feedback", feedback, "must be true or false")
+            intro = self.text(spec, "intro", path) if "intro" in spec else None
             self.done(spec, path)
-            out.append(Block(name, dict(repeats), block_tests, feedback))
+            out.append(Block(name, dict(repeats), block_tests, feedback, intro))
         return tuple(out)
 
 

@@ -170,7 +170,9 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
     async def trial(rid: str) -> dict[str, Any]:
         run, shown = await asyncio.to_thread(presented, rid)
         t = shown.trial
+        first = t.number == 1 or run.trials[t.number - 2].block != t.block
         return {
+            "intro": design.blocks[t.block - 1].intro if first else None,
             "trial": t.number, "of": len(run.trials), "block": t.block_name,
             "feedback": t.feedback, "end": shown.end(), "palette": t.palette,
             "frames": [list(frame) for frame in shown.timeline()],
