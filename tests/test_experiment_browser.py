@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import struct
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -22,6 +23,7 @@ from gazehdr.experiment.service import ExperimentConfig
 from tests.test_bids_dataset import validate
 from tests.test_browser import WAIT_MS, browser  # noqa: F401 -- the browser fixture
 from tests.test_experiment_design import PALETTE, TINY
+from tests.waiting import wait_until
 
 SIZE = (48, 27)
 SEED = 5
@@ -184,3 +186,38 @@ def test_an_observer_picks_afterimages_from_the_palette(live_server, browser, tm
     assert [r["palette_choice"] for r in rows] == ["C1", "H1,C1"]
     assert all(float(r["response_time"]) > 0 for r in rows)
     validate(tmp_path / "results")
+
+
+def _json(url: str, auth: dict, body: Any = None) -> Any:
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(url, data, {"Content-Type": "application/json", **auth})
+    with urllib.request.urlopen(request, timeout=60) as r:
+        return json.load(r) if "json" in r.headers["content-type"] else r.read()
+
+
+def test_a_connected_trackers_gaze_is_recorded_not_followed(live_server, tmp_path) -> None:
+    """With one tracker connected, its gaze at each trial and answer goes into the run's log;
+    the frames still look at the fixation target (the paper's procedure)."""
+    from websockets.sync.client import connect
+
+    server = live_server(experiment=_config(tmp_path))
+    api = f"{server.url}/api/experiment"
+    with connect(server.ws_url + "/ws/gaze", additional_headers=server.auth) as daemon:
+        daemon.send(json.dumps({"type": "hello", "protocol": 1, "tracker": "rig"}))
+        assert json.loads(daemon.recv())["type"] == "welcome"
+        daemon.send(json.dumps({"type": "samples", "samples": [{"t": 2, "x": 0.7, "y": 0.2}]}))
+        feed = server.hub.trackers.feed("rig")
+        wait_until(lambda: feed.samples > 0, what="the tracker's sample")
+        run = _json(f"{api}/runs", server.auth, {"observer": "t1", "consent": True})["run"]
+        trial = _json(f"{api}/runs/{run}/trial", server.auth)
+        frames = _json(f"{api}/runs/{run}/trial/frames", server.auth)
+        answer = {"trial": trial["trial"], "key": "1", "response_time": 0.5, "frames_late": 0}
+        out = _json(f"{api}/runs/{run}/response", server.auth, answer)
+    assert out["finished"] is False and trial["trial"] == 1
+    header = struct.unpack_from("<4sHHIIdff", frames)
+    assert header[0] == b"GZHF" and header[6:8] == pytest.approx(DESIGN.fixation)
+    log = tmp_path / "results/sourcedata/sub-t1/sub-t1_task-tiny_sessionlog.jsonl"
+    notes = [json.loads(line)["text"] for line in log.read_text().splitlines()[1:]
+             if '"k":"note"' in line]  # fmt: skip
+    tracked = [json.loads(n) for n in notes if "tracker_gaze" in n]
+    assert tracked == [{"event": "tracker_gaze", "x": 0.7, "y": 0.2}] * 2

@@ -147,8 +147,9 @@ class ExperimentRun:
     def current(self) -> Trial | None:
         return None if self.finished or self.index >= len(self.trials) else self.trials[self.index]
 
-    def present(self) -> Presented:
-        """Render (or take from the cache) the current trial's intervals, on the run clock."""
+    def present(self, tracker_gaze: tuple[float, float] | None = None) -> Presented:
+        """Render (or take from the cache) the current trial's intervals, on the run clock;
+        `tracker_gaze` (frame fractions), a connected tracker's gaze now, is logged."""
         trial = self.current
         if trial is None:
             raise RunError("the run is finished: no trial to present")
@@ -167,6 +168,8 @@ class ExperimentRun:
         g = Params().geometry
         self.log.write(GazeSample(self._ns(shown.onset), w * g.screen_width_px,
                                   h * g.screen_height_px))  # fmt: skip
+        if tracker_gaze is not None:
+            self._note("tracker_gaze", shown.onset, x=tracker_gaze[0], y=tracker_gaze[1])
         self._note("trial", shown.onset, trial=trial.number, block=trial.block_name,
                    condition=trial.condition, test=trial.test, standard=trial.standard,
                    test_interval=trial.test_interval)  # fmt: skip

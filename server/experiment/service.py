@@ -158,11 +158,16 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
             "result": None if run.result is None else str(run.result),
         }  # fmt: skip
 
+    def tracker_gaze() -> tuple[float, float] | None:
+        """The gaze of the one connected tracker, if exactly one is: recorded, not followed."""
+        feed = trackers.sole_connected()
+        return None if feed is None else (feed.reading.x, feed.reading.y)
+
     def presented(rid: str) -> tuple[ExperimentRun, Any]:
         run, lock = runs.get(rid)
         with lock:
             try:
-                return run, run.present()
+                return run, run.present(tracker_gaze())
             except RunError as e:
                 raise HTTPException(409, str(e)) from None
 
@@ -186,8 +191,7 @@ def install(app: FastAPI, config: ExperimentConfig, web_dir: Path, trackers: Any
     @app.post("/api/experiment/runs/{rid}/response")
     async def respond(rid: str, body: Answer) -> dict[str, Any]:
         run, lock = runs.get(rid)
-        feed = trackers.sole_connected()
-        gaze = None if feed is None else (feed.reading.x, feed.reading.y)
+        gaze = tracker_gaze()
 
         def answer() -> Any:
             with lock:
