@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from gazehdr.drivers import sessionlog
-from gazehdr.drivers.formats.bids.files import file_stem
+from gazehdr.drivers.formats.bids.files import LABEL, file_stem
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.experiment.bids import refuse_existing, start_dataset, write_results
 from gazehdr.experiment.design import Design, load_design
@@ -95,8 +95,6 @@ class ExperimentRun:
         run: int | None = None,
         source: str = "browser",
     ) -> None:
-        from gazehdr.drivers.formats.bids.files import LABEL
-
         if not LABEL.fullmatch(observer_id):
             raise ValueError(f"observer id {observer_id!r}: letters and digits only (BIDS sub-)")
         self.design, self.observer_id, self.seed = design, observer_id, int(seed)
