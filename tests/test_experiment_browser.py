@@ -5,11 +5,13 @@ credential."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import struct
 import urllib.error
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +48,28 @@ def _call(url: str, method: str = "GET", body: Any = None, auth: dict | None = N
         return e.code
 
 
+@contextlib.contextmanager
+def experiment_page(chromium: Any, url: str, observer: str) -> Iterator[Any]:
+    """The page past consent and instructions; no error on it, checked when it closes."""
+    page = chromium.new_page(viewport={"width": 480, "height": 270})
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    try:
+        page.goto(f"{url}/experiment")  # loopback: the page gives the browser its cookie
+        page.wait_for_function("() => window.gazehdrExperiment.design", timeout=WAIT_MS)
+        page.fill("#observer", observer)
+        page.check("#agree")
+        page.click("#begin")
+        page.wait_for_function(
+            "() => window.gazehdrExperiment.state === 'instructions'", timeout=WAIT_MS
+        )
+        page.keyboard.press("Space")
+        yield page
+    finally:
+        page.close()
+    assert not errors, errors
+
+
 def test_the_experiment_api_needs_the_credential(live_server, tmp_path: Path) -> None:
     server = live_server(experiment=_config(tmp_path))
     api = f"{server.url}/api/experiment"
@@ -74,19 +98,7 @@ def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp
     server = live_server(experiment=_config(tmp_path))
     trials = schedule(DESIGN, SEED)
     observer = SimulatedObserver({"control": 0.05}, sigma=0.1, lapse=0.0, seed=3)
-    page = browser.new_page(viewport={"width": 480, "height": 270})
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    try:
-        page.goto(f"{server.url}/experiment")  # loopback: the page gives the browser its cookie
-        page.wait_for_function("() => window.gazehdrExperiment.design", timeout=WAIT_MS)
-        page.fill("#observer", "web1")
-        page.check("#agree")
-        page.click("#begin")
-        page.wait_for_function(
-            "() => window.gazehdrExperiment.state === 'instructions'", timeout=WAIT_MS
-        )
-        page.keyboard.press("Space")
+    with experiment_page(browser, server.url, "web1") as page:
         pressed = []
         for trial in trials:
             if trial.number == 5:  # the main block's first: its intro, until Space
@@ -109,9 +121,6 @@ def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp
         page.wait_for_function("() => window.gazehdrExperiment.state === 'done'", timeout=WAIT_MS)
         ex = page.evaluate("() => window.gazehdrExperiment")
         message = page.text_content("#message-text")
-    finally:
-        page.close()
-    assert not errors, errors
     assert message == DESIGN.texts.thanks
     assert ex["result"]["finished"] and not ex["result"]["excluded"]
     # every frame of both intervals (1 flash + 2 black) shown, or counted late
@@ -148,19 +157,7 @@ def test_an_observer_picks_afterimages_from_the_palette(live_server, browser, tm
     design = parse_design(PALETTE, "pal.toml")
     config = ExperimentConfig(design, tmp_path / "results", SIZE, "reference", SEED)
     server = live_server(experiment=config)
-    page = browser.new_page(viewport={"width": 480, "height": 270})
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    try:
-        page.goto(f"{server.url}/experiment")
-        page.wait_for_function("() => window.gazehdrExperiment.design", timeout=WAIT_MS)
-        page.fill("#observer", "pal1")
-        page.check("#agree")
-        page.click("#begin")
-        page.wait_for_function(
-            "() => window.gazehdrExperiment.state === 'instructions'", timeout=WAIT_MS
-        )
-        page.keyboard.press("Space")
+    with experiment_page(browser, server.url, "pal1") as page:
         for number, labels in ((1, ["C1"]), (2, ["H1", "C1"])):
             page.wait_for_function(
                 "(n) => window.gazehdrExperiment.state === 'prompt' "
@@ -176,9 +173,6 @@ def test_an_observer_picks_afterimages_from_the_palette(live_server, browser, tm
             page.keyboard.press("Enter")
         page.wait_for_function("() => window.gazehdrExperiment.state === 'done'", timeout=WAIT_MS)
         answers = page.evaluate("() => window.gazehdrExperiment.answers")
-    finally:
-        page.close()
-    assert not errors, errors
     assert [a["palette"] for a in answers] == [["C1"], ["H1", "C1"]]
     beh = tmp_path / "results/sub-pal1/beh/sub-pal1_task-pal_beh.tsv"
     with beh.open(encoding="utf-8") as f:
