@@ -208,6 +208,10 @@ def test_the_command_line_runs_headless_and_names_bad_input(tmp_path: Path, caps
     assert "--headless needs --simulated-observer" in capsys.readouterr().err
     assert cli_main([*argv, "--run", "2", "--simulated-observer", "control"]) == 2
     assert "'control': give CONDITION=PSE" in capsys.readouterr().err
+    palette = ["experiment", "run", "4.3", "--out", str(tmp_path / "p"), "--headless",
+               "--simulated-observer", "control=0"]  # fmt: skip
+    assert cli_main(palette) == 2
+    assert "palette trials, which the simulated observer cannot answer" in capsys.readouterr().err
 
 
 def test_palette_trials_record_the_options_picked(tmp_path: Path) -> None:

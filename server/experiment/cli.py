@@ -81,6 +81,11 @@ def main(argv: Sequence[str] | None = None, data_dir: Path | None = None) -> int
     if args.headless:
         if not args.simulated_observer:
             raise ValueError("--headless needs --simulated-observer: nobody else can answer")
+        if any("palette" in b.repeats for b in design.blocks):
+            raise ValueError(
+                f"{args.design} has palette trials, which the simulated observer cannot answer: "
+                "serve it to people (drop --headless), or call run_headless with a palette_chooser"
+            )
         from gazehdr.experiment.runner import run_headless
 
         observer = SimulatedObserver(
