@@ -251,6 +251,7 @@ def test_the_palette_preset_is_fig_15() -> None:
         ('scaled = ["halo_luminance"]', 'scaled = ["colour"]', "palette.scaled = 'colour'"),
         ('scaled = ["halo_luminance"]', 'option = "name"\nscaled = []', "palette.option = 'name'"),
         ("repeats = { palette = 1 }", "repeats = { palette = 0 }", "repeats.palette = 0"),
+        ("[palette]", "[palette]\ncrop = 2.0", "palette.crop = 2.0"),
         ("[conditions.palette]", "[conditions.palette]\n[conditions.control]", "blocks[1]"),
     ],
 )

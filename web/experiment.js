@@ -175,6 +175,7 @@ async function pickFromPalette() {
     }
   }
   for (const option of grid.children) option.classList.remove('picked');
+  $('fixation').hidden = true;
   grid.hidden = false;
   document.body.classList.add('picking');
   for (;;) {

@@ -131,6 +131,7 @@ class Design:
     palette: tuple[Choice, ...] = ()
     palette_option: str = "flash_luminance"
     palette_scaled: tuple[str, ...] = ()  # scene options scaled with the flash (its glow)
+    palette_crop: float = 0.4  # the options' images: this many frame heights around their peak
     source: str = "<memory>"
 
     @property
@@ -272,8 +273,11 @@ class _Reader:
 
     def palette(self, table: dict[str, Any], scene: str, options: dict) -> tuple[Any, ...]:
         if not table:
-            return (), "flash_luminance", ()
+            return (), "flash_luminance", (), 0.4
         option = self.text(table, "option", "palette.", "flash_luminance")
+        crop = self.number(table, "crop", "palette.", 0.4)
+        if crop > 1:
+            raise self.fail("palette.crop", crop, "a fraction of the frame's height, up to 1")
         scaled = table.pop("scaled", [])
         if not isinstance(scaled, list) or not all(isinstance(n, str) for n in scaled):
             raise self.fail("palette.scaled", scaled, "must be a list of scene option names")
@@ -302,7 +306,7 @@ class _Reader:
             look = self.look(spec, path)
             choices.append(Choice(label, flash, look))
         self.done(table, "palette.")
-        return tuple(choices), option, tuple(scaled)
+        return tuple(choices), option, tuple(scaled), crop
 
     def design(self, data: dict[str, Any]) -> Design:
         name = self.text(data, "name", "")
@@ -367,7 +371,7 @@ class _Reader:
 
         conditions = self.conditions(self.table(data, "conditions", required=True))
         blocks = self.blocks(data.pop("blocks", None), conditions, tests)
-        choices, option, scaled = self.palette(self.table(data, "palette"), scene, options)
+        choices, option, scaled, crop = self.palette(self.table(data, "palette"), scene, options)
         if any("palette" in b.repeats for b in blocks) and not choices:
             raise DesignError(f"{self.where}: palette trials need [palette] choices to pick from")
         exclusion = self.table(data, "exclusion")
@@ -385,7 +389,7 @@ class _Reader:
             blocks=blocks, display_white=white, fps=fps, size=size, fixation=fixation,
             keys=keys, texts=texts, exclusion_block=block, min_correct=float(min_correct),
             render_seed=seed, palette=choices, palette_option=option, palette_scaled=scaled,
-            source=self.where,
+            palette_crop=crop, source=self.where,
         )  # fmt: skip
 
     def conditions(self, table: dict[str, Any]) -> dict[str, Condition]:

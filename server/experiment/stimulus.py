@@ -132,11 +132,17 @@ def clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Cli
 
 def palette_images(design: Design, size: tuple[int, int], backend: str) -> list[np.ndarray]:
     """Each palette option's image (Fig. 15): the first frame of black after its flash, the
-    afterimage's initial appearance, as display values. Not kept: its caller keeps them."""
+    afterimage's initial appearance, as display values, cropped to a square of `palette_crop`
+    frame heights around its brightest point. Not kept: its caller keeps them."""
     images = []
     for choice in design.palette:
         c = render_clip(design, design.flash_look(choice.look, choice.flash), size, backend)
-        images.append(c.frames[c.phases.index("off")].astype(np.float32))
+        i = c.phases.index("off")
+        y, x = np.unravel_index(np.argmax(c.luminance(i)), c.luminance(i).shape)
+        h, w = c.frames.shape[1:3]
+        side = max(1, min(h, w, round(design.palette_crop * h)))
+        y0, x0 = min(max(y - side // 2, 0), h - side), min(max(x - side // 2, 0), w - side)
+        images.append(c.frames[i, y0 : y0 + side, x0 : x0 + side].astype(np.float32))
     return images
 
 
