@@ -92,6 +92,9 @@ class ServerConfig:
     #: Publish each session's journal (the gaze it follows, its events) as LSL streams of this
     #: name (`gazehdr.drivers.lsl.outlet.session_outlets`); None: no LSL.
     lsl_outlet: str | None = None
+    #: An experiment to serve at /experiment (`serve --experiment`, `gazehdr experiment run`);
+    #: a `gazehdr.experiment.service.ExperimentConfig`.
+    experiment: Any = None
 
 
 @dataclass(frozen=True)
@@ -369,6 +372,10 @@ def create_app(config: ServerConfig) -> FastAPI:
             hub.trackers.connections -= 1
             link.close()
 
+    if config.experiment is not None:
+        from gazehdr.experiment.service import install as install_experiment
+
+        install_experiment(app, config.experiment, web_dir, hub.trackers)
     app.mount("/", StaticFiles(directory=web_dir, html=True), name="web")
     app.add_exception_handler(RequestValidationError, _validation_error)
     install_guard(app, config)

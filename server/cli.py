@@ -349,6 +349,12 @@ def _import(args: argparse.Namespace, extra: list[str]) -> int:
     return import_main(extra)
 
 
+def _experiment(args: argparse.Namespace, extra: list[str]) -> int:
+    from gazehdr.experiment.cli import main as experiment_main
+
+    return experiment_main(extra, data_dir=_data_dir(None))
+
+
 def _export(args: argparse.Namespace, extra: list[str]) -> int:
     from gazehdr.drivers.formats import export_main
 
@@ -501,6 +507,12 @@ COMMANDS: dict[str, Command] = {
         "convert a recording (a BIDS dataset's run, EyeLink .asc, Pupil gaze_positions.csv, "
         "Tobii .tsv) into a session log (arguments pass through; see 'gazehdr import --help')",
         _import,
+        passthrough=True,
+    ),
+    "experiment": Command(
+        "the paper's Sec. 4 experiments: 'gazehdr experiment run PRESET|FILE --out DIR' serves "
+        "the page (or runs headless with a simulated observer; see 'gazehdr experiment --help')",
+        _experiment,
         passthrough=True,
     ),
     "export": Command(

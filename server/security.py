@@ -47,9 +47,10 @@ LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
 WILDCARD_HOSTS = ("0.0.0.0", "::", "")
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 #: GET routes whose answers are private: recordings hold people's gaze; sessions' ids let one
-#: join (and watch the gaze of) a running session.
-PRIVATE_READS = ("/api/recordings", "/api/sessions")
-VIEWER_PAGES = ("/", "/index.html")
+#: join (and watch the gaze of) a running session; an experiment's runs hold an observer's
+#: trials and answers.
+PRIVATE_READS = ("/api/recordings", "/api/sessions", "/api/experiment")
+VIEWER_PAGES = ("/", "/index.html", "/experiment")
 COOKIE_PREFIX = "gazehdr-"
 SECRET_FILE = "viewer-secret"
 # Failed authentication, per client address: 10 at once, then one every 6 s (600 guesses an

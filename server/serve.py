@@ -55,6 +55,7 @@ def build_config(
     layer: str | None = None,
     auth: bool = True,
     allow_hosts: tuple[str, ...] = (),
+    experiment: object = None,
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
     if lsl_outlet is not None:
@@ -107,6 +108,7 @@ def build_config(
         lsl_outlet=lsl_outlet,
         auth=auth,
         allow_hosts=allow_hosts,
+        experiment=experiment,
     )
 
 
@@ -254,6 +256,10 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     print(f"gazehdr: open http://{shown}:{port}/ (scene {s.scene}, gaze {s.gaze_source})")
     for line in access_lines(config, f"http://{shown}:{port}"):
         print(f"gazehdr: {line}", flush=True)
+    if config.experiment is not None:
+        e = config.experiment
+        print(f"gazehdr: experiment {e.design.name!r} at http://{shown}:{port}/experiment, "
+              f"results to {e.out_dir}", flush=True)  # fmt: skip
     if s.record:
         print(f"gazehdr: recording each session to {config.data_dir / 'recordings'}", flush=True)
     if config.lsl_outlet is not None:

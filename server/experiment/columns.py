@@ -52,4 +52,9 @@ BEH_COLUMNS: dict[str, Column] = {
     "black_duration": Column(
         "how long the black screen after the stimulus lasted, measured the same way", "s"
     ),
+    "frames_late": Column(
+        "frames of the trial the browser did not show at their time: not yet received, or "
+        "passed over when its display loop came late (the frame before stayed longer); 0 is a "
+        "trial shown as rendered; n/a without a browser"
+    ),
 }
