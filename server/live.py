@@ -27,10 +27,11 @@ from gazehdr import heap
 from gazehdr.drivers.sessionlog import SessionLogWriter
 from gazehdr.gaze import Trackers
 from gazehdr.metrics import Metrics
-from gazehdr.protocol import Control, ProtocolError
+from gazehdr.protocol import Control, Encoding, ProtocolError
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.session import Frame, Note, Session, SessionSettings
+from gazehdr.transport import Streams
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
@@ -99,6 +100,10 @@ class Viewer:
         self.maps = False  # whether it asked for scene maps (binary notes)
         #: Its task waits on the mailbox with credit: a frame put now is on its way at once.
         self.taking = False
+        #: The encoding it asked for (None: the session's); for a stream (`av1`), whether it
+        #: has every packet since its last keyframe, so the next delta packet is of use to it.
+        self.encoding: Encoding | None = None
+        self.keyed = False
 
     def want_maps(self, send: bool, latest: bytes | None) -> None:
         """Scene maps on or off; on, the latest one comes at once (the page has none yet)."""
@@ -177,18 +182,27 @@ class LiveSession:
         self.closing: asyncio.TimerHandle | None = None
         self.log = log
         self.outlet = outlet
+        #: The streams (`av1`) its viewers chose, each encoded once per frame for all of them.
+        self.streams = Streams(session.settings.fps)
         #: The last scene map sent to the viewers that inspect (a viewer that starts to gets it).
         self.scene_map: bytes | None = None
         # A step may still be writing on its thread when the session ends and the log closes.
         self._log_lock = threading.Lock()
 
     def _tick(
-        self, dt: float, controls: list[tuple[Control, float]], maps: bool = False
-    ) -> tuple[Frame, list[Note]]:
+        self,
+        dt: float,
+        controls: list[tuple[Control, float]],
+        maps: bool = False,
+        encodings: frozenset[Encoding] = frozenset(),
+    ) -> tuple[dict[Encoding, Frame], list[Note]]:
         """One step, on the worker thread, with what it journaled published and appended to the
-        log; `maps`: a viewer inspects (decided on the event loop, which owns the viewers). A
-        log that cannot be written stops recording, not the session; the viewers are told."""
+        log; `maps`: a viewer inspects, `encodings`: the streams viewers chose (both decided on
+        the event loop, which owns the viewers). The frame in each encoding, the session's and
+        those. A log that cannot be written stops recording, not the session; the viewers are
+        told."""
         frame, notes = self.session.tick(dt, controls)
+        frames = self.streams.encode(frame, encodings)
         if maps:  # made only for viewers that inspect
             scene_map = self.session.scene_map()
             if scene_map is not self.scene_map:
@@ -199,14 +213,14 @@ class LiveSession:
             if self.outlet is not None:
                 self.outlet.push_all(records)
             if self.log is None:
-                return frame, notes
+                return frames, notes
             try:
                 self.log.write_all(records)
             except OSError as e:
                 log.error("session %s: recording stopped: %s", self.session.id, e)
                 notes.append({"type": "error", "message": f"recording stopped: {e}", "in": None})
                 self._close_log()
-        return frame, notes
+        return frames, notes
 
     def close_log(self) -> None:
         """End the session's log and outlet with its last records (`Session.end_journal`)."""
@@ -257,6 +271,41 @@ class LiveSession:
         while not any(v.wants_frame() for v in self.viewers) and time.monotonic() < deadline:
             await asyncio.sleep(DEMAND_POLL_S)
 
+    def choose(self, viewer: Viewer, encoding: Encoding | None) -> None:
+        """`viewer` gets frames in `encoding` from the next one on (a stream: from a keyframe)."""
+        if encoding is not None and encoding is not self.session.settings.encoding:
+            self.streams.check(encoding)  # a ProtocolError when it cannot be served
+        viewer.encoding, viewer.keyed = encoding, False
+        self.streams.want_key(encoding)
+
+    def want_key(self, viewer: Viewer) -> None:
+        """`viewer` lost its stream: nothing more until a keyframe, which comes next."""
+        viewer.keyed = False
+        self.streams.want_key(viewer.encoding)
+
+    def _offer(self, viewer: Viewer, frames: dict[Encoding, Frame], notes: list[Note]) -> int:
+        """Put the viewer's frame in its mailbox; how many frames it missed (0 or 1). A stream's
+        packet is never put in place of one still waiting (the next packet needs it): it is
+        dropped instead, and the viewer waits for a keyframe, which is asked for."""
+        frame = frames.get(viewer.encoding or self.session.settings.encoding)
+        if frame is None:  # it chose a stream during this step: frames from the next one
+            viewer.mailbox.put(None, notes)
+            return 0
+        if not self.streams.is_stream(frame.header.encoding):
+            # A viewer out of credit gets the next frame made once it acks, not this one.
+            taken = frame if viewer.has_credit() else None
+            return viewer.mailbox.put(taken, notes) + (taken is None)
+        key = frame.header.keyframe
+        usable = key or (viewer.keyed and viewer.mailbox.frame is None)
+        if usable and viewer.has_credit():
+            viewer.keyed = True
+            return viewer.mailbox.put(frame, notes)
+        viewer.mailbox.put(None, notes)
+        if viewer.keyed or key:
+            self.want_key(viewer)
+        viewer.mailbox.dropped += 1
+        return 1
+
     async def run(self) -> None:
         """Step, publish, step again. Once a step is done the next one starts before anything
         else runs on the event loop (no await between): the viewers' tasks send its frame while
@@ -272,12 +321,14 @@ class LiveSession:
             last = started
             controls, self.controls = self.controls, []
             maps = any(v.maps for v in self.viewers)
+            raw = self.session.settings.encoding
+            encodings = frozenset(v.encoding for v in self.viewers) - {None, raw}
             # The step's own future, awaited directly: the task resumes at the loop's next turn
             # after the step ends (each extra hop, a task or a shield, costs a turn, and with
             # the GIL shared every turn can wait for another thread).
-            work = _STEPPER.submit(self._tick, dt, controls, maps)
+            work = _STEPPER.submit(self._tick, dt, controls, maps, encodings)
             try:
-                frame, notes = await asyncio.wrap_future(work)
+                frames, notes = await asyncio.wrap_future(work)
             except asyncio.CancelledError:
                 # The session ends: its step finishes on its thread before the task does, so
                 # nothing of the session is in use once the task is done (`SessionHub._end`).
@@ -291,12 +342,11 @@ class LiveSession:
                     viewer.mailbox.closed = True
                 self.close_log()
                 return
+            frame = frames[raw]
             m.sim_seconds.observe(frame.sim_seconds)
-            m.encode_seconds.observe(frame.encode_seconds)
+            m.encode_seconds.observe(sum(f.encode_seconds for f in frames.values()))
             for viewer in self.viewers:
-                # A viewer out of credit gets the next frame made once it acks, not this one.
-                taken = frame if viewer.has_credit() else None
-                m.frames_dropped.inc(viewer.mailbox.put(taken, notes) + (taken is None))
+                m.frames_dropped.inc(self._offer(viewer, frames, notes))
             # Sleep out the rest of the frame interval, if any: the sockets are served while
             # the next step runs.
             rest = started + interval - time.monotonic()
