@@ -565,9 +565,9 @@ async ([size, frames, encoding, words]) => {
 """
 
 
-def _serve_web(page: Any) -> str:
-    """Serve web/ from disk under a made-up origin: the shader needs no server."""
-    origin = "http://viewer.test"
+def _serve_web(page: Any, origin: str = "http://viewer.test") -> str:
+    """Serve web/ from disk under a made-up origin: the shader needs no server. (WebCodecs
+    needs a secure context: `http://localhost` is one.)"""
     types = {".js": "text/javascript", ".html": "text/html", ".css": "text/css"}
 
     def handle(route: Any) -> None:

@@ -33,6 +33,7 @@ const toUnit = (logY) => (logY - LOG_RANGE[0]) / (LOG_RANGE[1] - LOG_RANGE[0]);
 
 /** The display value `v` of frame pixel (x, y) from a frame message. */
 function displayValue(payload, header, x, y) {
+  if (header.encoding === ENCODING.AV1) return null; // a stream's packet: no pixel to read
   const i = y * header.width + x;
   if (header.encoding === ENCODING.F16) {
     const px = new Uint16Array(payload, header.header_bytes + i * 6, 3);
@@ -141,7 +142,7 @@ export class Inspector {
         `pixel ${r.x}, ${r.y}${where}`,
         `RGB  ${r.rgb.map(sci).join('  ')} cd/m²`,
         `Y    ${sci(r.Y)} cd/m² · log10 ${r.log10Y.toFixed(3)}`,
-        `v    ${r.display.map((v) => v.toFixed(4)).join('  ')}`,
+        r.display ? `v    ${r.display.map((v) => v.toFixed(4)).join('  ')}` : 'v    (av1: not read)',
         `eye  A = ${r.adaptation.toFixed(2)} (${sci(10 ** r.adaptation)} cd/m²) · ρ here ${r.rho.toFixed(2)}`,
       );
     }
