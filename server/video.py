@@ -6,8 +6,8 @@ display values `v` go to Y'CbCr 4:2:0 with 10 bits per sample (BT.709 coefficien
 so a grey ramp keeps all 1024 levels of `rgb10a2`), SVT-AV1 codes them in its low-delay
 real-time mode (no B-frames: one frame in, one packet out), and the browser decodes them with
 WebCodecs (`web/video.js`), converting back to RGB in the dither shader. The conversion both
-ways is written out here (`to_yuv420p10`, `to_rgb`) and in `web/renderer.js`, not left to a
-library, so the two ends agree to the last bit.
+ways is ours (gazehdr.yuv; `web/renderer.js` for the way back), not a library's, so the two ends
+agree to the last bit.
 
 PyAV (FFmpeg's libraries, the `video` extra) is imported only when a stream is opened: a server
 without it serves the raw encodings and refuses `av1` with a message saying what to install.
@@ -16,6 +16,7 @@ without it serves the raw encodings and refuses `av1` with a message saying what
 from __future__ import annotations
 
 import fractions
+import logging
 import os
 import threading
 import time
@@ -24,14 +25,14 @@ from typing import Any
 
 import numpy as np
 
+from gazehdr.yuv import Converter, to_rgb, to_yuv420p10
+
+__all__ = ["CODEC", "Decoder", "Encoder", "Packet", "Stream", "available", "to_rgb"]
+
 #: WebCodecs' name for the stream: AV1 main profile, level 4.0 (1080p at 30 fps), main tier,
 #: 10 bits. Chromium decodes it in software (dav1d).
 CODEC = "av01.0.08M.10"
-#: BT.709 luma weights; Cb and Cr are (B - Y) / (2 (1 - KB)) and (R - Y) / (2 (1 - KR)).
-KR, KB = 0.2126, 0.0722
-KG = 1.0 - KR - KB
-LEVELS = 1023  # 10 bits, full range: v = Y / 1023 on a grey
-CHROMA_ZERO = 512
+log = logging.getLogger("gazehdr.video")
 #: The stream's quality: SVT-AV1's constant rate factor (lower is better; 63 the worst). Its
 #: real-time mode (rtc=1) at preset 10 kept the luma error of moving simulated frames at half
 #: the 99th percentile of its default low-delay mode's at preset 12, for fewer bytes (measured on
@@ -71,45 +72,6 @@ def available() -> str | None:
     return None
 
 
-def _unpack(frame: np.ndarray) -> np.ndarray:
-    """H×W×3 float32 `v` from a raw payload array: float16 RGB or packed rgb10a2 words."""
-    if frame.dtype == np.uint32:
-        return np.stack([(frame >> s) & 1023 for s in (0, 10, 20)], -1).astype(np.float32) / 1023
-    return np.asarray(frame, np.float32)
-
-
-def to_yuv420p10(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Raw frame (H×W×3 `v` in [0, 1], or H×W rgb10a2 words) → Y (H'×W'), Cb and Cr
-    (H'/2×W'/2), uint16 in [0, 1023], H' and W' rounded up to even (the last row or column
-    repeated). Chroma is the mean of each 2×2 block."""
-    v = np.clip(_unpack(frame), 0.0, 1.0)
-    h, w = v.shape[:2]
-    v = np.pad(v, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
-    r, g, b = v[..., 0], v[..., 1], v[..., 2]
-    y = KR * r + KG * g + KB * b
-    Y = np.rint(y * LEVELS).astype(np.uint16)
-    box = v.reshape(v.shape[0] // 2, 2, v.shape[1] // 2, 2, 3).mean(axis=(1, 3))
-    yb = KR * box[..., 0] + KG * box[..., 1] + KB * box[..., 2]
-    cb = (box[..., 2] - yb) / (2 * (1 - KB))
-    cr = (box[..., 0] - yb) / (2 * (1 - KR))
-    U = np.clip(np.rint(cb * LEVELS + CHROMA_ZERO), 0, LEVELS).astype(np.uint16)
-    V = np.clip(np.rint(cr * LEVELS + CHROMA_ZERO), 0, LEVELS).astype(np.uint16)
-    return Y, U, V
-
-
-def to_rgb(Y: np.ndarray, U: np.ndarray, V: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """The inverse, as the viewer's shader computes it: H×W×3 float32 `v` in [0, 1] of the
-    frame `size` (w, h), each chroma sample spread over its 2×2 block."""
-    w, h = size
-    y = Y[:h, :w].astype(np.float32) / LEVELS
-    up = [(c.astype(np.float32) - CHROMA_ZERO) / LEVELS for c in (U, V)]
-    cb, cr = (c.repeat(2, 0).repeat(2, 1)[:h, :w] for c in up)
-    r = y + 2 * (1 - KR) * cr
-    b = y + 2 * (1 - KB) * cb
-    g = (y - KR * r - KB * b) / KG
-    return np.clip(np.stack([r, g, b], -1), 0.0, 1.0)
-
-
 @dataclass(frozen=True)
 class Packet:
     data: bytes
@@ -143,10 +105,25 @@ class Encoder:
         self._codec = c
         self._pts = 0
         self._av = av
+        self._convert: tuple[np.dtype, Any] | None = None
+
+    def _planes(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The frame's planes: on the OpenCL device for the simulator's outputs (rgb10a2,
+        float16), else (no device, float32 `v`) with numpy; the same bits either way."""
+        if self._convert is None or self._convert[0] != frame.dtype:
+            convert: Any = to_yuv420p10
+            if frame.dtype in (np.uint32, np.float16):
+                try:
+                    convert = Converter(self.size, frame.dtype)
+                except Exception as e:  # no pyopencl or no device: the reference, slower
+                    log.warning("av1: converting on the host (%s)", e)
+            self._convert = (frame.dtype, convert)
+        convert = self._convert[1]
+        return convert(frame)
 
     def encode(self, frame: np.ndarray, key: bool = False) -> Packet:
         """One raw frame (see `to_yuv420p10`) → its packet; `key` forces a keyframe."""
-        planes = to_yuv420p10(frame)
+        planes = self._planes(frame)
         f = self._av.VideoFrame(self._codec.width, self._codec.height, "yuv420p10le")
         for plane, values in zip(f.planes, planes, strict=True):
             rows = np.frombuffer(plane, np.uint16).reshape(-1, plane.line_size // 2)

@@ -14,7 +14,8 @@ import base64
 import numpy as np
 
 from gazehdr.protocol import Encoding
-from gazehdr.video import Decoder, Encoder, to_rgb
+from gazehdr.video import Decoder, Encoder
+from gazehdr.yuv import to_rgb
 from tests.test_browser import (  # noqa: F401
     B64_JS,
     _check_dither,

@@ -32,7 +32,8 @@ from gazehdr.protocol import (
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.session import Session, SessionSettings
 from gazehdr.transport import Streams, raw_pixels
-from gazehdr.video import KB, KG, KR, Decoder, Encoder, to_rgb, to_yuv420p10
+from gazehdr.video import Decoder, Encoder
+from gazehdr.yuv import KB, KG, KR, Converter, to_rgb, to_yuv420p10
 from tests.test_server import Client, run
 
 W, H = 320, 176
@@ -63,6 +64,27 @@ def test_greys_pass_the_colour_conversion_exactly() -> None:
     words = (q.astype(np.uint32) * 0x100401).reshape(1, 1024)  # r | g << 10 | b << 20
     Yw, Uw, _ = to_yuv420p10(words[:, :1023])
     assert Yw.shape == (2, 1024) and Uw.shape == (1, 512) and (Yw[:, :1023] == q[:1023]).all()
+
+
+def test_the_device_converts_as_the_reference_does() -> None:
+    """The live path's OpenCL kernel and the numpy reference give the same bits, for both raw
+    encodings, an odd size (the last column and row repeated) and values off the [0, 1] range
+    and exactly half-way between two levels."""
+    rng = np.random.default_rng(3)
+    w, h = 37, 21
+    v = rng.uniform(-0.05, 1.05, (h, w, 3)).astype(np.float16)
+    v[0, :, 0] = (np.arange(w) + 0.5) / 1023  # ties
+    q = rng.integers(0, 1024, (h, w, 3)).astype(np.uint32)
+    words = q[..., 0] | (q[..., 1] << 10) | (q[..., 2] << 20)
+    for frame in (v, words):
+        device = Converter((w, h), frame.dtype)(frame)
+        for mine, reference in zip(device, to_yuv420p10(frame), strict=True):
+            assert mine.shape == reference.shape
+            np.testing.assert_array_equal(mine, reference)
+    # Chroma spans its range: a saturated blue block reaches the top of Cb, yellow the bottom.
+    blue = np.zeros((2, 2), np.uint32) | (1023 << 20)
+    yellow = np.zeros((2, 2), np.uint32) | 1023 | (1023 << 10)
+    assert to_yuv420p10(blue)[1][0, 0] == 1023 and to_yuv420p10(yellow)[1][0, 0] <= 1  # -511.5
 
 
 def test_a_dark_ramp_keeps_its_10_bit_levels() -> None:
