@@ -190,19 +190,12 @@ class LiveSession:
         self._log_lock = threading.Lock()
 
     def _tick(
-        self,
-        dt: float,
-        controls: list[tuple[Control, float]],
-        maps: bool = False,
-        encodings: frozenset[Encoding] = frozenset(),
-    ) -> tuple[dict[Encoding, Frame], list[Note]]:
+        self, dt: float, controls: list[tuple[Control, float]], maps: bool = False
+    ) -> tuple[Frame, list[Note]]:
         """One step, on the worker thread, with what it journaled published and appended to the
-        log; `maps`: a viewer inspects, `encodings`: the streams viewers chose (both decided on
-        the event loop, which owns the viewers). The frame in each encoding, the session's and
-        those. A log that cannot be written stops recording, not the session; the viewers are
-        told."""
+        log; `maps`: a viewer inspects (decided on the event loop, which owns the viewers). A
+        log that cannot be written stops recording, not the session; the viewers are told."""
         frame, notes = self.session.tick(dt, controls)
-        frames = self.streams.encode(frame, encodings)
         if maps:  # made only for viewers that inspect
             scene_map = self.session.scene_map()
             if scene_map is not self.scene_map:
@@ -213,14 +206,14 @@ class LiveSession:
             if self.outlet is not None:
                 self.outlet.push_all(records)
             if self.log is None:
-                return frames, notes
+                return frame, notes
             try:
                 self.log.write_all(records)
             except OSError as e:
                 log.error("session %s: recording stopped: %s", self.session.id, e)
                 notes.append({"type": "error", "message": f"recording stopped: {e}", "in": None})
                 self._close_log()
-        return frames, notes
+        return frame, notes
 
     def close_log(self) -> None:
         """End the session's log and outlet with its last records (`Session.end_journal`)."""
@@ -283,14 +276,10 @@ class LiveSession:
         viewer.keyed = False
         self.streams.want_key(viewer.encoding)
 
-    def _offer(self, viewer: Viewer, frames: dict[Encoding, Frame], notes: list[Note]) -> int:
-        """Put the viewer's frame in its mailbox; how many frames it missed (0 or 1). A stream's
+    def _offer(self, viewer: Viewer, frame: Frame, notes: list[Note]) -> int:
+        """Put `frame` in the viewer's mailbox; how many frames it missed (0 or 1). A stream's
         packet is never put in place of one still waiting (the next packet needs it): it is
         dropped instead, and the viewer waits for a keyframe, which is asked for."""
-        frame = frames.get(viewer.encoding or self.session.settings.encoding)
-        if frame is None:  # it chose a stream during this step: frames from the next one
-            viewer.mailbox.put(None, notes)
-            return 0
         if not self.streams.is_stream(frame.header.encoding):
             # A viewer out of credit gets the next frame made once it acks, not this one.
             taken = frame if viewer.has_credit() else None
@@ -306,11 +295,55 @@ class LiveSession:
         viewer.mailbox.dropped += 1
         return 1
 
+    def _streamed(self, frames: dict[Encoding, Frame]) -> None:
+        """A frame's streams are encoded (on the event loop): to the viewers that chose them."""
+        m = self.metrics
+        m.encode_seconds.observe(sum(f.encode_seconds for f in frames.values()))
+        for viewer in self.viewers:
+            frame = frames.get(viewer.encoding) if viewer.encoding is not None else None
+            if frame is not None:
+                m.frames_dropped.inc(self._offer(viewer, frame, []))
+
+    def _stream_failed(self, error: BaseException) -> None:
+        log.error("session %s: encoding a stream failed: %s", self.session.id, error)
+        note = {"type": "error", "message": f"encoding failed: {error}", "in": "encoding"}
+        for viewer in self.viewers:
+            if viewer.encoding is not None and self.streams.is_stream(viewer.encoding):
+                viewer.mailbox.put(None, [note])
+
+    def _encode(self, frame: Frame) -> None:
+        """Encode `frame` for the streams viewers chose, on the streams' own thread while the
+        next step runs; if the last frame is still being encoded, this one is left out (the
+        stream goes on from the last one it coded: its viewers miss a frame, not a packet)."""
+        raw = self.session.settings.encoding
+        encodings = frozenset(v.encoding for v in self.viewers) - {None, raw}
+        loop = asyncio.get_running_loop()
+
+        def done(work: concurrent.futures.Future[dict[Encoding, Frame]]) -> None:
+            error = work.exception() if not work.cancelled() else None
+            with contextlib.suppress(RuntimeError):  # the loop closed: the server stopped
+                if error is not None:
+                    loop.call_soon_threadsafe(self._stream_failed, error)
+                elif not work.cancelled():
+                    loop.call_soon_threadsafe(self._streamed, work.result())
+
+        if not self.streams.submit(frame, encodings, done):
+            for viewer in self.viewers:
+                if viewer.encoding in encodings:
+                    viewer.mailbox.dropped += 1
+                    self.metrics.frames_dropped.inc()
+
     async def run(self) -> None:
         """Step, publish, step again. Once a step is done the next one starts before anything
         else runs on the event loop (no await between): the viewers' tasks send its frame while
         the next is simulated, and that step reads the gaze (`Session.pointer`, a tracker) when
-        it starts, on its thread."""
+        it starts, on its thread. Streams are encoded on a thread of their own meanwhile."""
+        try:
+            await self._run()
+        finally:
+            self.streams.close()
+
+    async def _run(self) -> None:
         interval = 1.0 / self.session.settings.fps
         last: float | None = None
         m = self.metrics
@@ -321,14 +354,12 @@ class LiveSession:
             last = started
             controls, self.controls = self.controls, []
             maps = any(v.maps for v in self.viewers)
-            raw = self.session.settings.encoding
-            encodings = frozenset(v.encoding for v in self.viewers) - {None, raw}
             # The step's own future, awaited directly: the task resumes at the loop's next turn
             # after the step ends (each extra hop, a task or a shield, costs a turn, and with
             # the GIL shared every turn can wait for another thread).
-            work = _STEPPER.submit(self._tick, dt, controls, maps, encodings)
+            work = _STEPPER.submit(self._tick, dt, controls, maps)
             try:
-                frames, notes = await asyncio.wrap_future(work)
+                frame, notes = await asyncio.wrap_future(work)
             except asyncio.CancelledError:
                 # The session ends: its step finishes on its thread before the task does, so
                 # nothing of the session is in use once the task is done (`SessionHub._end`).
@@ -342,11 +373,14 @@ class LiveSession:
                     viewer.mailbox.closed = True
                 self.close_log()
                 return
-            frame = frames[raw]
             m.sim_seconds.observe(frame.sim_seconds)
-            m.encode_seconds.observe(sum(f.encode_seconds for f in frames.values()))
+            m.encode_seconds.observe(frame.encode_seconds)
+            self._encode(frame)
             for viewer in self.viewers:
-                m.frames_dropped.inc(self._offer(viewer, frames, notes))
+                if viewer.encoding is None or not self.streams.is_stream(viewer.encoding):
+                    m.frames_dropped.inc(self._offer(viewer, frame, notes))
+                else:  # its frame comes once encoded (`_streamed`); the notes now
+                    viewer.mailbox.put(None, notes)
             # Sleep out the rest of the frame interval, if any: the sockets are served while
             # the next step runs.
             rest = started + interval - time.monotonic()

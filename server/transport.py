@@ -3,12 +3,15 @@
 A session's simulator writes one raw encoding (`f16` or `rgb10a2`, the server's `--encoding`);
 a viewer may ask for a stream instead (`av1`, gazehdr.video: for viewers on another machine,
 docs/deployment.md). `Streams` holds one encoder per stream in use and encodes each frame once
-for all the viewers that chose it, on the session's stepping thread.
+for all the viewers that chose it, on a thread of its own, so that encoding frame N overlaps
+simulating frame N+1.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -28,12 +31,38 @@ def raw_pixels(frame: Frame) -> np.ndarray:
     return np.frombuffer(frame.payload, "<u4").reshape(h.height, h.width)
 
 
+Done = Callable[["concurrent.futures.Future[dict[Encoding, Frame]]"], None]
+
+
 class Streams:
-    """A session's streams, by encoding; the thread that steps the session encodes."""
+    """A session's streams, by encoding, encoded one frame at a time on their own thread."""
 
     def __init__(self, fps: float) -> None:
         self.fps = fps
         self._streams: dict[Encoding, video.Stream] = {}
+        self._thread: concurrent.futures.ThreadPoolExecutor | None = None
+        self._busy: concurrent.futures.Future[dict[Encoding, Frame]] | None = None
+
+    def submit(self, frame: Frame, encodings: frozenset[Encoding], done: Done) -> bool:
+        """Encode `frame` for `encodings` on the streams' thread, then call `done` (there) with
+        the future of `encode`'s result. False, and nothing done, while the last frame is still
+        being encoded: frames come faster than they can be coded, so this one is left out."""
+        if not encodings:
+            self._streams.clear()  # nobody watches: the next viewer starts a new stream
+            return True
+        if self._busy is not None and not self._busy.done():
+            return False
+        if self._thread is None:
+            self._thread = concurrent.futures.ThreadPoolExecutor(1, "gazehdr-encode")
+        self._busy = self._thread.submit(self.encode, frame, encodings)
+        self._busy.add_done_callback(done)
+        return True
+
+    def close(self) -> None:
+        """The session ended: no more frames; one being encoded finishes on its own."""
+        if self._thread is not None:
+            self._thread.shutdown(wait=False, cancel_futures=True)
+            self._thread = None
 
     @staticmethod
     def is_stream(encoding: Encoding) -> bool:
