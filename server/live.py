@@ -313,10 +313,16 @@ class LiveSession:
 
     def _encode(self, frame: Frame) -> None:
         """Encode `frame` for the streams viewers chose, on the streams' own thread while the
-        next step runs; if the last frame is still being encoded, this one is left out (the
-        stream goes on from the last one it coded: its viewers miss a frame, not a packet)."""
+        next step runs. It is left out of the stream (which goes on from the last frame it
+        coded: its viewers miss a frame, not a packet) while the last frame is still being
+        encoded, and while a viewer of the stream could not take a packet now (its window is
+        full, or a packet waits unsent): a stream runs at the pace of its slowest viewer, so a
+        slow link gets fewer frames, not gaps and the keyframes they would cost."""
         raw = self.session.settings.encoding
         encodings = frozenset(v.encoding for v in self.viewers) - {None, raw}
+        if any(v.encoding in encodings and v.keyed and not v.wants_frame() for v in self.viewers):
+            self._missed(encodings)
+            return
         loop = asyncio.get_running_loop()
 
         def done(work: concurrent.futures.Future[dict[Encoding, Frame]]) -> None:
@@ -328,10 +334,14 @@ class LiveSession:
                     loop.call_soon_threadsafe(self._streamed, work.result())
 
         if not self.streams.submit(frame, encodings, done):
-            for viewer in self.viewers:
-                if viewer.encoding in encodings:
-                    viewer.mailbox.dropped += 1
-                    self.metrics.frames_dropped.inc()
+            self._missed(encodings)
+
+    def _missed(self, encodings: frozenset[Encoding]) -> None:
+        """A frame left out of `encodings`' streams: a dropped frame for each of their viewers."""
+        for viewer in self.viewers:
+            if viewer.encoding in encodings:
+                viewer.mailbox.dropped += 1
+                self.metrics.frames_dropped.inc()
 
     async def run(self) -> None:
         """Step, publish, step again. Once a step is done the next one starts before anything
