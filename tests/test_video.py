@@ -13,6 +13,7 @@ levels come in steps of 1.86 (its 10-bit chroma), twice as fine as 8 bits at lea
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 
@@ -247,3 +248,34 @@ def test_decode_frame_refuses_a_packet_with_a_clear_message() -> None:
     assert header.encoding is Encoding.av1 and header.keyframe and bytes(payload)
     with pytest.raises(ProtocolError, match=r"decode it with gazehdr\.video"):
         decode_frame(message)
+
+
+def test_a_stream_waits_for_a_slow_viewer_without_breaking(live_server) -> None:
+    """A viewer whose window is full (it stopped acking, as over a saturated link) gets no
+    packets, and when it acks again the stream goes on with a delta packet that decodes: frames
+    were left out of the stream rather than packets out of its view (no keyframe needed)."""
+    server = live_server(scene="flash", encoding=Encoding.rgb10a2)
+
+    async def check() -> None:
+        viewer = await VideoClient.open(server)
+        await viewer.send(type="encoding", name="av1")
+        decoder = Decoder()
+        header, packet = await viewer.frame(lambda h: h.encoding is Encoding.av1)
+        assert header.keyframe
+        decoder.planes(packet, True)
+        await viewer.send(type="ack", frame=header.frame)  # flow control on: a window of 2
+        last = header.frame
+        for _ in range(2):
+            header, packet = await viewer.frame()
+            decoder.planes(packet, header.keyframe)
+            last = header.frame
+        await asyncio.sleep(1.5)  # the window is full: the session steps on (idly) without it
+        for frame in range(2):
+            await viewer.send(type="ack", frame=last - frame)
+        header, packet = await viewer.frame()
+        assert not header.keyframe, "the stream broke: a keyframe was needed"
+        assert header.frame > last + 1 and header.dropped > 0, header  # frames were left out
+        decoder.planes(packet, False)  # and the delta decodes on what came before
+        await viewer.ws.close()
+
+    run(check())
