@@ -85,9 +85,9 @@ def run_browser(
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": w, "height": h})
         page.goto(live.url + (f"/?encoding={encoding.name}" if stream else "/"))
-        page.wait_for_function("window.gazehdr && window.gazehdr.stats.received > 2", timeout=60e3)
+        page.wait_for_function("window.gazehdr && window.gazehdr.stats.received > 2", timeout=180e3)
         if stream:
-            page.wait_for_function("window.gazehdr.video.stats.decoded > 2", timeout=60e3)
+            page.wait_for_function("window.gazehdr.video.stats.decoded > 2", timeout=180e3)
         rng = random.Random(0)
 
         def wiggle(duration: float) -> None:

@@ -47,8 +47,9 @@ class Streams:
         """Encode `frame` for `encodings` on the streams' thread, then call `done` (there) with
         the future of `encode`'s result. False, and nothing done, while the last frame is still
         being encoded: frames come faster than they can be coded, so this one is left out."""
-        if not encodings:
-            self._streams.clear()  # nobody watches: the next viewer starts a new stream
+        if not encodings:  # nobody watches: a new viewer starts a new stream
+            if self._streams and self._thread is not None:  # where a stream may be encoding
+                self._thread.submit(self._drop, list(self._streams))
             return True
         if self._busy is not None and not self._busy.done():
             return False
@@ -59,10 +60,20 @@ class Streams:
         return True
 
     def close(self) -> None:
-        """The session ended: no more frames; one being encoded finishes on its own."""
+        """The session ended: no more frames; one being encoded finishes on its own thread,
+        which then ends the streams."""
         if self._thread is not None:
-            self._thread.shutdown(wait=False, cancel_futures=True)
+            self._thread.submit(self._drop, list(self._streams))
+            self._thread.shutdown(wait=False, cancel_futures=False)
             self._thread = None
+        else:
+            self._drop(list(self._streams))
+
+    def _drop(self, encodings: list[Encoding]) -> None:
+        for encoding in encodings:
+            stream = self._streams.pop(encoding, None)
+            if stream is not None:
+                stream.close()
 
     @staticmethod
     def is_stream(encoding: Encoding) -> bool:
@@ -90,7 +101,7 @@ class Streams:
         """`frame` in its own encoding and in each of `encodings`; streams no longer asked for
         are closed (a viewer that asks again starts a new one, with a keyframe)."""
         for gone in set(self._streams) - encodings:
-            del self._streams[gone]
+            self._drop([gone])
         frames = {frame.header.encoding: frame}
         if not encodings:
             return frames

@@ -15,6 +15,7 @@ without it serves the raw encodings and refuses `av1` with a message saying what
 
 from __future__ import annotations
 
+import contextlib
 import fractions
 import logging
 import os
@@ -137,6 +138,13 @@ class Encoder:
             raise RuntimeError(f"the AV1 encoder gave {len(packets)} packets for one frame")
         return Packet(bytes(packets[0]), packets[0].is_keyframe, self.size)
 
+    def close(self) -> None:
+        """End the stream (SVT-AV1 complains of an encoder dropped without its end)."""
+        if self._codec is not None:
+            with contextlib.suppress(self._av.FFmpegError):
+                self._codec.encode(None)
+            self._codec = None
+
 
 class Decoder:
     """The viewer's decoder in Python (dav1d, as Chromium's): tests, tools and the benchmark's
@@ -190,6 +198,11 @@ class Stream:
         self._want_key = threading.Event()
         self._last_key = -float("inf")
 
+    def close(self) -> None:
+        if self._encoder is not None:
+            self._encoder.close()
+            self._encoder = None
+
     def want_key(self) -> None:
         self._want_key.set()
 
@@ -197,6 +210,7 @@ class Stream:
         """The packet of one raw frame and the seconds it took."""
         started = time.perf_counter()
         if self._encoder is None or self._encoder.size != size:
+            self.close()
             self._encoder = Encoder(size, self.fps)
             self._want_key.set()
         key = self._want_key.is_set() and started - self._last_key >= MIN_KEY_INTERVAL_S

@@ -4,6 +4,9 @@
 
 /** WebCodecs' name for the server's stream (gazehdr.video.CODEC). */
 export const CODEC = 'av01.0.08M.10';
+/** Software decoding (dav1d in Chromium) gives pictures in memory as I420P10, which copyTo
+ * reads; a hardware decoder may give GPU-only frames (format null) that it cannot. */
+const ACCELERATION = 'prefer-software';
 
 /**
  * Whether this page can decode the stream: null if it can, else why not, in words for the
@@ -16,7 +19,7 @@ export async function unsupported(width = 1920, height = 1080) {
       : 'this browser has no WebCodecs VideoDecoder';
   }
   try {
-    const config = { codec: CODEC, codedWidth: width, codedHeight: height };
+    const config = { codec: CODEC, codedWidth: width, codedHeight: height, hardwareAcceleration: ACCELERATION };
     const { supported } = await VideoDecoder.isConfigSupported(config);
     return supported ? null : `this browser does not decode ${CODEC} (AV1, 10 bits)`;
   } catch (err) {
@@ -47,7 +50,10 @@ export class VideoStream {
       output: (frame) => this._output(frame),
       error: (err) => decoder === this.decoder && this._lost(`decoder error: ${err.message}`),
     });
-    decoder.configure({ codec: CODEC, codedWidth: width, codedHeight: height, optimizeForLatency: true });
+    decoder.configure({
+      codec: CODEC, codedWidth: width, codedHeight: height, optimizeForLatency: true,
+      hardwareAcceleration: ACCELERATION,
+    }); // prettier-ignore
     this.decoder = decoder;
     this.size = [width, height];
   }
