@@ -355,10 +355,10 @@ def create_app(config: ServerConfig) -> FastAPI:
                     viewer.want_maps(control.send, live.scene_map)
                     continue
                 if isinstance(control, EncodingChoice):  # per viewer (docs/protocol.md)
-                    live.choose(viewer, control.encoding)
+                    live.streams.choose(viewer, control.encoding)
                     continue
                 if isinstance(control, KeyframeRequest):
-                    live.want_key(viewer)
+                    live.streams.want_key(viewer)
                     continue
                 live.submit(control)
             except ProtocolError as e:

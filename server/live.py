@@ -31,7 +31,7 @@ from gazehdr.protocol import Control, Encoding, ProtocolError
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.session import Frame, Note, Session, SessionSettings
-from gazehdr.transport import Streams
+from gazehdr.transport import StreamViewers
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
@@ -183,7 +183,7 @@ class LiveSession:
         self.log = log
         self.outlet = outlet
         #: The streams (`av1`) its viewers chose, each encoded once per frame for all of them.
-        self.streams = Streams(session.settings.fps)
+        self.streams = StreamViewers(session.settings.encoding, session.settings.fps, metrics)
         #: The last scene map sent to the viewers that inspect (a viewer that starts to gets it).
         self.scene_map: bytes | None = None
         # A step may still be writing on its thread when the session ends and the log closes.
@@ -264,85 +264,6 @@ class LiveSession:
         while not any(v.wants_frame() for v in self.viewers) and time.monotonic() < deadline:
             await asyncio.sleep(DEMAND_POLL_S)
 
-    def choose(self, viewer: Viewer, encoding: Encoding | None) -> None:
-        """`viewer` gets frames in `encoding` from the next one on (a stream: from a keyframe)."""
-        if encoding is not None and encoding is not self.session.settings.encoding:
-            self.streams.check(encoding)  # a ProtocolError when it cannot be served
-        viewer.encoding, viewer.keyed = encoding, False
-        self.streams.want_key(encoding)
-
-    def want_key(self, viewer: Viewer) -> None:
-        """`viewer` lost its stream: nothing more until a keyframe, which comes next."""
-        viewer.keyed = False
-        self.streams.want_key(viewer.encoding)
-
-    def _offer(self, viewer: Viewer, frame: Frame, notes: list[Note]) -> int:
-        """Put `frame` in the viewer's mailbox; how many frames it missed (0 or 1). A stream's
-        packet is never put in place of one still waiting (the next packet needs it): it is
-        dropped instead, and the viewer waits for a keyframe, which is asked for."""
-        if not self.streams.is_stream(frame.header.encoding):
-            # A viewer out of credit gets the next frame made once it acks, not this one.
-            taken = frame if viewer.has_credit() else None
-            return viewer.mailbox.put(taken, notes) + (taken is None)
-        key = frame.header.keyframe
-        usable = key or (viewer.keyed and viewer.mailbox.frame is None)
-        if usable and viewer.has_credit():
-            viewer.keyed = True
-            return viewer.mailbox.put(frame, notes)
-        viewer.mailbox.put(None, notes)
-        if viewer.keyed or key:
-            self.want_key(viewer)
-        viewer.mailbox.dropped += 1
-        return 1
-
-    def _streamed(self, frames: dict[Encoding, Frame]) -> None:
-        """A frame's streams are encoded (on the event loop): to the viewers that chose them."""
-        m = self.metrics
-        m.encode_seconds.observe(sum(f.encode_seconds for f in frames.values()))
-        for viewer in self.viewers:
-            frame = frames.get(viewer.encoding) if viewer.encoding is not None else None
-            if frame is not None:
-                m.frames_dropped.inc(self._offer(viewer, frame, []))
-
-    def _stream_failed(self, error: BaseException) -> None:
-        log.error("session %s: encoding a stream failed: %s", self.session.id, error)
-        note = {"type": "error", "message": f"encoding failed: {error}", "in": "encoding"}
-        for viewer in self.viewers:
-            if viewer.encoding is not None and self.streams.is_stream(viewer.encoding):
-                viewer.mailbox.put(None, [note])
-
-    def _encode(self, frame: Frame) -> None:
-        """Encode `frame` for the streams viewers chose, on the streams' own thread while the
-        next step runs. It is left out of the stream (which goes on from the last frame it
-        coded: its viewers miss a frame, not a packet) while the last frame is still being
-        encoded, and while a viewer of the stream could not take a packet now (its window is
-        full, or a packet waits unsent): a stream runs at the pace of its slowest viewer, so a
-        slow link gets fewer frames, not gaps and the keyframes they would cost."""
-        raw = self.session.settings.encoding
-        encodings = frozenset(v.encoding for v in self.viewers) - {None, raw}
-        if any(v.encoding in encodings and v.keyed and not v.wants_frame() for v in self.viewers):
-            self._missed(encodings)
-            return
-        loop = asyncio.get_running_loop()
-
-        def done(work: concurrent.futures.Future[dict[Encoding, Frame]]) -> None:
-            error = work.exception() if not work.cancelled() else None
-            with contextlib.suppress(RuntimeError):  # the loop closed: the server stopped
-                if error is not None:
-                    loop.call_soon_threadsafe(self._stream_failed, error)
-                elif not work.cancelled():
-                    loop.call_soon_threadsafe(self._streamed, work.result())
-
-        if not self.streams.submit(frame, encodings, done):
-            self._missed(encodings)
-
-    def _missed(self, encodings: frozenset[Encoding]) -> None:
-        """A frame left out of `encodings`' streams: a dropped frame for each of their viewers."""
-        for viewer in self.viewers:
-            if viewer.encoding in encodings:
-                viewer.mailbox.dropped += 1
-                self.metrics.frames_dropped.inc()
-
     async def run(self) -> None:
         """Step, publish, step again. Once a step is done the next one starts before anything
         else runs on the event loop (no await between): the viewers' tasks send its frame while
@@ -385,12 +306,14 @@ class LiveSession:
                 return
             m.sim_seconds.observe(frame.sim_seconds)
             m.encode_seconds.observe(frame.encode_seconds)
-            self._encode(frame)
+            self.streams.publish(frame, self.viewers)
             for viewer in self.viewers:
-                if viewer.encoding is None or not self.streams.is_stream(viewer.encoding):
-                    m.frames_dropped.inc(self._offer(viewer, frame, notes))
-                else:  # its frame comes once encoded (`_streamed`); the notes now
+                if self.streams.takes(viewer):  # its frame comes once encoded; the notes now
                     viewer.mailbox.put(None, notes)
+                    continue
+                # A viewer out of credit gets the next frame made once it acks, not this one.
+                taken = frame if viewer.has_credit() else None
+                m.frames_dropped.inc(viewer.mailbox.put(taken, notes) + (taken is None))
             # Sleep out the rest of the frame interval, if any: the sockets are served while
             # the next step runs.
             rest = started + interval - time.monotonic()

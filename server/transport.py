@@ -9,15 +9,25 @@ simulating frame N+1.
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
+import contextlib
 import dataclasses
-from collections.abc import Callable
+import logging
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gazehdr import video
+from gazehdr.metrics import Metrics
 from gazehdr.protocol import RAW, Encoding, ProtocolError
 from gazehdr.session import Frame
+
+if TYPE_CHECKING:
+    from gazehdr.live import Viewer
+
+log = logging.getLogger("gazehdr.transport")
 
 #: The encodings made from the raw frame, and how.
 STREAMS = (Encoding.av1,)
@@ -122,3 +132,97 @@ class Streams:
                 frame, header=header, payload=packet.data, encode_seconds=seconds
             )
         return frames
+
+
+class StreamViewers:
+    """A session's viewers that chose a stream: their choice, what they are sent and when.
+
+    A packet is of use to a viewer only after every one since its last keyframe, so a stream's
+    packets are never dropped as raw frames are: a frame is left out of a stream (its viewers
+    miss a frame, the stream stays whole) while the last one is still being encoded, and while a
+    viewer of the stream could not take a packet now (its window is full, or a packet waits
+    unsent): a stream runs at the pace of its slowest viewer, so a slow link gets fewer frames,
+    not gaps and the keyframes they would cost. A viewer that lost its stream anyway (it asked,
+    after a corrupt packet) gets nothing until the keyframe that is then made.
+    """
+
+    def __init__(self, raw: Encoding, fps: float, metrics: Metrics) -> None:
+        self.raw = raw
+        self.metrics = metrics
+        self.streams = Streams(fps)
+
+    def takes(self, viewer: Viewer) -> bool:
+        """Whether `viewer` gets a stream rather than the raw frames."""
+        return viewer.encoding is not None and self.streams.is_stream(viewer.encoding)
+
+    def choose(self, viewer: Viewer, encoding: Encoding | None) -> None:
+        """`viewer` gets frames in `encoding` from the next one on (a stream: from a keyframe);
+        a ProtocolError, and nothing changes, when it cannot be served."""
+        if encoding is not None and encoding is not self.raw:
+            self.streams.check(encoding)
+        viewer.encoding, viewer.keyed = encoding, False
+        self.streams.want_key(encoding)
+
+    def want_key(self, viewer: Viewer) -> None:
+        """`viewer` lost its stream: nothing more until a keyframe, which comes next."""
+        viewer.keyed = False
+        self.streams.want_key(viewer.encoding)
+
+    def publish(self, frame: Frame, viewers: Iterable[Viewer]) -> None:
+        """Encode `frame` for the streams `viewers` chose, on the streams' thread while the
+        next step runs; each packet then goes to their mailboxes, on the event loop."""
+        viewers = list(viewers)
+        encodings = frozenset(v.encoding for v in viewers if self.takes(v))
+        if any(v.encoding in encodings and v.keyed and not v.wants_frame() for v in viewers):
+            self._missed(viewers, encodings)
+            return
+        loop = asyncio.get_running_loop()
+
+        def done(work: concurrent.futures.Future[dict[Encoding, Frame]]) -> None:
+            with contextlib.suppress(RuntimeError):  # the loop closed: the server stopped
+                if work.cancelled():
+                    return
+                if (error := work.exception()) is not None:
+                    loop.call_soon_threadsafe(self._failed, viewers, error)
+                else:
+                    loop.call_soon_threadsafe(self._deliver, viewers, work.result())
+
+        if not self.streams.submit(frame, encodings, done):
+            self._missed(viewers, encodings)
+
+    def close(self) -> None:
+        self.streams.close()
+
+    def _deliver(self, viewers: list[Viewer], frames: dict[Encoding, Frame]) -> None:
+        m = self.metrics
+        m.encode_seconds.observe(sum(f.encode_seconds for e, f in frames.items() if e in STREAMS))
+        for viewer in viewers:
+            frame = frames.get(viewer.encoding) if self.takes(viewer) else None
+            if frame is not None:
+                m.frames_dropped.inc(self._offer(viewer, frame))
+
+    def _offer(self, viewer: Viewer, frame: Frame) -> int:
+        """Put a packet in the viewer's mailbox, never in place of one still waiting (the next
+        packet needs it); how many frames it missed (0 or 1)."""
+        key = frame.header.keyframe
+        if (key or (viewer.keyed and viewer.mailbox.frame is None)) and viewer.has_credit():
+            viewer.keyed = True
+            return viewer.mailbox.put(frame)
+        if viewer.keyed or key:
+            self.want_key(viewer)
+        viewer.mailbox.dropped += 1
+        return 1
+
+    def _failed(self, viewers: list[Viewer], error: BaseException) -> None:
+        log.error("encoding a stream failed: %s", error)
+        note = {"type": "error", "message": f"encoding failed: {error}", "in": "encoding"}
+        for viewer in viewers:
+            if self.takes(viewer):
+                viewer.mailbox.put(None, [note])
+
+    def _missed(self, viewers: list[Viewer], encodings: frozenset[Encoding]) -> None:
+        """A frame left out of `encodings`' streams: a dropped frame for each of their viewers."""
+        for viewer in viewers:
+            if viewer.encoding in encodings:
+                viewer.mailbox.dropped += 1
+                self.metrics.frames_dropped.inc()
