@@ -15,7 +15,7 @@ import contextlib
 import dataclasses
 import logging
 from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -23,9 +23,6 @@ from gazehdr import video
 from gazehdr.metrics import Metrics
 from gazehdr.protocol import RAW, Encoding, ProtocolError
 from gazehdr.session import Frame
-
-if TYPE_CHECKING:
-    from gazehdr.live import Viewer
 
 log = logging.getLogger("gazehdr.transport")
 
@@ -132,6 +129,18 @@ class Streams:
                 frame, header=header, payload=packet.data, encode_seconds=seconds
             )
         return frames
+
+
+class Viewer(Protocol):
+    """What this module needs of a viewer (gazehdr.live.Viewer, which imports this module)."""
+
+    encoding: Encoding | None
+    keyed: bool
+    mailbox: Any  # gazehdr.live.Mailbox: `frame`, `dropped`, `put`
+
+    def has_credit(self) -> bool: ...
+
+    def wants_frame(self) -> bool: ...
 
 
 class StreamViewers:
