@@ -47,15 +47,7 @@ async ([packets, width, height, frames]) => {
     await new Promise((ok) => setTimeout(ok, 10));  // the last copyTo
   }
   r.uploadYuv(planes);
-  const n = width * height;
-  const out = new Uint8Array(frames * n * 3);
-  for (let k = 0; k < frames; k++) {
-    r.draw(k);
-    const px = r.readPixels();
-    for (let i = 0; i < n; i++) {
-      for (let c = 0; c < 3; c++) out[(k * n + i) * 3 + c] = px[i * 4 + c];
-    }
-  }
+  const out = window.__drawFrames(r, frames);
   return [window.__b64(out.buffer), window.__b64(planes.data.buffer), planes.layout,
           stream.stats.decoded, lost];
 }
