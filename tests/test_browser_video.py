@@ -114,6 +114,11 @@ def test_viewer_shows_av1_frames_and_recovers_from_a_corrupt_packet(
     viewer.wait("() => window.gazehdr.lastHeader.encoding === 3")
     assert viewer.js("() => window.gazehdr.encodingRefused") is None
     viewer.wait("() => window.gazehdr.video.stats.decoded >= 3")
+    # A remote viewer gets no scene maps (20 MB at 1080p) until it shows the inspector.
+    assert viewer.js("() => window.gazehdr.sceneMaps") == 0
+    viewer.page.keyboard.press("i")
+    viewer.wait("() => window.gazehdr.sceneMaps > 0")
+    viewer.page.keyboard.press("i")
 
     # The canvas shows the decoded picture: each pixel one of the two 8-bit levels around its
     # decoded value (the planes and the drawing read back in one task).
@@ -159,3 +164,17 @@ def test_viewer_shows_av1_frames_and_recovers_from_a_corrupt_packet(
         "(n) => window.gazehdr.video.stats.decoded > n + 3 && window.gazehdr.video.keyed",
         before[1],
     )
+
+
+def test_a_page_that_cannot_decode_says_why(browser) -> None:
+    """Over plain http from another host there is no WebCodecs (not a secure context): the page
+    is told why in words it can show, rather than failing on the first packet."""
+    page = browser.new_page()
+    try:
+        _serve_web(page)  # http://viewer.test: not a secure context
+        why = page.evaluate("async () => (await import('/video.js')).unsupported()")
+        assert why is not None and "secure context" in why and "https" in why, why
+        _serve_web(page, origin="http://localhost")
+        assert page.evaluate("async () => (await import('/video.js')).unsupported()") is None
+    finally:
+        page.close()

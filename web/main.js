@@ -88,7 +88,7 @@ class Connection {
       this.opened = true;
       stats.connects += 1;
       sendViewport();
-      this.send(messages.sceneMaps(true)); // for the inspector and the false colour
+      this.send(messages.sceneMaps(wantMaps())); // for the inspector and the false colour
       chooseEncoding();
       if (eyesClosed) this.send(messages.eyes(false));
     };
@@ -141,13 +141,21 @@ class Connection {
 
 const conn = new Connection();
 const send = (msg) => conn.send(msg);
+/** Scene maps (10 bytes a pixel: 20 MB at 1080p) feed the inspector and the false colour: on a
+ * raw connection always; on an av1 one, a remote viewer's, only while either is shown. */
+function wantMaps() {
+  return wantedEncoding !== 'av1' || inspector.visible || inspector.falseColour;
+}
+
 const view = {
   falseColour(on = !inspector.falseColour) {
     inspector.setFalseColour(on);
+    send(messages.sceneMaps(wantMaps()));
     panel.showView(inspector.falseColour, inspector.visible);
   },
   inspector(on = !inspector.visible) {
     inspector.toggle(on);
+    send(messages.sceneMaps(wantMaps()));
     panel.showView(inspector.falseColour, inspector.visible);
   },
 };
