@@ -73,23 +73,28 @@ def to_rgb(Y: np.ndarray, U: np.ndarray, V: np.ndarray, size: tuple[int, int]) -
 
 
 KERNEL = f"""
-#define CR_ {CR_}L
-#define CG_ {CG_}L
-#define CB_ {CB_}L
+// 32-bit arithmetic where it fits (a level times a weight: < 2^26; a block's weighted sums:
+// < 2^29), 64-bit only for the two chroma products.
+#define CR_ {CR_}
+#define CG_ {CG_}
+#define CB_ {CB_}
 #define MUL_CB {MUL_CB}L
 #define MUL_CR {MUL_CR}L
 #define BIAS {BIAS}L
 
-long3 level_rgb10(__global const uint *in, int i) {{
+int3 level_rgb10(__global const uint *in, int i) {{
     uint p = in[i];
-    return (long3)(p & 1023u, (p >> 10) & 1023u, (p >> 20) & 1023u);
+    return (int3)(p & 1023u, (p >> 10) & 1023u, (p >> 20) & 1023u);
 }}
-long3 level_half(__global const half *in, int i) {{
+int3 level_half(__global const half *in, int i) {{
     float3 v = clamp(vload_half3(i, in), 0.0f, 1.0f);
-    return convert_long3(rint(v * 1023.0f));
+    return convert_int3(rint(v * 1023.0f));
 }}
-ushort luma(long3 q) {{ return (ushort)((q.x * CR_ + q.y * CG_ + q.z * CB_ + 32768L) >> 16); }}
-ushort chroma(long x) {{ return (ushort)clamp(x >> {SHIFT}, 0L, 1023L); }}
+int weigh(int3 q) {{ return q.x * CR_ + q.y * CG_ + q.z * CB_; }}
+ushort luma(int3 q) {{ return (ushort)((weigh(q) + 32768) >> 16); }}
+ushort chroma(int diff, long mul) {{
+    return (ushort)clamp((diff * mul + BIAS) >> {SHIFT}, 0L, 1023L);
+}}
 
 // One work-item per 2×2 block of the padded (even) frame; `w`, `h`: the frame's size.
 #define CONVERT(name, T, LEVEL) \\
@@ -98,18 +103,18 @@ __kernel void name(__global const T *in, int w, int h, __global ushort *Y, __glo
     int bx = get_global_id(0), by = get_global_id(1); \\
     int w2 = (w + 1) / 2, h2 = (h + 1) / 2; \\
     if (bx >= w2 || by >= h2) return; \\
-    long3 s = (long3)(0); \\
+    int3 s = (int3)(0); \\
     for (int dy = 0; dy < 2; dy++) {{ \\
         for (int dx = 0; dx < 2; dx++) {{ \\
             int x = min(2 * bx + dx, w - 1), y = min(2 * by + dy, h - 1); \\
-            long3 q = LEVEL(in, y * w + x); \\
+            int3 q = LEVEL(in, y * w + x); \\
             Y[(2 * by + dy) * (2 * w2) + 2 * bx + dx] = luma(q); \\
             s += q; \\
         }} \\
     }} \\
-    long ys = s.x * CR_ + s.y * CG_ + s.z * CB_; \\
-    U[by * w2 + bx] = chroma(((s.z << 16) - ys) * MUL_CB + BIAS); \\
-    V[by * w2 + bx] = chroma(((s.x << 16) - ys) * MUL_CR + BIAS); \\
+    int ys = weigh(s); \\
+    U[by * w2 + bx] = chroma((s.z << 16) - ys, MUL_CB); \\
+    V[by * w2 + bx] = chroma((s.x << 16) - ys, MUL_CR); \\
 }}
 CONVERT(yuv_from_rgb10, uint, level_rgb10)
 CONVERT(yuv_from_half, half, level_half)
