@@ -214,9 +214,8 @@ class Stream:
             self._encoder = Encoder(size, self.fps)
             self._want_key.set()
         key = self._want_key.is_set() and started - self._last_key >= MIN_KEY_INTERVAL_S
-        if key:
-            self._want_key.clear()
         packet = self._encoder.encode(frame, key)
-        if packet.key:
+        if packet.key:  # asked for or not (a new encoder starts with one): what was asked
+            self._want_key.clear()
             self._last_key = started
         return packet, time.perf_counter() - started
