@@ -49,7 +49,7 @@ def run_capped(mbit: float, delay_ms: float, argv: list[str]) -> int:
     ns = ["unshare", "--net"] if os.geteuid() == 0 else ["unshare", "-rn"]
     env = {**os.environ, INSIDE: f"{mbit} Mbit/s, {delay_ms} ms delay"}
     done = subprocess.run([*ns, "sh", "-c", f"{setup} && exec {child}"], env=env, check=False)
-    if done.returncode and not os.environ.get(INSIDE):
+    if done.returncode:
         print(f"(the capped run exited {done.returncode})", file=sys.stderr)
     return done.returncode
 
