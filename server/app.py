@@ -32,7 +32,15 @@ from gazehdr.gaze import TrackerFeed
 from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from gazehdr.metrics import Counter, Metrics
 from gazehdr.params_schema import ParamsChange, changed
-from gazehdr.protocol import Ack, ProtocolError, SceneMaps, Warp, parse_control
+from gazehdr.protocol import (
+    Ack,
+    EncodingChoice,
+    KeyframeRequest,
+    ProtocolError,
+    SceneMaps,
+    Warp,
+    parse_control,
+)
 from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes import Scene
@@ -351,7 +359,13 @@ def create_app(config: ServerConfig) -> FastAPI:
                     viewer.want_maps(control.send, live.scene_map)
                     continue
                 if isinstance(control, Warp):
-                    viewer.warp = control.on
+                    live.streams.warp(viewer, control.on)
+                    continue
+                if isinstance(control, EncodingChoice):  # per viewer (docs/protocol.md)
+                    live.streams.choose(viewer, control.encoding)
+                    continue
+                if isinstance(control, KeyframeRequest):
+                    live.streams.want_key(viewer)
                     continue
                 live.submit(control)
             except ProtocolError as e:

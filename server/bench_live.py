@@ -7,6 +7,12 @@ per frame split into simulation, encoding and sending, and the latency from a po
 the first frame that used it, as the page measured it (p50, p95). The same run with a plain
 WebSocket client instead of the browser separates the browser's own cost (on a 2-core machine
 Chromium's software WebGL competes with the simulation for the CPU).
+
+`av1` (gazehdr.video) is a viewer's choice: the session simulates `rgb10a2`, the page opens with
+`?encoding=av1`, the socket client asks for it, acks each frame as the page does and decodes
+every packet (dav1d, as Chromium); frames per second count decoded pictures. `--link-mbit`
+runs the whole benchmark over a capped link (gazehdr.netlink: a network namespace whose
+loopback `tc` shapes), so the raw encodings and `av1` are compared over the same link.
 """
 
 from __future__ import annotations
@@ -21,7 +27,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from gazehdr.protocol import Encoding, decode_frame
+from gazehdr import netlink
+from gazehdr.protocol import RAW, Encoding, split_frame
 
 CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -67,15 +74,20 @@ def _percentiles(values: list[float]) -> tuple[float, float]:
     return statistics.median(values), q[18]
 
 
-def run_browser(live, size: tuple[int, int], seconds: float, warmup: float) -> dict[str, float]:
+def run_browser(
+    live, size: tuple[int, int], seconds: float, warmup: float, encoding: Encoding
+) -> dict[str, float]:
     from playwright.sync_api import sync_playwright
 
     w, h = size
+    stream = encoding not in RAW
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": w, "height": h})
-        page.goto(live.url + "/")
-        page.wait_for_function("window.gazehdr && window.gazehdr.stats.received > 2", timeout=60e3)
+        page.goto(live.url + (f"/?encoding={encoding.name}" if stream else "/"))
+        page.wait_for_function("window.gazehdr && window.gazehdr.stats.received > 2", timeout=180e3)
+        if stream:
+            page.wait_for_function("window.gazehdr.video.stats.decoded > 2", timeout=180e3)
         rng = random.Random(0)
 
         def wiggle(duration: float) -> None:
@@ -85,7 +97,8 @@ def run_browser(live, size: tuple[int, int], seconds: float, warmup: float) -> d
                 page.wait_for_timeout(100)
 
         wiggle(warmup)
-        read = "(() => { const s = window.gazehdr.stats; return [s.received, s.latency.total] })()"
+        count = "window.gazehdr.video.stats.decoded" if stream else "s.received"
+        read = f"(() => {{ const s = window.gazehdr.stats; return [{count}, s.latency.total] }})()"
         received0, lat0 = page.evaluate(read)
         before, t0 = _server_snapshot(live.metrics), time.monotonic()
         latencies: list[float] = []
@@ -112,12 +125,21 @@ def run_browser(live, size: tuple[int, int], seconds: float, warmup: float) -> d
     }
 
 
-async def _socket_client(live, seconds: float, warmup: float) -> dict[str, float]:
+async def _socket_client(
+    live, seconds: float, warmup: float, encoding: Encoding
+) -> dict[str, float]:
     import websockets
+
+    from gazehdr.video import Decoder
 
     async with websockets.connect(
         f"{live.ws_url}/ws/view", max_size=None, additional_headers=live.auth
     ) as ws:
+        stream = encoding not in RAW
+        decoder = Decoder() if stream else None
+        decode_s, lost = 0.0, 0
+        if stream:
+            await ws.send(json.dumps({"type": "encoding", "name": encoding.name}))
         sent: dict[int, float] = {}
         latencies: list[float] = []
         seq, frames, t0 = 0, 0, None
@@ -140,7 +162,20 @@ async def _socket_client(live, seconds: float, warmup: float) -> dict[str, float
             message = await ws.recv()
             if isinstance(message, str):
                 continue
-            header, _ = decode_frame(message)
+            header, payload = split_frame(message)
+            if decoder is not None:
+                await ws.send(json.dumps({"type": "ack", "frame": header.frame}))
+                started = time.perf_counter()
+                try:
+                    decoder.planes(bytes(payload), header.keyframe)
+                except ValueError:  # a gap or a bad packet: as the page does
+                    lost += 1
+                    await ws.send(json.dumps({"type": "keyframe"}))
+                    continue
+                finally:
+                    decode_s += time.perf_counter() - started
+            if header.encoding is not encoding:
+                continue  # raw frames made before the choice took effect
             frames += 1
             if header.gaze_seq in sent and t0 is not None:
                 latencies.append(1e3 * (time.monotonic() - sent.pop(header.gaze_seq)))
@@ -154,6 +189,8 @@ async def _socket_client(live, seconds: float, warmup: float) -> dict[str, float
         "lat_p50": p50,
         "lat_p95": p95,
         "lat_n": len(latencies),
+        "decode_ms": 1e3 * decode_s / max(frames, 1),
+        "lost": lost,
         **_server_figures(before, after),
     }
 
@@ -167,37 +204,58 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--warmup", type=float, default=3.0)
+    parser.add_argument(
+        "--link-mbit",
+        type=float,
+        help="run over a link of this many Mbit/s (a network namespace, loopback shaped by tc)",
+    )
+    parser.add_argument("--link-delay-ms", type=float, default=0.0, help="and this delay each way")
     args = parser.parse_args(argv)
+    if args.link_mbit and netlink.link() is None:
+        import sys
+
+        return netlink.run_capped(
+            args.link_mbit, args.link_delay_ms, sys.argv[1:] if argv is None else argv
+        )
 
     from gazehdr.app import ServerConfig
     from gazehdr.serve import BackgroundServer
     from gazehdr.session import SessionSettings
 
+    print(f"link: {netlink.link() or 'loopback, not shaped'}")
     print(
         f"{'size':>10} {'encoding':>8} {'client':>7} {'fps':>6} {'KiB/frame':>10} "
-        f"{'sim ms':>7} {'enc ms':>7} {'send ms':>7} {'lat p50':>8} {'lat p95':>8} {'n':>4}"
+        f"{'sim ms':>7} {'enc ms':>7} {'send ms':>7} {'lat p50':>8} {'lat p95':>8} {'n':>4} "
+        f"{'Mbit/s':>7} {'dec ms':>7} {'lost':>4}"
     )
     for size in (_size(s) for s in args.sizes.split(",")):
         for encoding in args.encodings.split(","):
             for client in args.clients.split(","):
+                chosen = Encoding[encoding]
                 settings = SessionSettings(
                     width=size[0], height=size[1], fps=args.fps, scene=args.scene,
-                    encoding=Encoding[encoding], fit_viewport=False,
+                    encoding=chosen if chosen in RAW else Encoding.rgb10a2, fit_viewport=False,
                 )  # fmt: skip
                 with tempfile.TemporaryDirectory() as data:
                     live = BackgroundServer(ServerConfig(session=settings, data_dir=Path(data)))
                     try:
                         if client == "browser":
-                            r = run_browser(live, size, args.seconds, args.warmup)
+                            r = run_browser(live, size, args.seconds, args.warmup, chosen)
                         else:
-                            r = asyncio.run(_socket_client(live, args.seconds, args.warmup))
+                            r = asyncio.run(_socket_client(live, args.seconds, args.warmup, chosen))
                     finally:
                         live.stop()
                 print(
                     f"{size[0]:>5}x{size[1]:<4} {encoding:>8} {client:>7} {r['fps']:6.1f} "
                     f"{r['bytes_per_frame'] / 1024:10.0f} {r['sim_ms']:7.1f} "
                     f"{r['encode_ms']:7.2f} {r['send_ms']:7.2f} {r['lat_p50']:8.0f} "
-                    f"{r['lat_p95']:8.0f} {r['lat_n']:4d}",
+                    f"{r['lat_p95']:8.0f} {r['lat_n']:4d} "
+                    f"{r['bytes_per_frame'] * 8 * r['fps'] / 1e6:7.1f} "
+                    f"{r.get('decode_ms', float('nan')):7.2f} {r.get('lost', 0):4d}",
                     flush=True,
                 )
     return 0
+
+
+if __name__ == "__main__":  # what gazehdr.netlink runs in its namespace
+    raise SystemExit(main())

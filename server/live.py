@@ -27,10 +27,11 @@ from gazehdr import heap
 from gazehdr.drivers.sessionlog import SessionLogWriter
 from gazehdr.gaze import Trackers
 from gazehdr.metrics import Metrics
-from gazehdr.protocol import Control, ProtocolError
+from gazehdr.protocol import Control, Encoding, ProtocolError
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.session import Frame, Note, Session, SessionSettings
+from gazehdr.transport import StreamViewers
 
 log = logging.getLogger("gazehdr.live")
 MAX_NOTES = 64  # JSON notes waiting for one viewer; beyond this the oldest go
@@ -100,6 +101,10 @@ class Viewer:
         self.warp = False  # whether it asked for late-warp frames (gazehdr.warp)
         #: Its task waits on the mailbox with credit: a frame put now is on its way at once.
         self.taking = False
+        #: The encoding it asked for (None: the session's); for a stream (`av1`), whether it
+        #: has every packet since its last keyframe, so the next delta packet is of use to it.
+        self.encoding: Encoding | None = None
+        self.keyed = False
 
     def want_maps(self, send: bool, latest: bytes | None) -> None:
         """Scene maps on or off; on, the latest one comes at once (the page has none yet)."""
@@ -180,6 +185,8 @@ class LiveSession:
         self.closing: asyncio.TimerHandle | None = None
         self.log = log
         self.outlet = outlet
+        #: The streams (`av1`) its viewers chose, each encoded once per frame for all of them.
+        self.streams = StreamViewers(session.settings.encoding, session.settings.fps, metrics)
         #: The last scene map sent to the viewers that inspect (a viewer that starts to gets it).
         self.scene_map: bytes | None = None
         # A step may still be writing on its thread when the session ends and the log closes.
@@ -270,7 +277,13 @@ class LiveSession:
         """Step, publish, step again. Once a step is done the next one starts before anything
         else runs on the event loop (no await between): the viewers' tasks send its frame while
         the next is simulated, and that step reads the gaze (`Session.pointer`, a tracker) when
-        it starts, on its thread."""
+        it starts, on its thread. Streams are encoded on a thread of their own meanwhile."""
+        try:
+            await self._run()
+        finally:
+            self.streams.close()
+
+    async def _run(self) -> None:
         interval = 1.0 / self.session.settings.fps
         last: float | None = None
         m = self.metrics
@@ -303,7 +316,11 @@ class LiveSession:
                 return
             m.sim_seconds.observe(frame.sim_seconds)
             m.encode_seconds.observe(frame.encode_seconds)
+            self.streams.publish(frame, self.viewers)
             for viewer in self.viewers:
+                if self.streams.takes(viewer):  # its frame comes once encoded; the notes now
+                    viewer.mailbox.put(None, notes)
+                    continue
                 # A viewer out of credit gets the next frame made once it acks, not this one.
                 taken = frame if viewer.has_credit() else None
                 m.frames_dropped.inc(viewer.mailbox.put(taken, notes) + (taken is None))

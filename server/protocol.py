@@ -30,16 +30,23 @@ GAZE_RANGE = (-3.0, 4.0)
 FLAG_EYES_OPEN = 1
 FLAG_TRACKER = 2
 FLAG_SPLIT = 4
+FLAG_KEYFRAME = 8  # `av1`: the packet starts the stream again (it needs no earlier one)
 
 
 class Encoding(IntEnum):
-    """Pixel payloads. Both keep at least 10 bits of `v` everywhere (SPEC §2.4)."""
+    """Pixel payloads. The raw ones keep at least 10 bits of `v` everywhere (SPEC §2.4); `av1`
+    is lossy, 10-bit Y'CbCr 4:2:0, for viewers on another machine (gazehdr.video)."""
 
     f16 = 1  # RGB half floats: 11 significant bits, finer still in the darks
     rgb10a2 = 2  # 10 bits per channel packed in a u32, as WebGL2's RGB10_A2 texture takes it
+    av1 = 3  # one AV1 packet of a stream: needs the ones since the last keyframe
     #: The late gaze warp (gazehdr.warp): what compose makes before Eq. 12 and the afterimage
     #: maps, composed by the viewer at its newest gaze. Per viewer (`Warp`), never a session's.
     warp = 16
+
+
+#: Encodings a session's simulator writes (the others are made from one of these per viewer).
+RAW = (Encoding.f16, Encoding.rgb10a2)
 
 
 #: The `Simulator.step` output that is each encoding's payload.
@@ -72,12 +79,15 @@ class FrameHeader:
     dropped: int = 0
     #: Two panes side by side, each `width // 2` px wide (see docs/protocol.md).
     split: bool = False
+    #: `av1`: this packet is a keyframe.
+    keyframe: bool = False
 
     def pack(self) -> bytes:
         flags = (
             (FLAG_EYES_OPEN if self.eyes_open else 0)
             | (FLAG_TRACKER if self.tracker else 0)
             | (FLAG_SPLIT if self.split else 0)
+            | (FLAG_KEYFRAME if self.keyframe else 0)
         )
         return _HEADER.pack(
             MAGIC, VERSION, HEADER_BYTES, self.frame & 0xFFFFFFFF, self.gaze_seq & 0xFFFFFFFF,
@@ -141,21 +151,12 @@ def payload(encoded: np.ndarray) -> bytes:
 
 
 def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:
-    """The inverse of a frame message: header and H×W×3 float32 `v` (tests and tools)."""
-    if len(data) < HEADER_BYTES or data[:4] != MAGIC:
-        raise ProtocolError("not a gazehdr frame (bad magic or too short)")
-    fields = _HEADER.unpack_from(data)
-    _, version, header_bytes, frame, seq, t, gx, gy, A, rho, w, h, enc, flags, _, ms, dropped = (
-        fields
-    )
-    if version != VERSION:
-        raise ProtocolError(f"frame version {version}, this reader knows {VERSION}")
-    header = FrameHeader(
-        frame, seq, t, gx, gy, A, rho, w, h, Encoding(enc),
-        bool(flags & FLAG_EYES_OPEN), bool(flags & FLAG_TRACKER), ms, dropped,
-        bool(flags & FLAG_SPLIT),
-    )  # fmt: skip
-    payload = memoryview(data)[header_bytes:]
+    """The inverse of a frame message: header and H×W×3 float32 `v` (tests and tools); a warp
+    frame composed at its own gaze."""
+    header, payload = split_frame(data)
+    w, h = header.width, header.height
+    if header.encoding is Encoding.av1:
+        raise ProtocolError("an av1 frame is a packet of a stream: decode it with gazehdr.video")
     if header.encoding is Encoding.warp:  # as the viewer shows it at the frame's own gaze
         return header, warp.compose(warp.unpack(payload, w, h)).astype(np.float32)
     if header.encoding is Encoding.f16:
@@ -164,6 +165,28 @@ def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:
     packed = np.frombuffer(payload, "<u4", count=w * h).reshape(h, w)
     v = np.stack([(packed >> s) & 1023 for s in (0, 10, 20)], axis=-1)
     return header, v.astype(np.float32) / 1023.0
+
+
+def split_frame(data: bytes) -> tuple[FrameHeader, memoryview]:
+    """A frame message's header and its payload, undecoded (any encoding)."""
+    if len(data) < HEADER_BYTES or data[:4] != MAGIC:
+        raise ProtocolError("not a gazehdr frame (bad magic or too short)")
+    fields = _HEADER.unpack_from(data)
+    _, version, header_bytes, frame, seq, t, gx, gy, A, rho, w, h, enc, flags, _, ms, dropped = (
+        fields
+    )
+    if version != VERSION:
+        raise ProtocolError(f"frame version {version}, this reader knows {VERSION}")
+    try:
+        encoding = Encoding(enc)
+    except ValueError:
+        raise ProtocolError(f"unknown frame encoding {enc}") from None
+    header = FrameHeader(
+        frame, seq, t, gx, gy, A, rho, w, h, encoding,
+        bool(flags & FLAG_EYES_OPEN), bool(flags & FLAG_TRACKER), ms, dropped,
+        bool(flags & FLAG_SPLIT), bool(flags & FLAG_KEYFRAME),
+    )  # fmt: skip
+    return header, memoryview(data)[header_bytes:]
 
 
 # --- browser → server control messages ------------------------------------------------------
@@ -247,6 +270,19 @@ class Warp:
 
 
 @dataclass(frozen=True)
+class EncodingChoice:
+    """The encoding this viewer wants (None: the session's); handled per viewer."""
+
+    encoding: Encoding | None
+
+
+@dataclass(frozen=True)
+class KeyframeRequest:
+    """An `av1` viewer lost its stream (a corrupt packet, a decoder error): the next packet it
+    gets is a keyframe. Handled per viewer."""
+
+
+@dataclass(frozen=True)
 class Ack:
     """The viewer took frame `frame`: flow control, handled per viewer, not by the session."""
 
@@ -255,7 +291,7 @@ class Ack:
 
 Control = (
     Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | SceneSettings | SceneMaps
-    | Warp | Reset | Ack
+    | Warp | Reset | Ack | EncodingChoice | KeyframeRequest
 )  # fmt: skip
 SCENE_SETTINGS = {"scale": ((int, float), "a number"), "kind": (str, "a string"),
                   "layer": (str, "a string")}  # fmt: skip
@@ -308,6 +344,21 @@ def _scene_settings(msg: dict[str, Any]) -> SceneSettings:
     return SceneSettings(values)
 
 
+def _encoding_choice(msg: dict[str, Any]) -> EncodingChoice:
+    """`{"type": "encoding", "name": "f16" | "rgb10a2" | "av1" | null}`."""
+    name = msg.get("name")
+    if name is None:
+        return EncodingChoice(None)
+    if name == Encoding.warp.name:
+        raise ProtocolError(
+            'the late gaze warp has a control of its own: {"type": "warp", "on": true}', "encoding"
+        )
+    names = ", ".join(e.name for e in Encoding if e is not Encoding.warp)
+    if not isinstance(name, str) or name not in Encoding.__members__:
+        raise ProtocolError(f"'name' must be one of {names} or null", "encoding")
+    return EncodingChoice(Encoding[name])
+
+
 def parse_control(data: str | bytes) -> Control:
     """One text message from the viewer → a typed control, or `ProtocolError` saying why not."""
     try:
@@ -342,8 +393,12 @@ def parse_control(data: str | bytes) -> Control:
         return Reset()
     if kind == "ack":
         return Ack(_field(msg, "frame", int, "an integer"))
+    if kind == "encoding":
+        return _encoding_choice(msg)
+    if kind == "keyframe":
+        return KeyframeRequest()
     known = (
         "viewport, gaze, eyes, scene, model, gaze_source, params, scene_settings, scene_maps, "
-        "warp, reset, ack"
+        "warp, reset, ack, encoding, keyframe"
     )
     raise ProtocolError(f"unknown message type {kind!r}; known: {known}", kind)

@@ -63,6 +63,20 @@ window.__b64 = (buffer) => {
   }
   return btoa(s);
 };
+// frames × width × height × 3 bytes: the renderer `r` drawing its frame with dither counters
+// 0..frames-1, each drawing read back (RGB, bottom row first).
+window.__drawFrames = (r, frames) => {
+  const n = r.gl.drawingBufferWidth * r.gl.drawingBufferHeight;
+  const out = new Uint8Array(frames * n * 3);
+  for (let k = 0; k < frames; k++) {
+    r.draw(k);
+    const px = r.readPixels();
+    for (let i = 0; i < n; i++) {
+      for (let c = 0; c < 3; c++) out[(k * n + i) * 3 + c] = px[i * 4 + c];
+    }
+  }
+  return out;
+};
 """
 
 
@@ -552,22 +566,14 @@ async ([size, frames, encoding, words]) => {
   const per = encoding === 1 ? 3 : 1;
   for (let i = 0; i < pixels.length; i++) pixels[i] = words[i % per];
   r.upload(size, size, encoding, pixels);
-  const out = new Uint8Array(frames * n * 3);
-  for (let k = 0; k < frames; k++) {
-    r.draw(k);
-    const px = r.readPixels();
-    for (let i = 0; i < n; i++) {
-      for (let c = 0; c < 3; c++) out[(k * n + i) * 3 + c] = px[i * 4 + c];
-    }
-  }
-  return window.__b64(out.buffer);
+  return window.__b64(window.__drawFrames(r, frames).buffer);
 }
 """
 
 
-def _serve_web(page: Any) -> str:
-    """Serve web/ from disk under a made-up origin: the shader needs no server."""
-    origin = "http://viewer.test"
+def _serve_web(page: Any, origin: str = "http://viewer.test") -> str:
+    """Serve web/ from disk under a made-up origin: the shader needs no server. (WebCodecs
+    needs a secure context: `http://localhost` is one.)"""
     types = {".js": "text/javascript", ".html": "text/html", ".css": "text/css"}
 
     def handle(route: Any) -> None:

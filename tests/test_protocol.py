@@ -13,7 +13,7 @@ from gazehdr.metrics import Histogram
 from gazehdr.protocol import (
     HEADER_BYTES,
     MAX_CONTROL_BYTES,
-    SIM_OUTPUT,
+    RAW,
     Choose,
     Encoding,
     Eyes,
@@ -42,7 +42,7 @@ def _header(w: int, h: int, encoding: Encoding) -> FrameHeader:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("encoding", list(SIM_OUTPUT))  # the pixel encodings
+@pytest.mark.parametrize("encoding", RAW)  # av1: tests/test_video.py; warp: tests/test_warp.py
 def test_frame_round_trip(encoding: Encoding) -> None:
     rng = np.random.default_rng(0)
     v = rng.random((5, 7, 3)).astype(np.float32)
@@ -59,7 +59,7 @@ def test_frame_round_trip(encoding: Encoding) -> None:
     assert np.all(np.abs(back - v) <= tol)
 
 
-@pytest.mark.parametrize("encoding", list(SIM_OUTPUT))  # the pixel encodings
+@pytest.mark.parametrize("encoding", RAW)  # av1: tests/test_video.py; warp: tests/test_warp.py
 def test_both_encodings_keep_ten_bits_everywhere(encoding: Encoding) -> None:
     """SPEC §2.4: the dither needs v to at least 1/1024 anywhere in [0, 1], darks included."""
     v = np.linspace(0.0, 1.0, 128 * 1024, dtype=np.float32).reshape(128, 1024, 1).repeat(3, 2)

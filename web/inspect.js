@@ -4,7 +4,7 @@
 // marked. Everything comes from the server's scene map (docs/protocol.md), the last frame and
 // its header: nothing here is estimated.
 
-import { ENCODING, decodeSceneMap, halfToFloat } from './protocol.js';
+import { ENCODING, ENCODING_NAMES, decodeSceneMap, halfToFloat } from './protocol.js';
 
 /** log10 cd/m² spanned by the false colour and the histogram: starlight to a bright sky. The
  * range is absolute, so a change of the scene's scale moves both. */
@@ -31,9 +31,10 @@ export function colourOf(t) {
 const sci = (v) => (!Number.isFinite(v) ? '–' : v === 0 ? '0' : Math.abs(v) >= 1e4 || Math.abs(v) < 1e-2 ? v.toExponential(3) : String(Number(v.toPrecision(4))));
 const toUnit = (logY) => (logY - LOG_RANGE[0]) / (LOG_RANGE[1] - LOG_RANGE[0]);
 
-/** The display value `v` of frame pixel (x, y) from a frame message. */
+/** The display value `v` of frame pixel (x, y) from a frame message; null where the message
+ * holds none: `warp` (composed in the shader, at the newest gaze), `av1` (a stream's packet). */
 function displayValue(payload, header, x, y) {
-  if (header.encoding === ENCODING.WARP) return null; // composed in the shader, at the newest gaze
+  if (header.encoding === ENCODING.WARP || header.encoding === ENCODING.AV1) return null;
   const i = y * header.width + x;
   if (header.encoding === ENCODING.F16) {
     const px = new Uint16Array(payload, header.header_bytes + i * 6, 3);
@@ -119,6 +120,7 @@ export class Inspector {
     return {
       x, y, pane: header.split ? (right ? 'right' : 'left') : null, rgb, Y,
       log10Y: Math.log10(Y), display: displayValue(payload, header, fxPx, y),
+      encoding: ENCODING_NAMES[header.encoding],
       rho: m.rho[i], adaptation: header.adaptation,
     }; // prettier-ignore
   }
@@ -142,7 +144,9 @@ export class Inspector {
         `pixel ${r.x}, ${r.y}${where}`,
         `RGB  ${r.rgb.map(sci).join('  ')} cd/m²`,
         `Y    ${sci(r.Y)} cd/m² · log10 ${r.log10Y.toFixed(3)}`,
-        `v    ${r.display ? r.display.map((v) => v.toFixed(4)).join('  ') : '– (late gaze warp)'}`,
+        r.display
+          ? `v    ${r.display.map((v) => v.toFixed(4)).join('  ')}`
+          : `v    – (${r.encoding} frames: not read)`,
         `eye  A = ${r.adaptation.toFixed(2)} (${sci(10 ** r.adaptation)} cd/m²) · ρ here ${r.rho.toFixed(2)}`,
       );
     }

@@ -1,8 +1,9 @@
 // Wiring: the /ws/view connection (with reconnect), input (pointer = gaze, keys), and the draw
 // loop. The server does the simulation; this page displays, dithers and reports.
 
-import { binaryKind, decodeFrame, messages, parseText } from './protocol.js';
+import { ENCODING, binaryKind, decodeFrame, messages, parseText } from './protocol.js';
 import { Renderer } from './renderer.js';
+import { VideoStream, unsupported } from './video.js';
 import { Hud, RateMeter, Ring, SplitOverlay } from './hud.js';
 import { Inspector } from './inspect.js';
 import { Panel } from './panel.js';
@@ -47,6 +48,7 @@ const stats = {
   errors: 0,
   gazeSent: 0, // seq of the last gaze sent
   connects: 0, // sockets opened, reconnects included
+  keyRequests: 0, // av1: keyframes asked for after the stream broke
 };
 const state = {}; // the last hello/state from the server
 // Late gaze warp (warp.js): afterimages placed at the newest pointer at every display refresh.
@@ -89,8 +91,9 @@ class Connection {
       this.opened = true;
       stats.connects += 1;
       sendViewport();
-      this.send(messages.sceneMaps(true)); // for the inspector and the false colour
+      this.send(messages.sceneMaps(wantMaps())); // for the inspector and the false colour
       if (warpOn) this.send(messages.warp(true));
+      chooseEncoding();
       if (eyesClosed) this.send(messages.eyes(false));
     };
     ws.onmessage = (ev) => (typeof ev.data === 'string' ? onText(ev.data) : onBinary(ev.data));
@@ -142,13 +145,21 @@ class Connection {
 
 const conn = new Connection();
 const send = (msg) => conn.send(msg);
+/** Scene maps (10 bytes a pixel: 20 MB at 1080p) feed the inspector and the false colour: on a
+ * raw connection always; on an av1 one, a remote viewer's, only while either is shown. */
+function wantMaps() {
+  return wantedEncoding !== 'av1' || inspector.visible || inspector.falseColour;
+}
+
 const view = {
   falseColour(on = !inspector.falseColour) {
     inspector.setFalseColour(on);
+    send(messages.sceneMaps(wantMaps()));
     panel.showView(inspector.falseColour, inspector.visible);
   },
   inspector(on = !inspector.visible) {
     inspector.toggle(on);
+    send(messages.sceneMaps(wantMaps()));
     panel.showView(inspector.falseColour, inspector.visible);
   },
   /** The late gaze warp on or off (the server switches this viewer's frames). */
@@ -178,6 +189,35 @@ function showStatus(now) {
 
 let lastHeader = null;
 let pending = null; // newest decoded frame not yet uploaded: upload only what gets drawn
+let pendingPlanes = null; // the same for av1: the newest decoded picture's planes
+
+// ?encoding=av1 (or f16, rgb10a2) asks the server for that encoding for this page; av1 only
+// where this browser can decode it, else the page says why and keeps the raw frames.
+const wantedEncoding = new URLSearchParams(location.search).get('encoding');
+const video = new VideoStream(
+  (planes) => {
+    if (!pendingPlanes || planes.frame > pendingPlanes.frame) pendingPlanes = planes;
+  },
+  (why) => {
+    stats.keyRequests += 1;
+    console.warn(`av1 stream lost (${why}): asking for a keyframe`);
+    send(messages.keyframe());
+  },
+);
+
+async function chooseEncoding() {
+  if (!wantedEncoding) return;
+  video.keyed = false; // a new connection: its stream starts with a keyframe
+  if (wantedEncoding === 'av1') {
+    const why = await unsupported();
+    if (why) {
+      api.encodingRefused = why;
+      toast(`no av1 frames: ${why}; showing the server's raw frames`, 10000);
+      return;
+    }
+  }
+  send(messages.encoding(wantedEncoding));
+}
 let lastPayload = null;
 const gazeSentAt = new Float64Array(SEQ_RING);
 let gazeSeq = 0;
@@ -218,7 +258,8 @@ function onFrame(buffer) {
   lastHeader = h;
   lastPayload = buffer;
   hud.plot.record(h);
-  pending = frame;
+  if (h.encoding === ENCODING.AV1) video.decode(h, frame.packet);
+  else pending = frame;
   api.lastHeader = h;
   api.lastPayload = buffer;
 }
@@ -435,6 +476,10 @@ function tick(now) {
     renderer.upload(h.width, h.height, h.encoding, pixels);
     api.shown = h; // the header of the frame on the screen
   }
+  if (pendingPlanes) {
+    renderer.uploadYuv(pendingPlanes);
+    pendingPlanes = null;
+  }
   renderer.fitToCSS();
   flushGaze();
   // Every display frame: the dither noise must change even without new frames, and a warp
@@ -457,7 +502,7 @@ function tick(now) {
 // For tests and debugging; keep it small.
 const api = {
   state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers, inspector,
-  sceneMap: null, sceneMaps: 0, panel, view, hud,
+  sceneMap: null, sceneMaps: 0, panel, view, hud, video, encodingRefused: null,
   shown: null,
   hold: false, // tests: keep showing the current frame (frames still arrive), as a stalled server
 }; // prettier-ignore

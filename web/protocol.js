@@ -7,8 +7,8 @@ export const PROTOCOL = 1;
 export const MAGIC = 'GZHF';
 /** Header size of version 1; later versions may append fields, so readers use header_bytes. */
 export const HEADER_BYTES_V1 = 56;
-export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2, WARP: 16 });
-export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2', 16: 'warp' });
+export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2, AV1: 3, WARP: 16 });
+export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2', 3: 'av1', 16: 'warp' });
 const BYTES_PER_PIXEL = { 1: 6, 2: 4 };
 /** The server refuses gaze outside [-3, 4] frame fractions; clamp rather than get an error. */
 const GAZE_MIN = -3;
@@ -49,6 +49,7 @@ export function decodeHeader(buffer) {
     eyes_open: (flags & 1) !== 0,
     tracker_gaze: (flags & 2) !== 0,
     split: (flags & 4) !== 0, // two panes side by side, each floor(width / 2) px wide
+    keyframe: (flags & 8) !== 0, // av1: the packet needs no earlier one
     server_ms: dv.getFloat32(48, true),
     dropped: dv.getUint32(52, true),
   };
@@ -68,6 +69,11 @@ export function decodeFrame(buffer) {
     } catch (err) {
       throw new ProtocolError(err.message);
     }
+  }
+  if (header.encoding === ENCODING.AV1) {
+    // A packet of a stream (web/video.js decodes it): the bytes, as they came.
+    if (buffer.byteLength === header.header_bytes) throw new ProtocolError('empty av1 packet');
+    return { header, packet: new Uint8Array(buffer, header.header_bytes) };
   }
   const bpp = BYTES_PER_PIXEL[header.encoding];
   if (!bpp) throw new ProtocolError(`unknown frame encoding ${header.encoding}`);
@@ -162,6 +168,10 @@ export const messages = {
   warp: (on) => ({ type: 'warp', on: Boolean(on) }),
   reset: () => ({ type: 'reset' }),
   ack: (frame) => ({ type: 'ack', frame }),
+  /** 'f16', 'rgb10a2', 'av1' or null (the session's raw frames); per viewer. */
+  encoding: (name) => ({ type: 'encoding', name }),
+  /** An av1 viewer lost its stream: the next packet it gets is a keyframe. */
+  keyframe: () => ({ type: 'keyframe' }),
 };
 
 /** Parse a text message; null if it is not a JSON object with a string `type`. */

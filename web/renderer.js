@@ -3,22 +3,56 @@
 // displayed frame, so the mean over time equals v and an 8-bit screen shows >8-bit darks.
 
 import { ENCODING } from './protocol.js';
-import { DITHER, program } from './gl.js';
+import { DITHER, program, texture } from './gl.js';
 import { WarpLayer } from './warp.js';
 
-const FRAGMENT = `#version 300 es
+/** BT.709 luma weights of the av1 encoding's Y'CbCr (gazehdr.video.KR, KB). */
+export const KR = 0.2126;
+export const KB = 0.0722;
+
+// The fragment shader: the dither (gl.js, one for every source) of `frameValue()`, the frame's
+// display value v at this fragment, top row first.
+const fragment = (source) => `#version 300 es
 precision highp float;
 precision highp int;
-uniform sampler2D u_frame;
+precision highp usampler2D;
 in vec2 v_uv;
 out vec4 o_colour;
 ${DITHER}
+${source}
 
-void main() {
-  // Rows arrive top row first; GL textures start at the bottom: flip here, not by copying.
-  vec3 v = clamp(texture(u_frame, vec2(v_uv.x, 1.0 - v_uv.y)).rgb, 0.0, 1.0);
-  o_colour = dither(v);
+void main() { o_colour = dither(clamp(frameValue(), 0.0, 1.0)); }`;
+
+// Raw frames (f16, rgb10a2): an RGB texture, filtered as draw() chooses.
+const RAW_SOURCE = `
+uniform sampler2D u_frame;
+// Rows arrive top row first; GL textures start at the bottom: flip here, not by copying.
+vec3 frameValue() { return texture(u_frame, vec2(v_uv.x, 1.0 - v_uv.y)).rgb; }`;
+
+// av1 frames: the decoder's 10-bit Y'CbCr 4:2:0 planes as integer textures (never an 8-bit
+// image), back to RGB as gazehdr.video.to_rgb does: BT.709 weights, full range, each chroma
+// sample over its 2×2 block; nearest pixel.
+const YUV_SOURCE = `
+uniform usampler2D u_y;
+uniform usampler2D u_cb;
+uniform usampler2D u_cr;
+uniform ivec2 u_size;  // the frame's width and height (the planes may be larger)
+const float KR = ${KR}, KB = ${KB}, KG = 1.0 - KR - KB;
+vec3 frameValue() {
+  ivec2 p = min(ivec2(vec2(v_uv.x, 1.0 - v_uv.y) * vec2(u_size)), u_size - 1);
+  float y = float(texelFetch(u_y, p, 0).r) / 1023.0;
+  float cb = (float(texelFetch(u_cb, p / 2, 0).r) - 512.0) / 1023.0;
+  float cr = (float(texelFetch(u_cr, p / 2, 0).r) - 512.0) / 1023.0;
+  float r = y + 2.0 * (1.0 - KR) * cr;
+  float b = y + 2.0 * (1.0 - KB) * cb;
+  return vec3(r, (y - KR * r - KB * b) / KG, b);
 }`;
+
+/** A linked program of `source` and the locations of its `uniforms`. */
+function link(gl, source, uniforms) {
+  const p = program(gl, fragment(source));
+  return { program: p, at: Object.fromEntries(uniforms.map((u) => [u, gl.getUniformLocation(p, u)])) };
+}
 
 export class Renderer {
   /**
@@ -41,15 +75,13 @@ export class Renderer {
     this.counter = 0;
     this.frame = null; // {width, height, encoding} of the uploaded texture
 
-    this.program = program(gl, FRAGMENT);
-    this.uCounter = gl.getUniformLocation(this.program, 'u_counter');
+    this.raw = link(gl, RAW_SOURCE, ['u_counter']);
+    this.yuv = link(gl, YUV_SOURCE, ['u_counter', 'u_y', 'u_cb', 'u_cr', 'u_size']);
     this.warp = null; // the late gaze warp's layers and program (warp.js), made on first use
     this.vao = gl.createVertexArray();
-    this.texture = gl.createTexture();
-    gl.bindTexture(gl.TEXTURE_2D, this.texture);
-    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
-    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
-    this.filter = null;
+    this.texture = texture(gl); // draw() sets its filter
+    this.filter = gl.NEAREST;
+    this.planes = [0, 1, 2].map(() => texture(gl)); // av1: Y', Cb, Cr
   }
 
   /**
@@ -78,6 +110,31 @@ export class Renderer {
       gl.texImage2D(gl.TEXTURE_2D, 0, internal, width, height, 0, format, type, pixels);
       this.frame = { width, height, encoding };
     }
+  }
+
+  /**
+   * Upload one av1 frame as web/video.js copied it out of its VideoFrame: `data` (Uint16Array)
+   * holds the 10-bit Y', Cb and Cr planes at `layout` ([{offset, stride}] in bytes), the
+   * picture `width`×`height` (the frame's), chroma half that, rounded up.
+   */
+  uploadYuv({ width, height, data, layout }) {
+    const gl = this.gl;
+    const sizes = [[width, height], ...Array(2).fill([Math.ceil(width / 2), Math.ceil(height / 2)])];
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 2);
+    for (let i = 0; i < 3; i++) {
+      const [w, h] = sizes[i];
+      gl.bindTexture(gl.TEXTURE_2D, this.planes[i]);
+      gl.pixelStorei(gl.UNPACK_ROW_LENGTH, layout[i].stride / 2);
+      const f = this.frame;
+      const again = f && f.encoding === ENCODING.AV1 && f.width === width && f.height === height;
+      if (again) {
+        gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED_INTEGER, gl.UNSIGNED_SHORT, data, layout[i].offset / 2);
+      } else {
+        gl.texImage2D(gl.TEXTURE_2D, 0, gl.R16UI, w, h, 0, gl.RED_INTEGER, gl.UNSIGNED_SHORT, data, layout[i].offset / 2);
+      }
+    }
+    gl.pixelStorei(gl.UNPACK_ROW_LENGTH, 0);
+    this.frame = { width, height, encoding: ENCODING.AV1 };
   }
 
   /** Match the drawing buffer to the canvas's CSS size × devicePixelRatio; true if changed. */
@@ -132,15 +189,28 @@ export class Renderer {
       this.warp.draw(counter, gaze, magnified);
       return;
     }
-    const filter = magnified ? gl.LINEAR : gl.NEAREST;
-    gl.bindTexture(gl.TEXTURE_2D, this.texture);
-    if (filter !== this.filter) {
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, filter);
-      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
-      this.filter = filter;
+    const { program, at } = this.frame.encoding === ENCODING.AV1 ? this.yuv : this.raw;
+    gl.useProgram(program);
+    if (program === this.yuv.program) {
+      for (let i = 0; i < 3; i++) {
+        gl.activeTexture(gl.TEXTURE0 + i);
+        gl.bindTexture(gl.TEXTURE_2D, this.planes[i]);
+      }
+      gl.uniform1i(at.u_y, 0);
+      gl.uniform1i(at.u_cb, 1);
+      gl.uniform1i(at.u_cr, 2);
+      gl.uniform2i(at.u_size, this.frame.width, this.frame.height);
+      gl.activeTexture(gl.TEXTURE0);
+    } else {
+      const filter = magnified ? gl.LINEAR : gl.NEAREST;
+      gl.bindTexture(gl.TEXTURE_2D, this.texture);
+      if (filter !== this.filter) {
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, filter);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
+        this.filter = filter;
+      }
     }
-    gl.useProgram(this.program);
-    gl.uniform1ui(this.uCounter, counter >>> 0);
+    gl.uniform1ui(at.u_counter, counter >>> 0);
     gl.bindVertexArray(this.vao);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
     gl.bindVertexArray(null);

@@ -129,6 +129,8 @@ def message_seeds() -> None:
         {"type": "scene_maps", "send": True},
         {"type": "reset"},
         {"type": "ack", "frame": 12},
+        {"type": "encoding", "name": "av1"},
+        {"type": "keyframe"},
     ]
     for m in control:
         put("control", m["type"], json.dumps(m).encode())
