@@ -328,6 +328,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         viewer.mailbox.put(None, [{**hello, **live.session.state()}])
         tasks = [
             asyncio.create_task(viewer.pump()),
+            asyncio.create_task(viewer.pump_gaze()),
             asyncio.create_task(_receive_controls(ws, live, viewer)),
         ]
         try:
@@ -359,7 +360,7 @@ def create_app(config: ServerConfig) -> FastAPI:
                     viewer.want_maps(control.send, live.scene_map)
                     continue
                 if isinstance(control, Warp):
-                    live.streams.warp(viewer, control.on)
+                    live.set_warp(viewer, control.on)
                     continue
                 if isinstance(control, EncodingChoice):  # per viewer (docs/protocol.md)
                     live.streams.choose(viewer, control.encoding)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -151,9 +152,12 @@ class TrackerFeed(LatestGaze):
     Written on the event loop only (one connection at a time per feed); `reading` and
     `known` are frozen objects swapped in whole, so sessions read them from any thread."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, moved: Callable[[TrackerFeed], None] | None = None) -> None:
         super().__init__()
         self.name = name
+        #: Called (on the event loop) with this feed after each new reading: the server
+        #: forwards it to the viewers that warp (`gazehdr.live.LiveSession.forward_gaze`).
+        self.moved = moved
         self.connected = False
         self.samples = 0  # samples received, over every connection under this name
         self.events = 0  # fixation and blink events received, likewise
@@ -201,6 +205,8 @@ class TrackerFeed(LatestGaze):
         r = self.reading
         x, y = (r.x, r.y) if x is None or y is None else (x, y)
         self.reading = GazeReading(x, y, eyes_open, received_at=now)
+        if self.moved is not None:
+            self.moved(self)
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "connected": self.connected, "samples": self.samples}
@@ -214,6 +220,8 @@ class Trackers:
     def __init__(self) -> None:
         self._feeds: dict[str, TrackerFeed] = {}
         self._lock = threading.Lock()
+        #: Called (on the event loop) with a feed whenever it has a new reading (`listen`).
+        self._listeners: list[Callable[[TrackerFeed], None]] = []
         #: Open daemon connections, hello or not (counted on the event loop).
         self.connections = 0
 
@@ -256,8 +264,17 @@ class Trackers:
         """What the viewers' panel lists."""
         return [f.describe() for f in self.feeds()]
 
+    def listen(self, listener: Callable[[TrackerFeed], None]) -> None:
+        """Have `listener` called with each feed that has a new reading, as it arrives: the
+        sessions step at their own rate, their viewers may want the gaze sooner."""
+        self._listeners.append(listener)
+
+    def _moved(self, feed: TrackerFeed) -> None:
+        for listener in self._listeners:
+            listener(feed)
+
     def _new(self, name: str) -> TrackerFeed:
         if len(self._feeds) >= MAX_TRACKERS:
             raise ValueError(f"this server knows {MAX_TRACKERS} tracker names already")
-        feed = self._feeds[name] = TrackerFeed(name)
+        feed = self._feeds[name] = TrackerFeed(name, self._moved)
         return feed

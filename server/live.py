@@ -25,7 +25,7 @@ from typing import Any
 
 from gazehdr import heap
 from gazehdr.drivers.sessionlog import SessionLogWriter
-from gazehdr.gaze import Trackers
+from gazehdr.gaze import REMOTE_PREFIX, GazeReading, TrackerFeed, Trackers
 from gazehdr.metrics import Metrics
 from gazehdr.protocol import Control, Encoding, ProtocolError
 from gazehdr.recordings import RecordingLibrary
@@ -105,12 +105,33 @@ class Viewer:
         #: has every packet since its last keyframe, so the next delta packet is of use to it.
         self.encoding: Encoding | None = None
         self.keyed = False
+        # The newest tracker gaze for the warp not yet sent (`forward_gaze`): one slot, sent by
+        # a task of its own, so it never waits for credit or behind a frame in the mailbox.
+        self._gaze: dict[str, Any] | None = None
+        self._gaze_ready = asyncio.Event()
 
     def want_maps(self, send: bool, latest: bytes | None) -> None:
         """Scene maps on or off; on, the latest one comes at once (the page has none yet)."""
         self.maps = send
         if send and latest is not None:
             self.mailbox.put(None, [latest])
+
+    def forward_gaze(self, note: dict[str, Any] | None) -> None:
+        """Send `note` (a `gaze` note) next, in place of any not yet sent; None: drop that one."""
+        self._gaze = note
+        if note is not None:
+            self._gaze_ready.set()
+
+    async def pump_gaze(self) -> None:
+        """Send the forwarded gaze as it comes, only ever the newest: beside `pump`, not after
+        it, so a frame waiting for its ack never holds the gaze back."""
+        while True:
+            await self._gaze_ready.wait()
+            self._gaze_ready.clear()
+            note, self._gaze = self._gaze, None
+            if note is not None:
+                await self._send_json(note)
+                self._metrics.gaze_forwarded.inc()
 
     def ack(self) -> None:
         self.acks = min(self.acks + 1, self.sent)
@@ -164,6 +185,13 @@ class Viewer:
             m.bytes_sent.inc(len(message))
             if frame.gaze_received_at is not None:
                 m.gaze_latency.observe(sent - frame.gaze_received_at)
+
+
+def gaze_note(reading: GazeReading) -> dict[str, Any]:
+    """A tracker's gaze as forwarded to a viewer that warps (docs/protocol.md `gaze`): frame
+    fractions, and `t`, when it reached the server (monotonic s: only differences count)."""
+    t = reading.received_at
+    return {"type": "gaze", "x": reading.x, "y": reading.y, "t": t, "eyes_open": reading.eyes_open}
 
 
 class LiveSession:
@@ -265,6 +293,31 @@ class LiveSession:
         for viewer in self.viewers:
             viewer.mailbox.put(None, [note])
 
+    def set_warp(self, viewer: Viewer, on: bool) -> None:
+        """The late gaze warp on or off for `viewer` (a ProtocolError where it cannot be); on,
+        with a tracker as the gaze, the newest gaze that tracker sent goes to it at once."""
+        self.streams.warp(viewer, on)
+        feed = self.tracker()
+        sent = on and feed is not None and feed.reading.received_at is not None
+        viewer.forward_gaze(gaze_note(feed.reading) if sent and feed else None)
+
+    def tracker(self) -> TrackerFeed | None:
+        """The tracker the session follows now, if it follows one."""
+        source = self.session.gaze_source  # swapped whole by the step's thread
+        if not source.startswith(REMOTE_PREFIX):
+            return None
+        return self.session.trackers.feed(source.removeprefix(REMOTE_PREFIX))
+
+    def forward_gaze(self, feed: TrackerFeed) -> None:
+        """`feed` has a new reading: to the viewers that warp, if the session follows it (they
+        place the afterimages at it until the next frame, docs/protocol.md `gaze`)."""
+        if self.session.gaze_source != REMOTE_PREFIX + feed.name:
+            return
+        note = gaze_note(feed.reading)
+        for viewer in self.viewers:
+            if viewer.warp:
+                viewer.forward_gaze(note)
+
     async def _demand(self, patience: float) -> None:
         """Wait (up to `patience` s) until some viewer would take a new frame: frames nobody
         can take yet cost CPU that a browser on the same machine needs. The eye still advances
@@ -354,6 +407,7 @@ class SessionHub:
         self.recordings = recordings or RecordingLibrary(None)
         self.metrics = metrics
         self.trackers = Trackers()
+        self.trackers.listen(self._tracker_moved)
         self.sessions: dict[str, LiveSession] = {}
         self.grace_s = grace_s
         self.max_sessions = max_sessions
@@ -426,6 +480,10 @@ class SessionHub:
     def broadcast(self, note: dict[str, Any]) -> None:
         for live in self.sessions.values():
             live.broadcast(note)
+
+    def _tracker_moved(self, feed: TrackerFeed) -> None:
+        for live in self.sessions.values():
+            live.forward_gaze(feed)
 
     async def close(self) -> None:
         """Stop every session (server shutdown), whether or not viewers remain."""

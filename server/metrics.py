@@ -86,6 +86,10 @@ class Metrics:
         self.viewers = Gauge("gazehdr_viewers", "Connected viewers.")
         self.trackers = Gauge("gazehdr_trackers", "Connected gaze daemons.")
         self.gaze_samples = Counter("gazehdr_gaze_samples_total", "Gaze samples received.")
+        self.gaze_forwarded = Counter(
+            "gazehdr_gaze_forwarded_total",
+            "Tracker gaze notes sent to viewers with the late gaze warp on.",
+        )
         self.gaze_rate_limited = Counter(
             "gazehdr_gaze_samples_rate_limited_total", "Gaze samples dropped by the rate limit."
         )
