@@ -54,6 +54,9 @@ const state = {}; // the last hello/state from the server
 // Late gaze warp (warp.js): afterimages placed at the newest pointer at every display refresh.
 // Off unless asked for: the panel's box, or ?warp=1 (tests and comparisons).
 let warpOn = new URLSearchParams(location.search).get('warp') === '1';
+// The newest gaze of the session's tracker, which the server forwards (`gaze` notes) while the
+// warp is on: where the warp places the afterimages when a tracker, not the pointer, is the gaze.
+let trackerGaze = null;
 // The gaze daemons' trackers this server has heard of, by name (state and `tracker` notes):
 // a session follows one of them by choosing gaze source `remote:NAME`.
 const trackers = new Map();
@@ -90,6 +93,7 @@ class Connection {
       this.status = 'open';
       this.opened = true;
       stats.connects += 1;
+      trackerGaze = null; // another session, maybe: its tracker's gaze comes anew
       sendViewport();
       this.send(messages.sceneMaps(wantMaps())); // for the inspector and the false colour
       if (warpOn) this.send(messages.warp(true));
@@ -165,6 +169,7 @@ const view = {
   /** The late gaze warp on or off (the server switches this viewer's frames). */
   warp(on = !warpOn) {
     warpOn = Boolean(on);
+    if (!warpOn) trackerGaze = null;
     send(messages.warp(warpOn));
     panel.showWarp(warpOn);
   },
@@ -273,6 +278,7 @@ function onText(text) {
     // falls through: hello carries the whole state
     case 'state': {
       const { type, ...rest } = msg;
+      if (rest.gaze_source !== state.gaze_source) trackerGaze = null; // another tracker's, or none
       Object.assign(state, rest);
       trackers.clear();
       for (const t of state.trackers ?? []) trackers.set(t.name, t);
@@ -293,6 +299,11 @@ function onText(text) {
       }
       break;
     }
+    case 'gaze': // the tracker's newest gaze, forwarded for the warp (docs/protocol.md)
+      if (Number.isFinite(msg.x) && Number.isFinite(msg.y)) {
+        trackerGaze = { x: msg.x, y: msg.y, eyesOpen: msg.eyes_open, t: msg.t };
+      }
+      break;
     case 'scenes': // the scene list changed (an upload), sent to every session
       state.scenes = msg.scenes;
       panel.update(state);
@@ -460,10 +471,13 @@ function trackerStatus(source) {
   return connected.length ? `${connected.length} connected, not followed` : 'not connected';
 }
 
-/** Where a warp frame places its afterimages: the newest pointer, as frame fractions, while
- * the pointer is the gaze; else null, the frame's own gaze (a tracker's, say). */
+/** Where a warp frame places its afterimages, as frame fractions: the newest pointer while the
+ * pointer is the gaze, the newest forwarded gaze while a daemon's tracker is; else null, the
+ * frame's own gaze (a track's, or a tracker's until its first note). With the eyes closed a
+ * tracker's note keeps the place it had (the server holds it through a blink, as the model does). */
 function warpGaze() {
-  if (!hover || !lastHeader || lastHeader.tracker_gaze) return null;
+  if (lastHeader?.tracker_gaze) return trackerGaze && { x: trackerGaze.x, y: trackerGaze.y };
+  if (!hover || !lastHeader) return null;
   const [x, y] = frameFraction(hover);
   return Number.isFinite(x) && Number.isFinite(y) ? { x, y } : null;
 }
@@ -504,6 +518,7 @@ const api = {
   state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers, inspector,
   sceneMap: null, sceneMaps: 0, panel, view, hud, video, encodingRefused: null,
   shown: null,
+  get trackerGaze() { return trackerGaze; }, // the newest forwarded tracker gaze (`gaze` notes)
   hold: false, // tests: keep showing the current frame (frames still arrive), as a stalled server
 }; // prettier-ignore
 window.gazehdr = api;
