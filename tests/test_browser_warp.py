@@ -3,15 +3,18 @@
 The shader, run by the viewer's own Renderer, composes a warp frame as the server does; and
 with the warp on the afterimage on the canvas follows a pointer move at the next display
 refresh while no new frame comes (the page holds its frame, as a stalled server would make it),
-where with the warp off it stays put.
+where with the warp off it stays put; and likewise with a gaze daemon's tracker as the gaze,
+at the tracker's gaze the server forwards (tests/test_gaze_forward.py).
 """
 
 from __future__ import annotations
 
 import base64
+import json
 from typing import Any
 
 import numpy as np
+from websockets.sync.client import connect
 
 from gazehdr import warp
 from gazehdr.protocol import HEADER_BYTES, Encoding, FrameHeader, Gaze, decode_frame, parse_control
@@ -178,3 +181,62 @@ def test_afterimage_follows_the_pointer_between_frames(live_server, open_viewer)
     np.testing.assert_allclose(before, flash, atol=1.5)
     np.testing.assert_allclose(after - before, shift, atol=1.0)
     np.testing.assert_allclose(still1, still0, atol=0.5)
+
+
+def _fixate(daemon: Any, i: int, at: np.ndarray | None, size: tuple[int, int]) -> None:
+    """The daemon's i-th event: a fixation at frame px `at` (a blink, if `at` is None)."""
+    if at is None:
+        event = {"type": "event", "kind": "blink_start", "id": i, "t": i}
+    else:
+        x, y = at / np.array(size)
+        event = {"type": "event", "kind": "fixation_start", "id": i, "t": i, "x": x, "y": y}
+    daemon.send(json.dumps(event))
+
+
+NOTE_AT_JS = """([x, y, open]) => { const g = window.gazehdr.trackerGaze;
+  return g && Math.abs(g.x - x) < 1e-9 && Math.abs(g.y - y) < 1e-9 && g.eyesOpen === open; }"""
+
+
+def test_afterimage_follows_a_tracker_between_frames(live_server, open_viewer) -> None:
+    """A gaze daemon's tracker as the gaze: the flash's afterimage, the viewer holding one
+    frame made with the eyes closed (a blink), moves on the canvas with the tracker's next
+    fixation at the very next display refresh after its forwarded `gaze` note arrives, by the
+    fixation's shift; a blink then (the tracker's place held) leaves it there."""
+    W, H = 320, 176
+    srv = live_server(scene="flash", size=(W, H), gaze_source="remote:rig")
+    flash = np.array([0.5 * W, 0.42 * H])
+    with connect(srv.ws_url + "/ws/gaze", additional_headers=srv.auth) as daemon:
+        daemon.send(json.dumps({"type": "hello", "protocol": 1, "tracker": "rig"}))
+        assert json.loads(daemon.recv(timeout=30))["type"] == "welcome"
+        _fixate(daemon, 1, flash, (W, H))
+        viewer = open_viewer(srv.url + "?warp=1", W, H)
+        h = viewer.wait(
+            "([x, y]) => { const s = window.gazehdr.shown; return s?.encoding === 16 && "
+            "s.tracker_gaze && Math.abs(s.gaze_x - x) < 1e-3 && Math.abs(s.gaze_y - y) < 1e-3 "
+            "&& s; }",
+            [0.5, 0.42],
+        )
+        t_flash = 1.0 + 4.0 * np.ceil(max(0.0, h["time"] - 1.0) / 4.0)
+        viewer.wait("(t) => window.gazehdr.lastHeader.time > t", t_flash + 0.3, timeout=60_000)
+        _fixate(daemon, 2, None, (W, H))
+        held = _hold_a_closed_eyes_frame(viewer, 16)
+        viewer.wait(NOTE_AT_JS, [0.5, 0.42, False])
+        canvas, _ = _canvas_next_refresh(viewer)
+        before, peak0, radius0 = _afterimage_centroid(canvas)
+        shift = np.array([40.0, 30.0])
+        _fixate(daemon, 3, flash + shift, (W, H))
+        viewer.wait(NOTE_AT_JS, [*((flash + shift) / [W, H]), True])
+        canvas, shown = _canvas_next_refresh(viewer)
+        after, peak1, radius1 = _afterimage_centroid(canvas)
+        assert shown["frame"] == held["frame"], "a new frame was shown: not the warp's doing"
+        _fixate(daemon, 4, None, (W, H))  # a blink: the tracker's place is held
+        viewer.wait(NOTE_AT_JS, [*((flash + shift) / [W, H]), False])
+        canvas, shown = _canvas_next_refresh(viewer)
+        blinked, _, _ = _afterimage_centroid(canvas)
+        assert shown["frame"] == held["frame"]
+    seen = (peak0, peak1, radius0, radius1, h["time"], held["time"])
+    assert peak0 > 0.1 and peak1 > 0.1, ("no afterimage", seen)
+    assert max(radius0, radius1) < 20, ("not one blob", seen)
+    np.testing.assert_allclose(before, flash, atol=1.5)
+    np.testing.assert_allclose(after - before, shift, atol=1.0)
+    np.testing.assert_allclose(blinked, after, atol=0.5)
