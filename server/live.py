@@ -297,9 +297,11 @@ class LiveSession:
         """The late gaze warp on or off for `viewer` (a ProtocolError where it cannot be); on,
         with a tracker as the gaze, the newest gaze that tracker sent goes to it at once."""
         self.streams.warp(viewer, on)
-        feed = self.tracker()
-        sent = on and feed is not None and feed.reading.received_at is not None
-        viewer.forward_gaze(gaze_note(feed.reading) if sent and feed else None)
+        feed = self.tracker() if on else None
+        if feed is None or feed.reading.received_at is None:  # off, or nothing heard of it yet
+            viewer.forward_gaze(None)
+        else:
+            viewer.forward_gaze(gaze_note(feed.reading))
 
     def tracker(self) -> TrackerFeed | None:
         """The tracker the session follows now, if it follows one."""
