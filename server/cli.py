@@ -459,6 +459,21 @@ def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+# --- experiment -------------------------------------------------------------------------------
+
+
+def _configure_experiment(p: argparse.ArgumentParser) -> None:
+    """Each part of `gazehdr experiment` adds its own subcommands (stdlib-only modules)."""
+    from gazehdr.experiment import commands as analysis_commands
+
+    sub = p.add_subparsers(dest="experiment", required=True, metavar="SUBCOMMAND")
+    analysis_commands.add_parsers(sub)
+
+
+def _experiment(args: argparse.Namespace, extra: list[str]) -> int:
+    return args.experiment_run(args)
+
+
 # --- dispatch ---------------------------------------------------------------------------------
 
 
@@ -533,6 +548,15 @@ COMMANDS: dict[str, Command] = {
         epilog="examples:\n"
         "  gazehdr figures --out figs\n"
         "  gazehdr figures --out figs --only 4,5 --size 640x360",
+    ),
+    "experiment": Command(
+        "the paper's Sec. 4 experiments: analyse results (psychometric fits, PSEs, rank-sum, "
+        "an HTML report) and check PSE recovery",
+        _experiment,
+        _configure_experiment,
+        epilog="examples:\n"
+        "  gazehdr experiment analyse results/ --out report/report.html\n"
+        "  gazehdr experiment recovery --runs 200",
     ),
     "scenes": Command(
         "list the scenes: built-ins and uploads, with their scale", _scenes, _configure_scenes
