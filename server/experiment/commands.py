@@ -12,7 +12,8 @@ PROG = "gazehdr"
 
 
 def _need_extra() -> None:
-    missing = [m for m in ("scipy", "matplotlib") if importlib.util.find_spec(m) is None]
+    wanted = ("scipy", "matplotlib", "threadpoolctl")
+    missing = [m for m in wanted if importlib.util.find_spec(m) is None]
     if missing:
         raise ValueError(
             f"the analysis needs {' and '.join(missing)}: pip install 'gazehdr[experiment]'"
