@@ -18,6 +18,7 @@ from gazehdr.experiment.analysis import Settings, analyse, ranksum
 from gazehdr.experiment.dataset import ResultsError, load
 from gazehdr.experiment.observer import SimulatedObserver, cumulative_gaussian
 from gazehdr.experiment.recovery import recover, synthetic_41_run
+from gazehdr.experiment.report import write_report
 from tests.experiment_data import write_dataset
 
 X41 = np.log10(np.array([14.0, 19.0, 27.0, 35.0, 49.0]) / 27.0)
@@ -231,15 +232,24 @@ def test_unreadable_results_are_one_line_errors(tmp_path, capsys):
         load([tmp_path])
 
 
-def test_palette_choices_are_counted_per_flash_strength(tmp_path):
+def test_palette_choices_are_counted_per_flash_strength_and_shown_escaped(tmp_path):
     beh = tmp_path / "sub-01_task-palette_beh.tsv"
     rows = ["condition\ttest_intensity\tchose_test\tpalette_choice"]
     rows += ["palette\t1000\tn/a\tH1,B1", "palette\t1000\tn/a\tH1", "palette\t31.25\tn/a\tG3"]
-    rows += ["palette\t31.25\tn/a\tn/a"]
+    rows += ["palette\t31.25\tn/a\tn/a", "palette\t31.25\tn/a\t<b>X</b>"]
     beh.write_text("\n".join(rows) + "\n")
-    (task,) = analyse(load([beh]), Settings(bootstrap=0))
-    assert task.palette == {"B1": {1000.0: 1}, "G3": {31.25: 1}, "H1": {1000.0: 2}}
-    assert task.palette_trials == {31.25: 2, 1000.0: 2}
+    tasks = analyse(load([beh]), Settings(bootstrap=0))
+    (task,) = tasks
+    assert task.palette == {
+        "<b>X</b>": {31.25: 1},
+        "B1": {1000.0: 1},
+        "G3": {31.25: 1},
+        "H1": {1000.0: 2},
+    }
+    assert task.palette_trials == {31.25: 3, 1000.0: 2}
+    write_report(tasks, Settings(bootstrap=0), tmp_path / "r.html")
+    page = (tmp_path / "r.html").read_text()
+    assert "&lt;b&gt;X&lt;/b&gt;" in page and "<b>X</b>" not in page
 
 
 def test_recovery_intervals_hold_the_true_pse(tmp_path):

@@ -16,7 +16,7 @@ def _need_extra() -> None:
     missing = [m for m in wanted if importlib.util.find_spec(m) is None]
     if missing:
         raise ValueError(
-            f"the analysis needs {' and '.join(missing)}: pip install 'gazehdr[experiment]'"
+            f"the analysis needs {', '.join(missing)}: pip install 'gazehdr[experiment]'"
         )
 
 
