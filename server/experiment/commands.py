@@ -163,7 +163,12 @@ def run_recovery(args: argparse.Namespace) -> int:
         lapse=args.lapse,
     )
     settings = _settings(args)
-    coverage = recover(RUNNERS[args.runner], truth, args.runs, settings)
+
+    def progress(done: int, runs: int) -> None:
+        if done == runs or done % max(1, runs // 10) == 0:
+            sys.stderr.write(f"{done}/{runs} runs\n")
+
+    coverage = recover(RUNNERS[args.runner], truth, args.runs, settings, progress=progress)
     ok = True
     for c in coverage:
         ok &= c.rate >= args.require

@@ -123,10 +123,12 @@ def recover(
     runs: int,
     settings: Settings,
     work_dir: Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[Coverage]:
     """`runs` experiments, each with its own seed from `settings.seed`, and their coverage.
 
     Training exclusion is off: the point is the fit, and a bad simulated run must count.
+    `progress(done, runs)` is called after each run.
     """
     if runs < 1:
         raise ValueError(f"runs must be at least 1, got {runs}")
@@ -143,6 +145,8 @@ def recover(
                 for o in task.included:
                     for condition, f in o.fits.items():
                         hits.setdefault(condition, []).append((f.fit.pse, f.ci))
+            if progress:
+                progress(i + 1, runs)
     out_list = []
     for condition, found in sorted(hits.items()):
         true = truth.pse.get(condition, 0.0)
