@@ -510,8 +510,10 @@ COMMANDS: dict[str, Command] = {
         passthrough=True,
     ),
     "experiment": Command(
-        "the paper's Sec. 4 experiments: 'gazehdr experiment run PRESET|FILE --out DIR' serves "
-        "the page (or runs headless with a simulated observer; see 'gazehdr experiment --help')",
+        "the paper's Sec. 4 experiments: 'run PRESET|FILE --out DIR' serves the page (or runs "
+        "headless with a simulated observer), 'analyse RESULTS...' fits PSEs into an HTML report, "
+        "'recovery' checks the fit recovers a simulated observer's PSE (see "
+        "'gazehdr experiment --help')",
         _experiment,
         passthrough=True,
     ),

@@ -141,7 +141,7 @@ def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp
         assert float(r["black_duration"]) == pytest.approx(0.1)
     with (results / "participants.tsv").open(encoding="utf-8") as f:
         (participant,) = csv.DictReader(f, delimiter="\t")
-    assert participant["participant_id"] == "sub-web1" and participant["excluded"] == "false"
+    assert participant["participant_id"] == "sub-web1" and participant["tiny_excluded"] == "false"
     log = read_session_log(results / "sourcedata/sub-web1/sub-web1_task-tiny_sessionlog.jsonl")
     notes = [json.loads(n.text) for n in log.notes]
     answers = [n for n in notes if n["event"] == "response"]

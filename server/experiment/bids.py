@@ -17,15 +17,21 @@ from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.design import Design
 
 NA = "n/a"
-PARTICIPANT_COLUMNS = {
-    "training_score": {
-        "Description": "fraction of the scored training trials answered correctly (Sec. 4.1.1)"
-    },
-    "excluded": {
-        "Description": "whether the observer was excluded by the training rule",
-        "Levels": {"true": "scored below the design's min_correct", "false": "kept"},
-    },
-}
+
+
+def participant_columns(task: str) -> dict[str, dict[str, Any]]:
+    """participants.tsv's columns for a task's runs: one observer may run several tasks (4.1 and
+    4.2 in the paper), each with its own training and exclusion, so each task has its own."""
+    return {
+        f"{task}_training_score": {
+            "Description": f"task {task}: fraction of the scored training trials answered "
+            "correctly (Sec. 4.1.1)"
+        },
+        f"{task}_excluded": {
+            "Description": f"task {task}: whether the observer was excluded by the training rule",
+            "Levels": {"true": "scored below the design's min_correct", "false": "kept"},
+        },
+    }
 
 
 def start_dataset(root: Path, design: Design) -> None:
@@ -114,12 +120,19 @@ def write_results(
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     write_json(path.with_suffix(".json"), sidecar(design))
     score_cell = NA if score is None else cell(float(score))
-    set_participant(root, observer_id, {"training_score": score_cell,
-                                        "excluded": "true" if excluded else "false"})  # fmt: skip
+    descriptions = participant_columns(design.name)
+    score_col, excluded_col = descriptions
+    values = {score_col: score_cell, excluded_col: "true" if excluded else "false"}
+    set_participant(root, observer_id, values, descriptions)
     return path
 
 
-def set_participant(root: Path, observer_id: str, values: dict[str, str]) -> None:
+def set_participant(
+    root: Path,
+    observer_id: str,
+    values: dict[str, str],
+    descriptions: dict[str, dict[str, Any]] | None = None,
+) -> None:
     """Add or update the observer's row of participants.tsv (other columns kept, n/a where a
     row has none); participants.json describes the columns."""
     path = root / "participants.tsv"
@@ -141,5 +154,5 @@ def set_participant(root: Path, observer_id: str, values: dict[str, str]) -> Non
     data = json.loads(described.read_text(encoding="utf-8")) if described.exists() else {}
     data.setdefault("participant_id", {"Description": "the observer id given at the start"})
     for column in values:
-        data.setdefault(column, PARTICIPANT_COLUMNS.get(column, {"Description": column}))
+        data.setdefault(column, (descriptions or {}).get(column, {"Description": column}))
     write_json(described, data)

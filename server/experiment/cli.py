@@ -10,6 +10,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from gazehdr.experiment import commands as analysis_commands
 from gazehdr.experiment.design import PRESETS, load_design
 from gazehdr.experiment.observer import SimulatedObserver
 
@@ -43,6 +44,7 @@ def parse_pse(text: str) -> dict[str, float]:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gazehdr experiment")
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    analysis_commands.add_parsers(sub)  # analyse, recovery
     run = sub.add_parser(
         "run",
         help="serve an experiment's page, or run it headless with a simulated observer",
@@ -77,6 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None, data_dir: Path | None = None) -> int:
     """`gazehdr experiment ...`; `data_dir` is serve's (`gazehdr.cli` passes it)."""
     args = build_parser().parse_args(argv)
+    if args.action != "run":
+        return args.experiment_run(args)
     design = load_design(args.design)
     if args.headless:
         if not args.simulated_observer:
