@@ -80,7 +80,7 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
         s = (1 - fy) * (tx.wa * gather8(ra, tx.a) + tx.wb * gather8(ra, tx.b))
             + fy * (tx.wa * gather8(rb, tx.a) + tx.wb * gather8(rb, tx.b));
     }
-    float8 norm = sqrt((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
+    float8 norm = SQRT8((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
     float8 q = r + P->g * s / norm;
     int8 d = (int8)(0);
     for (int b = 0; b < P->bands; ++b) d -= (q <= P->rho_i[b]);  // a true comparison is -1

@@ -4,7 +4,7 @@
 // One work-item makes 8 neighbouring pixels of a row; global size (ceil(W / 8), H).
 
 // Largest t in [0,1] keeping a + t (rgb - a) inside the cube, for a grey a: never flip hue.
-inline float8 gamut_t(float8 a, float8 e, float8 t) {
+HOT float8 gamut_t(float8 a, float8 e, float8 t) {
     float8 lim = (e > 0.0f ? 1.0f - a : -a) / e;  // inf or NaN where e = 0: not taken
     return (e != 0.0f && lim < t) ? lim : t;
 }
@@ -123,7 +123,7 @@ __kernel void compose(COMPOSE_ARGS, __global float *v) {
 }
 
 // 8 pixels' RGB interleaved as IEEE half floats (round to nearest even) at pixel (x, y).
-inline void store_half_rgb8(__global half *v, rgb8_t c, int W, int x, int y) {
+HOT void store_half_rgb8(__global half *v, rgb8_t c, int W, int x, int y) {
     __global half *o = v + 3 * ((size_t)y * W + x);
     if (x + VEC <= W) {
         INTERLEAVE(q, c)
@@ -173,7 +173,7 @@ __kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
               | (convert_uint8_rte(c.b * 1023.0f) << 20);
     __global uint *o = v + (size_t)y * W + x;
     if (x + VEC <= W) {
-        vstore8(q, 0, o);
+        STORE8_UI(o, q);
         return;
     }
     uint tmp[8];
