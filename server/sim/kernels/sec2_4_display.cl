@@ -84,17 +84,25 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     J.g += f * m4;
     J.b += f * m5;
     // Gamut (reference.gamut_map): toward the grey of luminance min(Y, Y_c), Y_c that of the
-    // hue's cusp, just far enough to fit; bright colours trade luminance for saturation.
-    float8 Y = dot8(P->w_P, J.r, J.g, J.b);
-    float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
-    float8 d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
-    float8 a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
-    float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
-    float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
+    // hue's cusp, just far enough to fit; bright colours trade luminance for saturation. Where
+    // all 8 pixels are inside the cube already (t = 1: the usual case), nothing moves.
+    int8 inside = J.r >= 0.0f && J.r <= 1.0f && J.g >= 0.0f && J.g <= 1.0f && J.b >= 0.0f &&
+                  J.b <= 1.0f;
+    if (any8(~inside)) {
+        float8 Y = dot8(P->w_P, J.r, J.g, J.b);
+        float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
+        float8 d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
+        float8 a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
+        float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
+        float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
+        J.r = inside ? J.r : CLAMP(a + t * er, 0.0f, 1.0f);
+        J.g = inside ? J.g : CLAMP(a + t * eg, 0.0f, 1.0f);
+        J.b = inside ? J.b : CLAMP(a + t * eb, 0.0f, 1.0f);
+    }
     rgb8_t out;
-    out.r = pow8_unit(CLAMP(a + t * er, 0.0f, 1.0f), P->gamma);
-    out.g = pow8_unit(CLAMP(a + t * eg, 0.0f, 1.0f), P->gamma);
-    out.b = pow8_unit(CLAMP(a + t * eb, 0.0f, 1.0f), P->gamma);
+    out.r = pow8_unit(J.r, P->gamma);
+    out.g = pow8_unit(J.g, P->gamma);
+    out.b = pow8_unit(J.b, P->gamma);
     return out;
 }
 
