@@ -20,6 +20,7 @@ import numpy as np
 
 from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_LMS
 from gazehdr.sim.params import OURS, Params
+from gazehdr.sim.reference import contrast_floor
 
 MAX_BANDS = 8  # the block's room for band thresholds; Params.bands may not exceed it
 
@@ -69,6 +70,8 @@ FIELDS: tuple[BlockField, ...] = (
     BlockField("ln_K_m", "float", 1, lambda p: plateau_m(p) * math.log(p.plateau_K),
                "m ln K of the plateau (ours)"),
     BlockField("n_minus_m", "float", 1, lambda p: p.n - plateau_m(p), "n - m"),
+    BlockField("contrast_floor", "float", 1, contrast_floor,
+               "reference.contrast_floor: x below which a cone counts as dark"),
     from_params("H"),
     BlockField("rgb2lms", "float", 9, lambda p: RGB_TO_LMS, "layout.RGB_TO_LMS, row-major"),
     BlockField("lms2rgb", "float", 9, lambda p: LMS_TO_RGB, "layout.LMS_TO_RGB, row-major"),
