@@ -11,7 +11,7 @@ HOT float8 gamut_t(float8 a, float8 e, float8 t) {
 
 // The first half of compose8: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
 // What a late gaze warp sends (compose_base): none of it depends on the gaze.
-inline rgb8_t base8(__constant const params_t *P, __global const float *G,
+HOT rgb8_t base8(__constant const params_t *P, __global const float *G,
                     __global const float *rho_full, __global const float *A, int W, int H,
                     float eyes, int x, int y) {
     size_t row = (size_t)y * W, plane = (size_t)W * H;
