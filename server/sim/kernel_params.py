@@ -2,10 +2,11 @@
 
 `FIELDS` lists the block in order. A field named after a `Params` field takes its C type and
 length from that field's annotation (float, int, Vec3, Mat3), so the kernels see `Params` as
-it is; the few derived fields (the plateau's logs, the colour matrices, the band thresholds)
-say how they are computed. From the table come the NumPy record (`PARAMS_DTYPE`,
-`pack_params`) and the C struct (`params_struct`), which `opencl.build_program` puts in front
-of every program: the two cannot disagree, and the kernel files keep only a comment saying so.
+it is; the few derived fields (the plateau's logs, the contrast floor, the colour matrices,
+the band thresholds) say how they are computed. From the table come the NumPy record
+(`PARAMS_DTYPE`, `pack_params`) and the C struct (`params_struct`), which
+`opencl.build_program` puts in front of every program: the two cannot disagree, and the kernel
+files keep only a comment saying so.
 Print the struct with `python -m gazehdr.sim.kernel_params`.
 """
 
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_LMS
+from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_LMS, contrast_floor
 from gazehdr.sim.params import OURS, Params
 
 MAX_BANDS = 8  # the block's room for band thresholds; Params.bands may not exceed it
@@ -69,6 +70,8 @@ FIELDS: tuple[BlockField, ...] = (
     BlockField("ln_K_m", "float", 1, lambda p: plateau_m(p) * math.log(p.plateau_K),
                "m ln K of the plateau (ours)"),
     BlockField("n_minus_m", "float", 1, lambda p: p.n - plateau_m(p), "n - m"),
+    BlockField("contrast_floor", "float", 1, contrast_floor,
+               "layout.contrast_floor: x below which a cone counts as dark"),
     from_params("H"),
     BlockField("rgb2lms", "float", 9, lambda p: RGB_TO_LMS, "layout.RGB_TO_LMS, row-major"),
     BlockField("lms2rgb", "float", 9, lambda p: LMS_TO_RGB, "layout.LMS_TO_RGB, row-major"),

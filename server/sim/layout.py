@@ -227,6 +227,13 @@ def blur_diagonal(taps: np.ndarray, n: int) -> np.ndarray:
     return sum(float(t) * (np.clip(j + k - r, 0, n - 1) == j) for k, t in enumerate(taps))
 
 
+def contrast_floor(p: Params) -> float:
+    """The light (over sigma) whose response is alpha_eps: below it a cone counts as dark, as
+    Eq. 11's guard has it; `reference.linear_contrast` divides by no less (the kernels read it
+    from the parameter block, kernel_params)."""
+    return math.exp((math.log(p.alpha_eps) - math.log1p(-p.alpha_eps)) / p.n)
+
+
 def map_blur_sigma(dt: float, lay: Layout, p: Params) -> float:
     """Sigma, in retina cells, of the B and C map blur after a step of dt (Sec. 2.4)."""
     return lay.px(p.map_blur_deg) * math.sqrt(dt) / lay.cell

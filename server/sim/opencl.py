@@ -294,7 +294,7 @@ class OpenCLBackend:
             "taps": cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=flat),
             "levels": cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=levels),
             "local": cl.LocalMemory(4 * floats),
-            "size": (-(-self.lay.width // tx), -(-self.lay.height // ty), 3),
+            "size": (-(-self.lay.width // tx), -(-self.lay.height // ty), 1),
             "tile": (np.int32(tx), np.int32(ty)),
         }
 

@@ -28,6 +28,7 @@ from gazehdr.sim.layout import (
     adaptation_window,
     bilinear,
     blind_spot_strength,
+    contrast_floor,
     gaussian_taps,
     map_blur_sigma,
     settle_plan,
@@ -216,12 +217,6 @@ def settle(s_inf, R, dt: float, lay: Layout, p: Params) -> np.ndarray:
 LN_CONTRAST_MAX = 20.0
 #: The cosine between the calcium's gain and -u below which the gain fades out (`opponent_gain`).
 AGREE_COS = 0.5
-
-
-def contrast_floor(p: Params) -> float:
-    """The light (over sigma) whose response is alpha_eps: below it a cone counts as dark, as
-    Eq. 11's guard has it; `linear_contrast` divides by no less."""
-    return math.exp((math.log(p.alpha_eps) - math.log1p(-p.alpha_eps)) / p.n)
 
 
 def linear_contrast(x: np.ndarray, x_inf: np.ndarray, p: Params) -> np.ndarray:

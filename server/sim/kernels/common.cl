@@ -28,6 +28,14 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define TO_UCHAR8(x) __builtin_convertvector(x, uchar8)
 #define AS_INT8(x) __builtin_astype(x, int8)
 #define AS_FLOAT8(x) __builtin_astype(x, float8)
+typedef uint8 uint8_u __attribute__((aligned(4)));
+#define STORE8_UI(p, v) (*(__global uint8_u *)(p) = (v))
+#if defined(__AVX__)  // sqrt() on a float8 is a library call too
+#define SQRT8(x) __builtin_astype(__builtin_ia32_sqrtps256(__builtin_astype(x, __v8sf_t)), float8)
+typedef float __v8sf_t __attribute__((__vector_size__(32)));
+#else
+#define SQRT8(x) sqrt(x)
+#endif
 #else  // other implementations inline their builtins
 #define LOAD8_G(p) vload8(0, p)
 #define LOAD8_L(p) vload8(0, p)
@@ -40,24 +48,32 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define TO_UCHAR8(x) convert_uchar8(x)
 #define AS_INT8(x) as_int8(x)
 #define AS_FLOAT8(x) as_float8(x)
+#define STORE8_UI(p, v) vstore8(v, 0, p)
+#define SQRT8(x) sqrt(x)
 #endif
 #define MIN(a, b) ((a) < (b) ? (a) : (b))
 #define MAX(a, b) ((a) > (b) ? (a) : (b))
 #define CLAMP(x, lo, hi) MIN(MAX(x, lo), hi)
+#define ABS8(x) MAX(x, -(x))  // fabs() is a library call under PoCL
+
+// Helpers are always inlined: PoCL's compiler otherwise keeps the larger ones (compose8,
+// retina_input8, maps8) as calls, and a call passes its float8 arguments and results through
+// the stack and spills every vector register around it.
+#define HOT inline __attribute__((always_inline))
 
 // Whether any lane of a comparison is true (any() is a library call under PoCL, see above).
-inline int any8(int8 m) {
+HOT int any8(int8 m) {
     int4 a = m.lo | m.hi;
     int2 b = a.lo | a.hi;
     return (b.x | b.y) != 0;
 }
 
-inline float8 floor8(float8 x) {
+HOT float8 floor8(float8 x) {
     float8 t = TO_FLOAT8(TO_INT8(x));
     return t + TO_FLOAT8(t > x);  // a true comparison is -1
 }
 
-inline float floor1(float x) {
+HOT float floor1(float x) {
     float t = (float)(int)x;
     return t > x ? t - 1.0f : t;
 }
@@ -72,18 +88,18 @@ inline float floor1(float x) {
 #define LANE_I ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
 #define LANE_F ((float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f))
 
-inline float8 gather8(__global const float *p, int8 i) {
+HOT float8 gather8(__global const float *p, int8 i) {
     return (float8)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]);
 }
 
 // Pixels x .. x+7 of a row of n; lanes past the end repeat the last pixel (never read beyond).
-inline float8 load8_row(__global const float *row, int x, int n) {
+HOT float8 load8_row(__global const float *row, int x, int n) {
     if (x + VEC <= n) return LOAD8_G(row + x);
     return gather8(row, MIN(x + LANE_I, n - 1));
 }
 
 // Stores lanes 0 .. n-1 of v (n <= 8; n < 8 at the end of a row).
-inline void store8_part(__global float *p, float8 v, int n) {
+HOT void store8_part(__global float *p, float8 v, int n) {
     if (n > 0) p[0] = v.s0;
     if (n > 1) p[1] = v.s1;
     if (n > 2) p[2] = v.s2;
@@ -94,17 +110,17 @@ inline void store8_part(__global float *p, float8 v, int n) {
     if (n > 7) p[7] = v.s7;
 }
 
-inline float3 mat3_mul(__constant const float *m, float3 v) {
+HOT float3 mat3_mul(__constant const float *m, float3 v) {
     return (float3)(m[0] * v.x + m[1] * v.y + m[2] * v.z,
                     m[3] * v.x + m[4] * v.y + m[5] * v.z,
                     m[6] * v.x + m[7] * v.y + m[8] * v.z);
 }
 
-inline float dot3(__constant const float *w, float3 v) {
+HOT float dot3(__constant const float *w, float3 v) {
     return w[0] * v.x + w[1] * v.y + w[2] * v.z;
 }
 
-inline float3 load3(__global const float *img, int plane, int i) {
+HOT float3 load3(__global const float *img, int plane, int i) {
     return (float3)(img[i], img[plane + i], img[2 * plane + i]);
 }
 
@@ -121,7 +137,7 @@ typedef struct {
     float wa, wb;
 } lerp1_t;
 
-inline lerp8_t lerp8_at(int n, float8 x, int clamp_edges) {
+HOT lerp8_t lerp8_at(int n, float8 x, int clamp_edges) {
     float8 u = x - 0.5f;
     float8 fu = floor8(u);
     int8 x0 = TO_INT8(fu);
@@ -139,7 +155,7 @@ inline lerp8_t lerp8_at(int n, float8 x, int clamp_edges) {
     return t;
 }
 
-inline lerp1_t lerp1_at(int n, float x, int clamp_edges) {
+HOT lerp1_t lerp1_at(int n, float x, int clamp_edges) {
     float u = x - 0.5f;
     float fu = floor1(u);
     int x0 = (int)fu;
@@ -158,7 +174,7 @@ inline lerp1_t lerp1_at(int n, float x, int clamp_edges) {
 
 // Bilinear value of a w-wide map at 8 x positions on one row position; `border` takes the
 // weight of taps outside the map (border mode).
-inline float8 bilinear8_get(__global const float *img, int w, lerp8_t tx, lerp1_t ty,
+HOT float8 bilinear8_get(__global const float *img, int w, lerp8_t tx, lerp1_t ty,
                             float border) {
     __global const float *ra = img + ty.a * w, *rb = img + ty.b * w;
     float8 top = tx.wa * gather8(ra, tx.a) + tx.wb * gather8(ra, tx.b);
@@ -171,7 +187,7 @@ inline float8 bilinear8_get(__global const float *img, int w, lerp8_t tx, lerp1_
 // at x0_i + 1, and m[k] is the weight of column x0_0 + k (k < K). When the 8 positions are
 // less than a column apart (cell >= 2), K <= 6 columns serve them all, and a lookup costs K
 // broadcast loads and FMAs per row instead of 16 gathered loads. Returns K, 0 if K > 8.
-inline int xmix8(lerp8_t t, float8 *m) {
+HOT int xmix8(lerp8_t t, float8 *m) {
     int K = t.x0.s7 - t.x0.s0 + 2;
     if (K > 8) return 0;
     int8 o = t.x0 - t.x0.s0;
@@ -182,7 +198,7 @@ inline int xmix8(lerp8_t t, float8 *m) {
 // The cone input (L, M, S) at retina cell (j, i): the low-res scene `down` at gaze + retinal
 // offset, bilinear; a tap off the screen reads the `surround` map at the nearest screen cell
 // (reference.retina_input; 8 cells at once: retina_input8 in sec2_2_afterimages.cl).
-inline float3 retina_lms1(__global const float *down, __global const float *surround, int low_w,
+HOT float3 retina_lms1(__global const float *down, __global const float *surround, int low_w,
                           int low_h, float gx, float gy, int cell, int grid_w, int grid_h, int j,
                           int i) {
     float u = gx / cell + (j - 0.5f * grid_w), v = gy / cell + (i - 0.5f * grid_h);
@@ -202,7 +218,7 @@ inline float3 retina_lms1(__global const float *down, __global const float *surr
 }
 
 // The taps x0 + lane of a row of n, 0 outside it (8 consecutive taps, border value 0).
-inline float8 row_taps8(__global const float *row, int x0, int n) {
+HOT float8 row_taps8(__global const float *row, int x0, int n) {
     if (x0 >= 0 && x0 + VEC <= n) return LOAD8_G(row + x0);
     int8 x = x0 + LANE_I;
     float8 v = gather8(row, CLAMP(x, 0, n - 1));
@@ -212,7 +228,7 @@ inline float8 row_taps8(__global const float *row, int x0, int n) {
 // exp and log of float8, inline (the library's are calls, see the top), within a few ulp.
 // exp8 is Cephes' expf (S. L. Moshier) and takes x in [-87, 88] (clamped: e^-87 = 1.6e-38
 // stands for 0); log8 takes x > 0 (normal numbers).
-inline float8 exp8(float8 x) {
+HOT float8 exp8(float8 x) {
     x = CLAMP(x, -87.0f, 88.0f);
     float8 n = floor8(x * 1.44269504088896341f + 0.5f);
     x = x - n * 0.693359375f + n * 2.12194440e-4f;
@@ -229,7 +245,7 @@ inline float8 exp8(float8 x) {
 
 // x = m 2^e with m in [sqrt(1/2), sqrt(2)): sets *e and returns atanh(t) = (ln m) / 2,
 // t = (m - 1) / (m + 1), |t| < 0.172: the series to t^7 is within 1e-7 relative.
-inline float8 half_log_mantissa8(float8 x, int8 *e) {
+HOT float8 half_log_mantissa8(float8 x, int8 *e) {
     int8 bits = AS_INT8(x);
     *e = ((bits - 0x3f3504f3) >> 23);  // exponent after moving m into [sqrt(1/2), sqrt(2))
     float8 m = AS_FLOAT8(bits - (*e << 23));
@@ -240,7 +256,7 @@ inline float8 half_log_mantissa8(float8 x, int8 *e) {
     return p * u * t + t;
 }
 
-inline float8 log8(float8 x) {
+HOT float8 log8(float8 x) {
     int8 e;
     float8 p = half_log_mantissa8(x, &e);
     float8 fe = TO_FLOAT8(e);
@@ -249,26 +265,26 @@ inline float8 log8(float8 x) {
 
 // ln(1 + x) for x >= 0, exact where x is tiny (log8(1 + x) would lose x to rounding): the
 // series to x^4 below 0.01 (within 2e-9 relative there).
-inline float8 log1p8(float8 x) {
+HOT float8 log1p8(float8 x) {
     float8 series = x * (1.0f - x * (0.5f - x * (1.0f / 3.0f - x * 0.25f)));
     return x < 0.01f ? series : log8(1.0f + x);
 }
 
 // 1 - e^-y for y >= 0, likewise: the series to y^4 below 0.01.
-inline float8 one_minus_exp_neg8(float8 y) {
+HOT float8 one_minus_exp_neg8(float8 y) {
     float8 series = y * (1.0f - y * (0.5f - y * (1.0f / 6.0f - y * (1.0f / 24.0f))));
     return y < 0.01f ? series : 1.0f - exp8(-y);
 }
 
 // x^y for x >= 0.
-inline float8 pow8_pos(float8 x, float y) {
+HOT float8 pow8_pos(float8 x, float y) {
     return x > 0.0f ? exp8(y * log8(MAX(x, FLT_MIN))) : 0.0f;
 }
 
 // x^y for x in [0, 1] and y > 0 (the display gamma), as 2^(y log2 x): cheaper than pow8_pos
 // (log2 from the same series as log8 in one FMA; 2^f on [-0.5, 0.5], Cephes' exp2f, with the
 // rounding of y <= 0 done by one conversion), within a few ulp.
-inline float8 pow8_unit(float8 x, float y) {
+HOT float8 pow8_unit(float8 x, float y) {
     int8 e;
     float8 p = half_log_mantissa8(MAX(x, FLT_MIN), &e);
     float8 z = y * (p * 2.885390082f + TO_FLOAT8(e));  // y log2 x <= 0; 2.885 = 2 / ln 2
@@ -287,12 +303,12 @@ inline float8 pow8_unit(float8 x, float y) {
 
 // Naka-Rushton response (Eq. 1-2) with sigma^n = I_bar^(n-m) K^m, in logs: finite everywhere;
 // no light gives exactly 0 so that black stays black.
-inline float8 tone8(__constant const params_t *P, float ln_sigma_n, float8 I) {
+HOT float8 tone8(__constant const params_t *P, float ln_sigma_n, float8 I) {
     float8 e = exp8(MIN(ln_sigma_n - P->n * log8(MAX(I, FLT_MIN)), 80.0f));
     return I > 0.0f ? 1.0f / (1.0f + e) : 0.0f;
 }
 
-inline float ln_sigma_n_of(__constant const params_t *P, float A) {
+HOT float ln_sigma_n_of(__constant const params_t *P, float A) {
     return P->n_minus_m * A * LN10 + P->ln_K_m;
 }
 
@@ -351,11 +367,11 @@ typedef struct {
     float8 r, g, b;
 } rgb8_t;
 
-inline float8 dot8(__constant const float *w, float8 r, float8 g, float8 b) {
+HOT float8 dot8(__constant const float *w, float8 r, float8 g, float8 b) {
     return w[0] * r + w[1] * g + w[2] * b;
 }
 
-inline rgb8_t mat8_mul(__constant const float *m, float8 r, float8 g, float8 b) {
+HOT rgb8_t mat8_mul(__constant const float *m, float8 r, float8 g, float8 b) {
     rgb8_t o;
     o.r = m[0] * r + m[1] * g + m[2] * b;
     o.g = m[3] * r + m[4] * g + m[5] * b;

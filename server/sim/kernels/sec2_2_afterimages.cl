@@ -13,7 +13,7 @@ typedef struct {
 
 // Taps x0 .. x0 + 7 of row y of one plane of the low-res scene `down`; a tap off the screen
 // reads the `surround` map at the nearest screen cell.
-inline float8 input_taps8(__global const float *down, __global const float *surround, int x0,
+HOT float8 input_taps8(__global const float *down, __global const float *surround, int x0,
                           int y, int low_w, int low_h) {
     int row_in = y >= 0 && y < low_h, cols_in = x0 >= 0 && x0 + VEC <= low_w;
     if (row_in && cols_in) return LOAD8_G(down + y * low_w + x0);
@@ -27,7 +27,7 @@ inline float8 input_taps8(__global const float *down, __global const float *surr
 // Cone input at 8 retina cells: the low-res scene at gaze + offset (bilinear), the surround off
 // it. Neighbouring cells are whole low-res cells apart (same cell size), so the bilinear
 // weights are the same for all of them and the taps are consecutive.
-inline cone8_t retina_input8(__global const float *down, __global const float *surround,
+HOT cone8_t retina_input8(__global const float *down, __global const float *surround,
                              int low_w, int low_h, float gx, float gy, int cell, int grid_w,
                              int grid_h, int j, int i) {
     float gxc = gx / cell, gyc = gy / cell;
@@ -52,7 +52,7 @@ inline cone8_t retina_input8(__global const float *down, __global const float *s
 // P->surround times the Gaussian average of L, M, S along the edge, a closed loop of n cells
 // (layout.edge_loop: edge_cell gives the cell of a loop position, edge_position the first
 // position of a cell). Global size n.
-inline int2 edge_cell(int k, int w, int h) {
+HOT int2 edge_cell(int k, int w, int h) {
     int right = w - 1, bottom = (w - 1) + (h - 1), left = 2 * (w - 1) + (h - 1);
     if (k < right) return (int2)(k, 0);
     if (k < bottom) return (int2)(w - 1, k - right);
@@ -60,7 +60,7 @@ inline int2 edge_cell(int k, int w, int h) {
     return (int2)(0, h - 1 - (k - left));
 }
 
-inline int edge_position(int2 c, int w, int h) {
+HOT int edge_position(int2 c, int w, int h) {
     if (c.y == 0) return c.x;
     if (c.x == w - 1) return (w - 1) + c.y;
     if (c.y == h - 1) return (w - 1) + (h - 1) + (w - 1 - c.x);
@@ -86,17 +86,20 @@ __kernel void surround_map(__constant const params_t *P, __global const float *d
     surround[2 * plane + i] = P->surround * acc.z;
 }
 
-inline float8 bleach_inf8(__constant const params_t *P, int c, float8 I) {
+HOT float8 bleach_inf8(__constant const params_t *P, int c, float8 I) {
     float8 b1I = P->b1[c] * I;
     return b1I / (b1I + P->b2[c]);  // Eq. 6
 }
 
-inline float8 load_cell8(__global const float *p, int j, int n) { return load8_row(p, j, n); }
+HOT float8 load_cell8(__global const float *p, int j, int n) { return load8_row(p, j, n); }
 
-// 1 / sigma of Eq. 2 (reference.adapted_light: x_inf = I / sigma), from ln sigma^n.
-inline float inv_sigma(__constant const params_t *P, float lsn) { return exp(-lsn / P->n); }
+// 1 / sigma of Eq. 2 (reference.adapted_light: x_inf = I / sigma), from ln sigma^n (exp8 on
+// a splat: the scalar exp is a library call under PoCL).
+HOT float inv_sigma(__constant const params_t *P, float lsn) {
+    return exp8((float8)(-lsn / P->n)).s0;
+}
 
-inline void store_cell8(__global float *p, float8 v, int j, int n) {
+HOT void store_cell8(__global float *p, float8 v, int j, int n) {
     if (j + VEC <= n) STORE8_G(p + j, v);
     else store8_part(p + j, v, n - j);
 }
@@ -155,7 +158,7 @@ inline void maps8(__constant const params_t *P, __global const float *down,
     float8 u[3], ln_gain[3], bleach[3];
     float8 len_g = 0.0f, u_max = 0.0f;
     float eps = P->alpha_eps, lsn_floor = ln_sigma_n_of(P, P->A_min), xs = inv_sigma(P, lsn);
-    float floor_x = exp((log(eps) - log1p(-eps)) / P->n);  // reference.contrast_floor
+    float floor_x = P->contrast_floor;
     for (int c = 0; c < 3; ++c) {
         float8 ca = st[3 + c], R_now = tone8(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
         float8 ln_now = log8(R_now + eps), ln_then = log8(1.0f - ca + eps);
@@ -163,7 +166,7 @@ inline void maps8(__constant const params_t *P, __global const float *down,
         float8 x_inf = In[c] * xs;
         u[c] = (st[6 + c] - x_inf) / MAX(x_inf, floor_x);  // reference.linear_contrast
         len_g += ln_gain[c] * ln_gain[c];
-        u_max = MAX(u_max, fabs(u[c]));
+        u_max = MAX(u_max, ABS8(u[c]));
         // Bleaching (Eq. 12) as a response x; its light R^-1(x) at A_min adds to the input.
         float8 x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_inf8(P, c, In[c]), 0.0f);
         x = MIN(x, 1.0f - eps);
@@ -183,12 +186,12 @@ inline void maps8(__constant const params_t *P, __global const float *down,
         u[c] = u[c] / u_max;
         len_u += u[c] * u[c];
     }
-    len_u = MAX(sqrt(len_u), FLT_MIN);
+    len_u = MAX(SQRT8(len_u), FLT_MIN);
     for (int c = 0; c < 3; ++c) {
         u[c] = u[c] / len_u;
         dot -= ln_gain[c] * u[c];
     }
-    len_g = sqrt(len_g);
+    len_g = SQRT8(len_g);
     float8 side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
     float8 scale = -len_g * side;
     for (int c = 0; c < 3; ++c) store_cell8(maps + c * plane + row, exp8(scale * u[c]), j, grid_w);

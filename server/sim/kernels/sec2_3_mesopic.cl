@@ -80,7 +80,7 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
         s = (1 - fy) * (tx.wa * gather8(ra, tx.a) + tx.wb * gather8(ra, tx.b))
             + fy * (tx.wa * gather8(rb, tx.a) + tx.wb * gather8(rb, tx.b));
     }
-    float8 norm = sqrt((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
+    float8 norm = SQRT8((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
     float8 q = r + P->g * s / norm;
     int8 d = (int8)(0);
     for (int b = 0; b < P->bands; ++b) d -= (q <= P->rho_i[b]);  // a true comparison is -1
@@ -103,10 +103,11 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
 // Eq. 14 needs Gaussian level d - 1 at each pixel, and level i is level i - 1 blurred by the
 // increment i (the same separable taps, edges clamped, as the reference). Done level by level
 // over the whole frame this streams the frame through memory twice per level. Here one
-// work-item takes one channel of a TX×TY tile: it scans the tile's d to see how many levels the
-// tile needs, loads the scene around it with a halo of the summed radii into local memory, runs
-// all those levels there (each level only where the following ones still need it) and writes G
-// once. Bright tiles (d = 0) are a copy. Local size 1: the loops are written for one core.
+// work-item takes a TX×TY tile: it scans the tile's d once to see how many levels the tile
+// needs, then per channel loads the scene around it with a halo of the summed radii into local
+// memory, runs all those levels there (each level only where the following ones still need it)
+// and writes G once. Bright tiles (d = 0) are a copy. Local size 1: the loops are written for
+// one core.
 //
 // Buffer layout: buffer (bx, by) is screen (tx0 - PX + bx, ty0 - PY + by); PX is the halo
 // rounded up to whole float8 plus one float8 of margin, so that rows are computed in float8
@@ -141,12 +142,10 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
                           __global float *G, __constant const float *taps,
                           __constant const int *levels, int W, int H, int TX, int TY,
                           __local float *lmem) {
-    int tx0 = get_global_id(0) * TX, ty0 = get_global_id(1) * TY, c = get_global_id(2);
+    int tx0 = get_global_id(0) * TX, ty0 = get_global_id(1) * TY;
     if (tx0 >= W || ty0 >= H) return;
     int xe = MIN(tx0 + TX, W), ye = MIN(ty0 + TY, H), ow = xe - tx0;
     size_t plane = (size_t)W * H;
-    __global const float *src_g = scene + c * plane;
-    __global float *dst_g = G + c * plane;
 
     // The tile's d: its maximum, and per level l the box of the pixels that drop more than l
     // bands (rows; columns in whole float8 chunks), so that each level is made only there and
@@ -184,140 +183,146 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
         int m = MIN((int)MAX(c2.x, c2.y), 8);
         for (int l = 0; l < m; ++l) xlo[l] = MIN(xlo[l], k), xhi[l] = k;
     }
-    if (dmax == 0) {  // nothing dropped: the scene itself
-        for (int y = ty0; y < ye; ++y) {
-            size_t k = (size_t)y * W;
-            int x = tx0;
-            for (; x + VEC <= xe; x += VEC) STORE8_G(dst_g + k + x, LOAD8_G(src_g + k + x));
-            for (; x < xe; ++x) dst_g[k + x] = src_g[k + x];
-        }
-        return;
-    }
-    // halo[l + 1] = rows/columns of level l (l = -1 is the scene) still needed around the tile.
-    int halo[9];
-    halo[dmax] = 0;
-    for (int l = dmax - 1; l >= 0; --l) halo[l] = halo[l + 1] + levels[2 * l];
-    int HX = halo[0];
-    int PX = ((HX + VEC - 1) / VEC + 1) * VEC, PY = HX;
-    int BW = TX + 2 * PX, BH = TY + 2 * PY;
-    // One buffer holds the current level (the vertical pass overwrites the level it came from:
-    // the horizontal pass has read it all by then), one the horizontal pass, one the output.
-    __local float *buf_a = lmem, *tmp = lmem + BW * BH, *acc = lmem + 2 * BW * BH;
-
-    // Where level l is needed, in buffer coordinates [nx0, nx1) x [ny0, ny1): the box of its
-    // own pixels and the next level's region widened by that level's radius.
-    int nx0[8], nx1[8], ny0[8], ny1[8];
-    for (int l = dmax - 1; l >= 0; --l) {
-        nx0[l] = PX + VEC * xlo[l], nx1[l] = PX + VEC * (xhi[l] + 1);
-        ny0[l] = PY + ylo[l], ny1[l] = PY + yhi[l] + 1;
-        if (l + 1 < dmax) {
-            int r = levels[2 * (l + 1)];
-            nx0[l] = MIN(nx0[l], nx0[l + 1] - r), nx1[l] = MAX(nx1[l], nx1[l + 1] + r);
-            ny0[l] = MIN(ny0[l], ny0[l + 1] - r), ny1[l] = MAX(ny1[l], ny1[l + 1] + r);
-        }
-    }
-
-    // Screen edges in buffer coordinates.
-    int left = PX - tx0, right = PX + W - 1 - tx0, top = PY - ty0, bottom = PY + H - 1 - ty0;
-
-    // The scene, edges clamped, where level 0 reads it.
-    int r0 = levels[0];
-    int ly0 = MAX(ny0[0] - r0, 0), ly1 = MIN(ny1[0] + r0, BH);
-    int lx0 = MAX((nx0[0] - r0) / VEC * VEC, 0), lx1 = MIN((nx1[0] + r0 + VEC - 1) / VEC * VEC, BW);
-    for (int by = ly0; by < ly1; ++by) {
-        int y = CLAMP(ty0 - PY + by, 0, H - 1);
-        __global const float *row = src_g + (size_t)y * W;
-        __local float *brow = buf_a + by * BW;
-        for (int bx = lx0; bx < lx1; bx += VEC) {
-            int x = tx0 - PX + bx;
-            float8 val;
-            if (x >= 0 && x + VEC <= W) val = LOAD8_G(row + x);
-            else val = gather8(row, CLAMP(x + LANE_I, 0, W - 1));
-            STORE8_L(brow + bx, val);
-        }
-    }
-    // The output starts as the scene (d = 0).
-    for (int y = 0; y < ye - ty0; ++y) {
-        __global const float *grow = src_g + (size_t)(ty0 + y) * W + tx0;
-        __local float *arow = acc + y * TX;
-        int x = 0;
-        for (; x + VEC <= ow; x += VEC) STORE8_L(arow + x, LOAD8_G(grow + x));
-        for (; x < ow; ++x) arow[x] = grow[x];
-    }
-
-    __local float *src = buf_a, *dst = buf_a;
-    for (int l = 0; l < dmax; ++l) {
-        int r = levels[2 * l];
-        __constant const float *t = taps + levels[2 * l + 1];
-        int cx0 = nx0[l] / VEC * VEC, cx1 = (nx1[l] + VEC - 1) / VEC * VEC;  // float8 steps
-        // Horizontal pass on the rows the vertical pass reads, inside the screen.
-        int vy0 = MAX(ny0[l], top), vy1 = MIN(ny1[l], bottom + 1);
-        int ry0 = MAX(vy0 - r, top), ry1 = MIN(vy1 + r, bottom + 1);
-        float t0 = t[0], t1 = t[MIN(1, 2 * r)], t2 = t[MIN(2, 2 * r)], t3 = t[MIN(3, 2 * r)];
-        float t4 = t[MIN(4, 2 * r)], t5 = t[MIN(5, 2 * r)], t6 = t[MIN(6, 2 * r)];
-#define H_PASS(CONV)                                                      \
-    for (int by = ry0; by < ry1; ++by) {                                  \
-        __local const float *s = src + by * BW - r;                       \
-        __local float *o = tmp + by * BW;                                 \
-        for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, 1)); \
-    }
-#define V_PASS(CONV)                                                      \
-    for (int by = vy0; by < vy1; ++by) {                                  \
-        __local const float *s = tmp + (by - r) * BW;                     \
-        __local float *o = dst + by * BW;                                 \
-        for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, BW)); \
-    }
-#define CONV3(s, d) (t0 * LOAD8_L(s) + t1 * LOAD8_L((s) + (d)) + t2 * LOAD8_L((s) + 2 * (d)))
-#define CONV5(s, d) (CONV3(s, d) + t3 * LOAD8_L((s) + 3 * (d)) + t4 * LOAD8_L((s) + 4 * (d)))
-#define CONV7(s, d) (CONV5(s, d) + t5 * LOAD8_L((s) + 5 * (d)) + t6 * LOAD8_L((s) + 6 * (d)))
-#define CONVN(s, d) conv8_l(s, d, t, r)
-        if (r == 1) {
-            H_PASS(CONV3)
-        } else if (r == 2) {
-            H_PASS(CONV5)
-        } else if (r == 3) {
-            H_PASS(CONV7)
-        } else {
-            H_PASS(CONVN)
-        }
-        // Rows above and below the screen repeat its edge rows.
-        for (int by = vy0 - r; by < ry0; ++by)
-            for (int bx = cx0; bx < cx1; bx += VEC)
-                STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + top * BW + bx));
-        for (int by = ry1; by < vy1 + r; ++by)
-            for (int bx = cx0; bx < cx1; bx += VEC)
-                STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + bottom * BW + bx));
-        // Vertical pass where this level is still needed, inside the screen.
-        if (r == 1) {
-            V_PASS(CONV3)
-        } else if (r == 2) {
-            V_PASS(CONV5)
-        } else if (r == 3) {
-            V_PASS(CONV7)
-        } else {
-            V_PASS(CONVN)
-        }
-        fill_cols(dst, BW, vy0, vy1, left, right);
-        // Pixels that drop l + 1 bands show this level.
-        uchar want = (uchar)(l + 1);
-        for (int y = ylo[l]; y <= yhi[l]; ++y) {
-            __global const uchar *drow = d_map + (size_t)(ty0 + y) * W + tx0;
-            __local float *arow = acc + y * TX;
-            __local const float *lrow = dst + (PY + y) * BW + PX;
-            int x = 0;
-            for (; x + VEC <= ow; x += VEC) {
-                int8 hit = TO_INT8(LOAD8_D(drow + x) == (uchar8)(want));
-                STORE8_L(arow + x, hit ? LOAD8_L(lrow + x) : LOAD8_L(arow + x));
+    // The three channels in turn, on the one scan of d above (the boxes are the same).
+    for (int c = 0; c < 3; ++c) {
+        __global const float *src_g = scene + c * plane;
+        __global float *dst_g = G + c * plane;
+        if (dmax == 0) {  // nothing dropped: the scene itself
+            for (int y = ty0; y < ye; ++y) {
+                size_t k = (size_t)y * W;
+                int x = tx0;
+                for (; x + VEC <= xe; x += VEC) STORE8_G(dst_g + k + x, LOAD8_G(src_g + k + x));
+                for (; x < xe; ++x) dst_g[k + x] = src_g[k + x];
             }
-            for (; x < ow; ++x)
-                if (drow[x] == want) arow[x] = lrow[x];
+            continue;
         }
-    }
-    for (int y = 0; y < ye - ty0; ++y) {
-        __global float *grow = dst_g + (size_t)(ty0 + y) * W + tx0;
-        __local const float *arow = acc + y * TX;
-        int x = 0;
-        for (; x + VEC <= ow; x += VEC) STORE8_G(grow + x, LOAD8_L(arow + x));
-        for (; x < ow; ++x) grow[x] = arow[x];
+        // halo[l + 1] = rows/columns of level l (l = -1 is the scene) still needed around the tile.
+        int halo[9];
+        halo[dmax] = 0;
+        for (int l = dmax - 1; l >= 0; --l) halo[l] = halo[l + 1] + levels[2 * l];
+        int HX = halo[0];
+        int PX = ((HX + VEC - 1) / VEC + 1) * VEC, PY = HX;
+        int BW = TX + 2 * PX, BH = TY + 2 * PY;
+        // One buffer holds the current level (the vertical pass overwrites the level it came from:
+        // the horizontal pass has read it all by then), one the horizontal pass, one the output.
+        __local float *buf_a = lmem, *tmp = lmem + BW * BH, *acc = lmem + 2 * BW * BH;
+
+        // Where level l is needed, in buffer coordinates [nx0, nx1) x [ny0, ny1): the box of its
+        // own pixels and the next level's region widened by that level's radius.
+        int nx0[8], nx1[8], ny0[8], ny1[8];
+        for (int l = dmax - 1; l >= 0; --l) {
+            nx0[l] = PX + VEC * xlo[l], nx1[l] = PX + VEC * (xhi[l] + 1);
+            ny0[l] = PY + ylo[l], ny1[l] = PY + yhi[l] + 1;
+            if (l + 1 < dmax) {
+                int r = levels[2 * (l + 1)];
+                nx0[l] = MIN(nx0[l], nx0[l + 1] - r), nx1[l] = MAX(nx1[l], nx1[l + 1] + r);
+                ny0[l] = MIN(ny0[l], ny0[l + 1] - r), ny1[l] = MAX(ny1[l], ny1[l + 1] + r);
+            }
+        }
+
+        // Screen edges in buffer coordinates.
+        int left = PX - tx0, right = PX + W - 1 - tx0, top = PY - ty0, bottom = PY + H - 1 - ty0;
+
+        // The scene, edges clamped, where level 0 reads it.
+        int r0 = levels[0];
+        int ly0 = MAX(ny0[0] - r0, 0), ly1 = MIN(ny1[0] + r0, BH);
+        int lx0 = MAX((nx0[0] - r0) / VEC * VEC, 0);
+        int lx1 = MIN((nx1[0] + r0 + VEC - 1) / VEC * VEC, BW);
+        for (int by = ly0; by < ly1; ++by) {
+            int y = CLAMP(ty0 - PY + by, 0, H - 1);
+            __global const float *row = src_g + (size_t)y * W;
+            __local float *brow = buf_a + by * BW;
+            for (int bx = lx0; bx < lx1; bx += VEC) {
+                int x = tx0 - PX + bx;
+                float8 val;
+                if (x >= 0 && x + VEC <= W) val = LOAD8_G(row + x);
+                else val = gather8(row, CLAMP(x + LANE_I, 0, W - 1));
+                STORE8_L(brow + bx, val);
+            }
+        }
+        // The output starts as the scene (d = 0).
+        for (int y = 0; y < ye - ty0; ++y) {
+            __global const float *grow = src_g + (size_t)(ty0 + y) * W + tx0;
+            __local float *arow = acc + y * TX;
+            int x = 0;
+            for (; x + VEC <= ow; x += VEC) STORE8_L(arow + x, LOAD8_G(grow + x));
+            for (; x < ow; ++x) arow[x] = grow[x];
+        }
+
+        __local float *src = buf_a, *dst = buf_a;
+        for (int l = 0; l < dmax; ++l) {
+            int r = levels[2 * l];
+            __constant const float *t = taps + levels[2 * l + 1];
+            int cx0 = nx0[l] / VEC * VEC, cx1 = (nx1[l] + VEC - 1) / VEC * VEC;  // float8 steps
+            // Horizontal pass on the rows the vertical pass reads, inside the screen.
+            int vy0 = MAX(ny0[l], top), vy1 = MIN(ny1[l], bottom + 1);
+            int ry0 = MAX(vy0 - r, top), ry1 = MIN(vy1 + r, bottom + 1);
+            float t0 = t[0], t1 = t[MIN(1, 2 * r)], t2 = t[MIN(2, 2 * r)], t3 = t[MIN(3, 2 * r)];
+            float t4 = t[MIN(4, 2 * r)], t5 = t[MIN(5, 2 * r)], t6 = t[MIN(6, 2 * r)];
+    #define H_PASS(CONV)                                                      \
+        for (int by = ry0; by < ry1; ++by) {                                  \
+            __local const float *s = src + by * BW - r;                       \
+            __local float *o = tmp + by * BW;                                 \
+            for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, 1)); \
+        }
+    #define V_PASS(CONV)                                                      \
+        for (int by = vy0; by < vy1; ++by) {                                  \
+            __local const float *s = tmp + (by - r) * BW;                     \
+            __local float *o = dst + by * BW;                                 \
+            for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, BW)); \
+        }
+    #define CONV3(s, d) (t0 * LOAD8_L(s) + t1 * LOAD8_L((s) + (d)) + t2 * LOAD8_L((s) + 2 * (d)))
+    #define CONV5(s, d) (CONV3(s, d) + t3 * LOAD8_L((s) + 3 * (d)) + t4 * LOAD8_L((s) + 4 * (d)))
+    #define CONV7(s, d) (CONV5(s, d) + t5 * LOAD8_L((s) + 5 * (d)) + t6 * LOAD8_L((s) + 6 * (d)))
+    #define CONVN(s, d) conv8_l(s, d, t, r)
+            if (r == 1) {
+                H_PASS(CONV3)
+            } else if (r == 2) {
+                H_PASS(CONV5)
+            } else if (r == 3) {
+                H_PASS(CONV7)
+            } else {
+                H_PASS(CONVN)
+            }
+            // Rows above and below the screen repeat its edge rows.
+            for (int by = vy0 - r; by < ry0; ++by)
+                for (int bx = cx0; bx < cx1; bx += VEC)
+                    STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + top * BW + bx));
+            for (int by = ry1; by < vy1 + r; ++by)
+                for (int bx = cx0; bx < cx1; bx += VEC)
+                    STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + bottom * BW + bx));
+            // Vertical pass where this level is still needed, inside the screen.
+            if (r == 1) {
+                V_PASS(CONV3)
+            } else if (r == 2) {
+                V_PASS(CONV5)
+            } else if (r == 3) {
+                V_PASS(CONV7)
+            } else {
+                V_PASS(CONVN)
+            }
+            fill_cols(dst, BW, vy0, vy1, left, right);
+            // Pixels that drop l + 1 bands show this level.
+            uchar want = (uchar)(l + 1);
+            for (int y = ylo[l]; y <= yhi[l]; ++y) {
+                __global const uchar *drow = d_map + (size_t)(ty0 + y) * W + tx0;
+                __local float *arow = acc + y * TX;
+                __local const float *lrow = dst + (PY + y) * BW + PX;
+                int x = 0;
+                for (; x + VEC <= ow; x += VEC) {
+                    int8 hit = TO_INT8(LOAD8_D(drow + x) == (uchar8)(want));
+                    STORE8_L(arow + x, hit ? LOAD8_L(lrow + x) : LOAD8_L(arow + x));
+                }
+                for (; x < ow; ++x)
+                    if (drow[x] == want) arow[x] = lrow[x];
+            }
+        }
+        for (int y = 0; y < ye - ty0; ++y) {
+            __global float *grow = dst_g + (size_t)(ty0 + y) * W + tx0;
+            __local const float *arow = acc + y * TX;
+            int x = 0;
+            for (; x + VEC <= ow; x += VEC) STORE8_G(grow + x, LOAD8_L(arow + x));
+            for (; x < ow; ++x) grow[x] = arow[x];
+        }
     }
 }

@@ -4,14 +4,14 @@
 // One work-item makes 8 neighbouring pixels of a row; global size (ceil(W / 8), H).
 
 // Largest t in [0,1] keeping a + t (rgb - a) inside the cube, for a grey a: never flip hue.
-inline float8 gamut_t(float8 a, float8 e, float8 t) {
+HOT float8 gamut_t(float8 a, float8 e, float8 t) {
     float8 lim = (e > 0.0f ? 1.0f - a : -a) / e;  // inf or NaN where e = 0: not taken
     return (e != 0.0f && lim < t) ? lim : t;
 }
 
 // The first half of compose8: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
 // What a late gaze warp sends (compose_base): none of it depends on the gaze.
-inline rgb8_t base8(__constant const params_t *P, __global const float *G,
+HOT rgb8_t base8(__constant const params_t *P, __global const float *G,
                     __global const float *rho_full, __global const float *A, int W, int H,
                     float eyes, int x, int y) {
     size_t row = (size_t)y * W, plane = (size_t)W * H;
@@ -40,52 +40,69 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     lerp8_t tx = lerp8_at(grid_w, (px - gx) / cell + 0.5f * grid_w, 0);
     lerp1_t ty = lerp1_at(grid_h, (py - gy) / cell + 0.5f * grid_h, 0);
     int gp = grid_w * grid_h;
-    float8 m[6], xm[8];
-    int K = xmix8(tx, xm);
-    if (K > 0) {
-        float8 m0 = 0.0f, m1 = 0.0f, m2 = 0.0f, m3 = 0.0f, m4 = 0.0f, m5 = 0.0f;
+    float8 m0, m1, m2, m3, m4, m5;
+    int8 o = tx.x0 - tx.x0.s0;
+    if (o.s7 <= 2) {
+        // The 8 positions are less than a column apart (cell >= 4, or the fine end of it): at
+        // most 4 columns c0 .. c0 + 3 serve them. Their vertical mix is one scalar per column
+        // (ty's weights are the row's), then 4 broadcast FMAs per map; no arrays, no spills.
+        float8 w0 = o == 0 ? tx.wa : 0.0f;
+        float8 w1 = (o == 1 ? tx.wa : 0.0f) + (o == 0 ? tx.wb : 0.0f);
+        float8 w2 = (o == 2 ? tx.wa : 0.0f) + (o == 1 ? tx.wb : 0.0f);
+        float8 w3 = o == 2 ? tx.wb : 0.0f;
+        int c0 = tx.x0.s0, k0 = CLAMP(c0, 0, grid_w - 1), k1 = CLAMP(c0 + 1, 0, grid_w - 1),
+            k2 = CLAMP(c0 + 2, 0, grid_w - 1), k3 = CLAMP(c0 + 3, 0, grid_w - 1);
         __global const float *ra = maps + ty.a * grid_w, *rb = maps + ty.b * grid_w;
-        for (int k = 0; k < K; ++k) {
-            int col = CLAMP(tx.x0.s0 + k, 0, grid_w - 1);
-            float8 wa = ty.wa * xm[k], wb = ty.wb * xm[k];
-            __global const float *pa = ra + col, *pb = rb + col;
-            m0 += pa[0] * wa + pb[0] * wb;
-            m1 += pa[gp] * wa + pb[gp] * wb;
-            m2 += pa[2 * gp] * wa + pb[2 * gp] * wb;
-            m3 += pa[3 * gp] * wa + pb[3 * gp] * wb;
-            m4 += pa[4 * gp] * wa + pb[4 * gp] * wb;
-            m5 += pa[5 * gp] * wa + pb[5 * gp] * wb;
-        }
-        float8 w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
-        m[0] = m0 + w_out;
-        m[1] = m1 + w_out;
-        m[2] = m2 + w_out;
-        m[3] = m3;
-        m[4] = m4;
-        m[5] = m5;
+        float ya = ty.wa, yb = ty.wb;
+#define MIX4(c)                                                                         \
+    (w0 * (ya * ra[(c) * gp + k0] + yb * rb[(c) * gp + k0]) +                           \
+     w1 * (ya * ra[(c) * gp + k1] + yb * rb[(c) * gp + k1]) +                           \
+     w2 * (ya * ra[(c) * gp + k2] + yb * rb[(c) * gp + k2]) +                           \
+     w3 * (ya * ra[(c) * gp + k3] + yb * rb[(c) * gp + k3]))
+        float8 w_out = 1.0f - (ya + yb) * (tx.wa + tx.wb);  // off the grid: equilibrium
+        m0 = MIX4(0) + w_out;
+        m1 = MIX4(1) + w_out;
+        m2 = MIX4(2) + w_out;
+        m3 = MIX4(3);
+        m4 = MIX4(4);
+        m5 = MIX4(5);
+#undef MIX4
     } else {
-        for (int c = 0; c < 6; ++c) m[c] = bilinear8_get(maps + c * gp, grid_w, tx, ty, c < 3);
+        m0 = bilinear8_get(maps, grid_w, tx, ty, 1.0f);
+        m1 = bilinear8_get(maps + gp, grid_w, tx, ty, 1.0f);
+        m2 = bilinear8_get(maps + 2 * gp, grid_w, tx, ty, 1.0f);
+        m3 = bilinear8_get(maps + 3 * gp, grid_w, tx, ty, 0.0f);
+        m4 = bilinear8_get(maps + 4 * gp, grid_w, tx, ty, 0.0f);
+        m5 = bilinear8_get(maps + 5 * gp, grid_w, tx, ty, 0.0f);
     }
     float8 f = load8_row(fovea, x, W) * fovea[W + y];  // foveal fall-off, separable
-    lms.r *= 1.0f + f * (m[0] - 1.0f);  // Eq. 12, alpha^j2 R
-    lms.g *= 1.0f + f * (m[1] - 1.0f);
-    lms.b *= 1.0f + f * (m[2] - 1.0f);
+    lms.r *= 1.0f + f * (m0 - 1.0f);  // Eq. 12, alpha^j2 R
+    lms.g *= 1.0f + f * (m1 - 1.0f);
+    lms.b *= 1.0f + f * (m2 - 1.0f);
     rgb8_t J = mat8_mul(P->lms2rgb, lms.r, lms.g, lms.b);
-    J.r += f * m[3];  // additive afterimage, linear RGB (Eq. 12: H times the bleaching term)
-    J.g += f * m[4];
-    J.b += f * m[5];
+    J.r += f * m3;  // additive afterimage, linear RGB (Eq. 12: H times the bleaching term)
+    J.g += f * m4;
+    J.b += f * m5;
     // Gamut (reference.gamut_map): toward the grey of luminance min(Y, Y_c), Y_c that of the
-    // hue's cusp, just far enough to fit; bright colours trade luminance for saturation.
-    float8 Y = dot8(P->w_P, J.r, J.g, J.b);
-    float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
-    float8 d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
-    float8 a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
-    float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
-    float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
+    // hue's cusp, just far enough to fit; bright colours trade luminance for saturation. Where
+    // all 8 pixels are inside the cube already (t = 1: the usual case), nothing moves.
+    int8 inside = J.r >= 0.0f && J.r <= 1.0f && J.g >= 0.0f && J.g <= 1.0f && J.b >= 0.0f &&
+                  J.b <= 1.0f;
+    if (any8(~inside)) {
+        float8 Y = dot8(P->w_P, J.r, J.g, J.b);
+        float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
+        float8 d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
+        float8 a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
+        float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
+        float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
+        J.r = inside ? J.r : CLAMP(a + t * er, 0.0f, 1.0f);
+        J.g = inside ? J.g : CLAMP(a + t * eg, 0.0f, 1.0f);
+        J.b = inside ? J.b : CLAMP(a + t * eb, 0.0f, 1.0f);
+    }
     rgb8_t out;
-    out.r = pow8_unit(CLAMP(a + t * er, 0.0f, 1.0f), P->gamma);
-    out.g = pow8_unit(CLAMP(a + t * eg, 0.0f, 1.0f), P->gamma);
-    out.b = pow8_unit(CLAMP(a + t * eb, 0.0f, 1.0f), P->gamma);
+    out.r = pow8_unit(J.r, P->gamma);
+    out.g = pow8_unit(J.g, P->gamma);
+    out.b = pow8_unit(J.b, P->gamma);
     return out;
 }
 
@@ -123,7 +140,7 @@ __kernel void compose(COMPOSE_ARGS, __global float *v) {
 }
 
 // 8 pixels' RGB interleaved as IEEE half floats (round to nearest even) at pixel (x, y).
-inline void store_half_rgb8(__global half *v, rgb8_t c, int W, int x, int y) {
+HOT void store_half_rgb8(__global half *v, rgb8_t c, int W, int x, int y) {
     __global half *o = v + 3 * ((size_t)y * W + x);
     if (x + VEC <= W) {
         INTERLEAVE(q, c)
@@ -173,7 +190,7 @@ __kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
               | (convert_uint8_rte(c.b * 1023.0f) << 20);
     __global uint *o = v + (size_t)y * W + x;
     if (x + VEC <= W) {
-        vstore8(q, 0, o);
+        STORE8_UI(o, q);
         return;
     }
     uint tmp[8];
