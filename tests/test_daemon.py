@@ -21,7 +21,7 @@ import pytest
 import websockets
 from conftest import samples_received, sole_tracker
 
-from gazehdr import app as app_module
+from gazehdr import gaze_link
 from gazehdr.drivers import wire
 from gazehdr.drivers.daemon import (
     Daemon,
@@ -68,14 +68,14 @@ def run(coro):
 def received(monkeypatch) -> list[tuple[int, list[int]]]:
     """Every `samples` message any server handles: (id of its hub, sample times), in order."""
     log: list[tuple[int, list[int]]] = []
-    original = app_module._GazeLink.handle
+    original = gaze_link.GazeLink.handle
 
     def handle(self, msg, now):
         if isinstance(msg, wire.Samples):
             log.append((id(self.hub), [s.t_ns for s in msg.samples]))
         return original(self, msg, now)
 
-    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    monkeypatch.setattr(gaze_link.GazeLink, "handle", handle)
     return log
 
 
@@ -88,14 +88,14 @@ def _position(feed: TrackerFeed) -> tuple[float, float]:
 def followed(monkeypatch) -> list[tuple[wire.Message, float, float]]:
     """Every message any server handles, with where its remote gaze is once it has."""
     log: list[tuple[wire.Message, float, float]] = []
-    original = app_module._GazeLink.handle
+    original = gaze_link.GazeLink.handle
 
     def handle(self, msg, now):
         reply = original(self, msg, now)
         log.append((msg, *_position(self.feed)))
         return reply
 
-    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    monkeypatch.setattr(gaze_link.GazeLink, "handle", handle)
     return log
 
 
@@ -336,7 +336,7 @@ def test_what_the_servers_limits_drop_is_counted(live_server, tmp_path, monkeypa
     """A server whose sample limit is below the daemon's pace drops samples and says so; the
     daemon adds up what its notes report (the drops since the last note, at most one a second),
     so it never counts more than the server dropped, and names it in its summary."""
-    monkeypatch.setattr(app_module, "SAMPLE_LIMIT", app_module.GazeLimit("samples", 200.0, 200.0))
+    monkeypatch.setattr(gaze_link, "SAMPLE_LIMIT", gaze_link.GazeLimit("samples", 200.0, 200.0))
     server = live_server(token="t")
     samples = list(SyntheticSource(3, 1000.0, duration=2.5, realtime=False, start_ns=0))
     source = ReplaySource(_write_log(tmp_path / "fast.jsonl", samples), speed=math.inf)
@@ -419,7 +419,7 @@ def test_a_reconnect_forgets_the_old_servers_clock(
     for it, even those with a smaller round trip."""
     shift = 5_000_000_000
     first = live_server(token="t", sock=listener)
-    original = app_module._GazeLink.handle
+    original = gaze_link.GazeLink.handle
     delay_s = [0.0]  # how much slower the restarted server answers echoes
 
     def handle(self, msg, now):  # the restarted server: its clock 5 s ahead, echoes slower
@@ -429,7 +429,7 @@ def test_a_reconnect_forgets_the_old_servers_clock(
             return wire.EchoReply(reply.t0_ns, reply.server_ns + shift)
         return reply
 
-    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    monkeypatch.setattr(gaze_link.GazeLink, "handle", handle)
     record = tmp_path / "rec.jsonl"
     daemon = Daemon(
         SyntheticSource(5, 500.0),
@@ -480,13 +480,13 @@ import sys
 from pathlib import Path
 
 from gazehdr.drivers import wire
-from gazehdr import app as app_module
+from gazehdr import gaze_link
 from gazehdr.app import ServerConfig, create_app
 from gazehdr.serve import uvicorn_server
 from gazehdr.session import SessionSettings
 
 fd, seen, data = int(sys.argv[1]), open(sys.argv[2], "a"), Path(sys.argv[3])
-handle = app_module._GazeLink.handle
+handle = gaze_link.GazeLink.handle
 
 
 def writing(self, msg, now):
@@ -497,7 +497,7 @@ def writing(self, msg, now):
     return reply
 
 
-app_module._GazeLink.handle = writing
+gaze_link.GazeLink.handle = writing
 settings = SessionSettings(width=160, height=96, fps=20.0)
 config = ServerConfig(token="t", session=settings, data_dir=data, session_grace_s=0.0)
 sock = socket.socket(fileno=fd)

@@ -947,17 +947,17 @@ def test_daemon_records_every_sample_across_an_unplug(live_server, tmp_path, mon
     """The daemon over the HID source with --record: unplugged after five reports, back during
     the second wait; the log holds every sample the source yielded, in order, and the server got
     them too. Its hello carries the tracker's calibrated screen."""
-    from gazehdr import app as app_module  # the server is only the other end here
+    from gazehdr import gaze_link  # the server is only the other end here
 
     hellos: list[wire.Hello] = []
-    original = app_module._GazeLink.handle
+    original = gaze_link.GazeLink.handle
 
     def handle(self, msg, now):
         if isinstance(msg, wire.Hello):
             hellos.append(msg)
         return original(self, msg, now)
 
-    monkeypatch.setattr(app_module._GazeLink, "handle", handle)
+    monkeypatch.setattr(gaze_link.GazeLink, "handle", handle)
     t = make_tracker()
     before = timed_stream(5)
     after = timed_stream(4, t0_us=1_533_000, host0_ns=before.taken_ns[-1] + 1_500_000_000)

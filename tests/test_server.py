@@ -20,7 +20,7 @@ import websockets
 from conftest import sole_tracker
 from websockets.exceptions import ConnectionClosed
 
-from gazehdr import app
+from gazehdr import gaze_link
 from gazehdr.live import MAX_IDLE_S
 from gazehdr.metrics import Counter
 from gazehdr.protocol import FrameHeader, decode_frame
@@ -541,10 +541,19 @@ SAMPLES = {"type": "samples", "samples": [{"t": 1, "x": 0.5, "y": 0.5}] * 1000}
 FIXATION = {"type": "event", "kind": "fixation_start", "id": 1, "t": 1, "x": 0.5, "y": 0.5}
 # kind: (message, its limit, the counter of what the limit dropped)
 FLOODS = {
-    "samples": (SAMPLES, app.SAMPLE_LIMIT, "gaze_rate_limited"),
-    "events": (FIXATION, app.EVENT_LIMIT, "gaze_events_rate_limited"),
-    "echoes": ({"type": "echo", "t0": 7}, app.ECHO_LIMIT, "gaze_echoes_rate_limited"),
+    "samples": (SAMPLES, gaze_link.SAMPLE_LIMIT, "gaze_rate_limited"),
+    "events": (FIXATION, gaze_link.EVENT_LIMIT, "gaze_events_rate_limited"),
+    "echoes": ({"type": "echo", "t0": 7}, gaze_link.ECHO_LIMIT, "gaze_echoes_rate_limited"),
 }
+
+
+def test_the_daemon_knows_the_servers_gaze_limits() -> None:
+    """drivers/delivery.py mirrors the server's limit (a tracker machine has no server code)."""
+    from gazehdr.drivers import delivery
+
+    assert delivery.SERVER_RATE_HZ == gaze_link.GAZE_RATE_HZ
+    assert delivery.DEFAULT_RATE_HZ < gaze_link.GAZE_RATE_HZ
+    assert delivery.DEFAULT_BURST < gaze_link.GAZE_BURST
 
 
 @pytest.mark.parametrize("kind", FLOODS)
@@ -573,7 +582,7 @@ def test_a_gaze_flood_is_rate_limited_without_harming_viewers(live_server, kind:
     )
     told = sum(int(re.match(r"rate limit: (\d+) ", n)[1]) for n in notes)
     assert 0 < told <= dropped  # since the last note; what follows the last one is only counted
-    assert len(notes) <= 1 + flood.seconds / app.NOTE_INTERVAL_S
+    assert len(notes) <= 1 + flood.seconds / gaze_link.NOTE_INTERVAL_S
     # the flood did not starve another session: it went on making frames, in order, for its
     # viewer (flood_gaze waited for them, with the limit dropping before and after)
     assert all(b.frame > a.frame for a, b in itertools.pairwise(flood.frames))

@@ -70,8 +70,8 @@ def test_server_replies_follow_the_schema_and_parse_back(message):
 
 
 def test_the_servers_own_replies_follow_the_schema():
-    """What server/app.py's _GazeLink writes, literally."""
-    from gazehdr.app import GAZE_RATE_HZ
+    """What server/gaze_link.py's GazeLink writes, literally."""
+    from gazehdr.gaze_link import GAZE_RATE_HZ
 
     v = _validator("to_daemon")
     v.validate({"type": "welcome", "protocol": wire.PROTOCOL})
