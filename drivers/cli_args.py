@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from typing import Any, NoReturn
 
@@ -34,15 +35,12 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def screen_size_arg(text: str) -> tuple[int, int]:
-    """argparse type of a screen size `WxH` in pixels (`gazehdr import`, `gazehdr daemon`)."""
-    parts = text.lower().replace("×", "x").split("x")
-    try:
-        width, height = (int(v) for v in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected WIDTHxHEIGHT such as 1920x1080, got {text!r}"
-        ) from None
-    return width, height
+    """argparse type of a size `WxH` in pixels (`x`, `X` or `×`): a screen's (`gazehdr import`,
+    `gazehdr daemon`) or a frame's (`gazehdr serve`, `render`, `experiment`)."""
+    match = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 1920x1080, got {text!r}")
+    return int(match[1]), int(match[2])
 
 
 def positive_arg(text: str) -> float:

@@ -11,27 +11,19 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from gazehdr.drivers import registry
-from gazehdr.drivers.cli_args import OneLineParser
+from gazehdr.drivers.cli_args import OneLineParser, screen_size_arg
 
 PROG = "gazehdr"
 
 
 class UsageError(Exception):
     """A mistake in what the user asked for; reported in one line with status 2."""
-
-
-def _size(text: str) -> tuple[int, int]:
-    match = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", text)
-    if not match:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x360, got {text!r}")
-    return int(match[1]), int(match[2])
 
 
 def _add_model_options(p: argparse.ArgumentParser, whose: str, default: str = "") -> None:
@@ -60,7 +52,7 @@ def _data_dir(given: str | None) -> Path:
 def _add_size_and_backend(p: argparse.ArgumentParser, size: tuple[int, int], what: str) -> None:
     p.add_argument(
         "--size",
-        type=_size,
+        type=screen_size_arg,
         default=size,
         metavar="WxH",
         help=f"{what} (default: {size[0]}x{size[1]})",
@@ -201,7 +193,7 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
     p.add_argument(
         "--size",
-        type=_size,
+        type=screen_size_arg,
         default=(640, 360),
         metavar="WxH",
         help="frame pixel budget; the frame takes the viewer's aspect ratio (default: 640x360)",

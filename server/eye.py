@@ -129,8 +129,8 @@ class Eye:
         end = start + dt
         while (change := self.scene.next_change(self.time)) is not None and change < end:
             part = change - self.time
-            for sim in self.sims:
-                sim.step(part, gaze=pane_gaze, eyes_open=eyes_open)
+            for sim in self.sims:  # no frame for a part: only the last one is shown
+                sim.advance(part, gaze=pane_gaze, eyes_open=eyes_open)
             self._follow_scene()
         self._follow_scene()
         rest = dt if self.time == start else max(0.0, end - self.time)

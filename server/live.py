@@ -313,12 +313,12 @@ class LiveSession:
     def forward_gaze(self, feed: TrackerFeed) -> None:
         """`feed` has a new reading: to the viewers that warp, if the session follows it (they
         place the afterimages at it until the next frame, docs/protocol.md `gaze`)."""
-        if self.session.gaze_source != REMOTE_PREFIX + feed.name:
+        warping = [v for v in self.viewers if v.warp]
+        if not warping or self.session.gaze_source != REMOTE_PREFIX + feed.name:
             return
         note = gaze_note(feed.reading)
-        for viewer in self.viewers:
-            if viewer.warp:
-                viewer.forward_gaze(note)
+        for viewer in warping:
+            viewer.forward_gaze(note)
 
     async def _demand(self, patience: float) -> None:
         """Wait (up to `patience` s) until some viewer would take a new frame: frames nobody

@@ -250,6 +250,11 @@ def test_the_palette_preset_is_fig_15() -> None:
         ("flash = 1e7, model", "flash = -1.0, model", "palette.choices[1].flash = -1.0"),
         ('scaled = ["halo_luminance"]', 'scaled = ["colour"]', "palette.scaled = 'colour'"),
         ('scaled = ["halo_luminance"]', 'option = "name"\nscaled = []', "palette.option = 'name'"),
+        (  # a pair of luminances: the flashes cannot be scaled by it
+            'scaled = ["halo_luminance"]',
+            'option = "halo_luminance"\nscaled = []',
+            "palette.option = 'halo_luminance'",
+        ),
         ("repeats = { palette = 1 }", "repeats = { palette = 0 }", "repeats.palette = 0"),
         ("[palette]", "[palette]\ncrop = 2.0", "palette.crop = 2.0"),
         ("[conditions.palette]", "[conditions.palette]\n[conditions.control]", "blocks[1]"),

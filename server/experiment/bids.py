@@ -12,6 +12,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
+from gazehdr.atomic import write_text
 from gazehdr.drivers.formats.bids.layout import BIDS_VERSION, write_json
 from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.design import Design
@@ -117,7 +118,7 @@ def write_results(
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = ["\t".join(BEH_COLUMNS)]
     lines += ["\t".join(cell(row.get(c)) for c in BEH_COLUMNS) for row in rows]
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(lines) + "\n")
     write_json(path.with_suffix(".json"), sidecar(design))
     score_cell = NA if score is None else cell(float(score))
     descriptions = participant_columns(design.name)
@@ -149,7 +150,7 @@ def set_participant(
         rows.append(row)
     row.update(values)
     text = ["\t".join(header)] + ["\t".join(r.get(c, NA) for c in header) for r in rows]
-    path.write_text("\n".join(text) + "\n", encoding="utf-8")
+    write_text(path, "\n".join(text) + "\n")  # every observer's row: never half-written
     described = root / "participants.json"
     data = json.loads(described.read_text(encoding="utf-8")) if described.exists() else {}
     data.setdefault("participant_id", {"Description": "the observer id given at the start"})

@@ -10,17 +10,10 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from gazehdr.drivers.cli_args import screen_size_arg
 from gazehdr.experiment import commands as analysis_commands
 from gazehdr.experiment.design import PRESETS, load_design
 from gazehdr.experiment.observer import SimulatedObserver
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT, got {text!r}") from None
-    return w, h
 
 
 def parse_pse(text: str) -> dict[str, float]:
@@ -54,7 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", required=True, type=Path, help="the BIDS dataset root for results")
     run.add_argument("--seed", type=int, default=None, help="trial order (default: new per run)")
     run.add_argument(
-        "--size", type=_size, default=None, help="frame WIDTHxHEIGHT (default: the design's)"
+        "--size",
+        type=screen_size_arg,
+        default=None,
+        help="frame WIDTHxHEIGHT (default: the design's)",
     )
     run.add_argument("--backend", default="opencl", choices=("opencl", "reference"))
     run.add_argument(

@@ -182,7 +182,8 @@ def run_recovery(args: argparse.Namespace) -> int:
         )
     total = sum(c.runs for c in coverage)
     covered = sum(c.covered for c in coverage)
-    print(f"coverage {covered}/{total} = {covered / total:.1%} (required: {args.require:.0%})")
+    rate = covered / total if total else 0.0
+    print(f"coverage {covered}/{total} = {rate:.1%} (required: {args.require:.0%})")
     if not ok:
         sys.stderr.write(f"{PROG}: coverage below {args.require:.0%}\n")
     return 0 if ok else 1

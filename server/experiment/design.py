@@ -290,6 +290,10 @@ class _Reader:
                 )
                 if not ok or n.startswith("_"):
                     raise self.fail(f"palette.{key}", n, f"not a luminance option of {scene}")
+                scalar = isinstance(value, int | float)
+                if key == "option" and not (scalar and math.isfinite(value) and value > 0):
+                    raise self.fail("palette.option", n, "must be a positive luminance in the "
+                                    "scene: the palette's flashes are scaled by it")  # fmt: skip
         value = table.pop("choices", [])
         if not isinstance(value, list):
             raise self.fail("palette.choices", value, "must be an array of tables")

@@ -171,7 +171,8 @@ class Params:
     thompson_noise_hz: float = 30.0  # ours: new noise this often (a display frame rate)
 
     def __post_init__(self) -> None:
-        positive = ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps")
+        positive = ("n", "a1", "a2", "c1", "c2", "gamma", "plateau_K", "Y_min", "alpha_eps",
+                    "fovea_sigma_deg")  # fmt: skip
         sec5 = ("tracker_rate_hz", "afterimage_boost_s", "saccade_deg_s", "rod_free_radius_deg",
                 "fixation_s")  # fmt: skip
         acuity = ("acuity_sigma_max_deg", "bilateral_sigma_r", "thompson_noise_hz")
