@@ -49,7 +49,7 @@ def _server_snapshot(metrics) -> dict[str, float]:
         "bytes": metrics.bytes_sent.value,
         "sim_s": metrics.sim_seconds.total,
         "sim_n": metrics.sim_seconds.n,
-        "enc_s": metrics.encode_seconds.total,
+        "enc_s": metrics.encode_seconds.total + metrics.stream_encode_seconds.total,
         "send_s": metrics.send_seconds.total,
         "send_n": metrics.send_seconds.n,
     }

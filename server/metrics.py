@@ -76,7 +76,12 @@ class Metrics:
         )
         self.bytes_sent = Counter("gazehdr_frame_bytes_sent_total", "Frame bytes sent.")
         self.sim_seconds = Histogram("gazehdr_sim_seconds", "Simulation step time per frame.")
-        self.encode_seconds = Histogram("gazehdr_encode_seconds", "Frame encoding time.")
+        self.encode_seconds = Histogram(
+            "gazehdr_encode_seconds", "Time to encode a step's frame in the session's encoding."
+        )
+        self.stream_encode_seconds = Histogram(
+            "gazehdr_stream_encode_seconds", "Time to encode a frame for a stream (av1)."
+        )
         self.send_seconds = Histogram("gazehdr_send_seconds", "Time to hand a frame to a socket.")
         self.gaze_latency = Histogram(
             "gazehdr_gaze_latency_seconds",

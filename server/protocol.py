@@ -145,9 +145,12 @@ def encode_pixels(v: np.ndarray, encoding: Encoding) -> bytes:
     return payload(encode_output(v, SIM_OUTPUT[encoding]))
 
 
-def payload(encoded: np.ndarray) -> bytes:
-    """Bytes of an array `Simulator.step(output=...)` returned, little-endian as on the wire."""
-    return encoded.astype(encoded.dtype.newbyteorder("<"), copy=False).tobytes()
+def payload(encoded: np.ndarray) -> memoryview:
+    """The bytes of an array `Simulator.step(output=...)` returned, little-endian as on the
+    wire: a view, not a copy (a frame is megabytes; the message copies it once, with its
+    header). The array must not change afterwards: each step returns a new one."""
+    wire = np.ascontiguousarray(encoded, encoded.dtype.newbyteorder("<"))
+    return memoryview(wire).cast("B")
 
 
 def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:

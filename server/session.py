@@ -121,13 +121,13 @@ class SessionSettings:
 @dataclass(frozen=True)
 class Frame:
     header: FrameHeader
-    payload: bytes
+    payload: bytes | memoryview  # a view of the step's frame (protocol.payload), or a packet
     sim_seconds: float
     encode_seconds: float
     #: When the gaze this frame is the first to use reached the server (None: no new gaze).
     gaze_received_at: float | None
     #: The same frame as late-warp layers (`gazehdr.warp`), made when a viewer asked for them.
-    warp: bytes | None = None
+    warp: bytearray | None = None
 
     def message(self, dropped: int, warp: bool = False) -> bytes | None:
         """The frame's message, as late-warp layers if `warp`; None when the step did not make

@@ -105,13 +105,11 @@ class Streams:
             stream.want_key()
 
     def encode(self, frame: Frame, encodings: frozenset[Encoding]) -> dict[Encoding, Frame]:
-        """`frame` in its own encoding and in each of `encodings`; streams no longer asked for
-        are closed (a viewer that asks again starts a new one, with a keyframe)."""
+        """`frame` in each of `encodings` (streams); streams no longer asked for are closed (a
+        viewer that asks again starts a new one, with a keyframe)."""
         for gone in set(self._streams) - encodings:
             self._drop([gone])
-        frames = {frame.header.encoding: frame}
-        if not encodings:
-            return frames
+        frames: dict[Encoding, Frame] = {}
         pixels = raw_pixels(frame)
         size = (frame.header.width, frame.header.height)
         for encoding in encodings:
@@ -222,7 +220,8 @@ class StreamViewers:
 
     def _deliver(self, viewers: list[Viewer], frames: dict[Encoding, Frame]) -> None:
         m = self.metrics
-        m.encode_seconds.observe(sum(f.encode_seconds for e, f in frames.items() if e in STREAMS))
+        for frame in frames.values():
+            m.stream_encode_seconds.observe(frame.encode_seconds)
         for viewer in viewers:
             frame = frames.get(viewer.encoding) if self.takes(viewer) else None
             if frame is not None:

@@ -51,7 +51,7 @@ class WarpFrame:
     w_P: tuple[float, float, float]
 
 
-def pack(panes: Sequence[WarpLayers], width: int, params: Params) -> bytes:
+def pack(panes: Sequence[WarpLayers], width: int, params: Params) -> bytearray:
     """The payload of one warp frame (`width` px wide; panes side by side, as `side_by_side`)."""
     if not 1 <= len(panes) <= MAX_PANES:
         raise ValueError(f"a warp frame has 1 or {MAX_PANES} panes, not {len(panes)}")
@@ -64,19 +64,21 @@ def pack(panes: Sequence[WarpLayers], width: int, params: Params) -> bytes:
     )  # fmt: skip
     rows = [_PANE.pack(*p.gaze, p.visibility, 0.0) for p in panes]
     rows += [_PANE.pack(0, 0, 0, 0)] * (MAX_PANES - len(panes))
-    if len(panes) == 1 and pw == width:
-        rgb = first.rgb
-    else:
-        rgb = np.zeros((h, width, 3), np.float16)  # an odd last column in split view: black
-        for i, p in enumerate(panes):
-            rgb[:, i * pw : (i + 1) * pw] = p.rgb
-    # Per pane, gain - 1 then the additive term, each grid_h×grid_w×3 (one texture of RGB
-    # texels, the panes' images stacked: web/warp.js).
-    return b"".join([head, *rows, _le(rgb), *(_le(p.maps) for p in panes)])
-
-
-def _le(halves: np.ndarray) -> bytes:
-    return np.ascontiguousarray(halves, "<f2").tobytes()
+    # Written in place into the one buffer sent (a 720p frame's layers are 8 MB): the base
+    # image, then per pane gain - 1 and the additive term, each grid_h×grid_w×3 (one texture
+    # of RGB texels, the panes' images stacked: web/warp.js).
+    maps_size = first.maps.size
+    out = bytearray(HEAD_BYTES + 2 * (h * width * 3 + len(panes) * maps_size))
+    out[:HEAD_BYTES] = b"".join([head, *rows])
+    rgb = np.frombuffer(out, "<f2", h * width * 3, HEAD_BYTES).reshape(h, width, 3)
+    for i, p in enumerate(panes):
+        rgb[:, i * pw : (i + 1) * pw] = p.rgb
+    rgb[:, len(panes) * pw :] = 0  # an odd last column in split view: black
+    at = HEAD_BYTES + rgb.nbytes
+    for p in panes:
+        np.frombuffer(out, "<f2", maps_size, at)[:] = p.maps.ravel()
+        at += 2 * maps_size
+    return out
 
 
 def unpack(payload: bytes | memoryview, width: int, height: int) -> WarpFrame:

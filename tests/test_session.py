@@ -44,7 +44,8 @@ SCRIPT = [  # (dt, controls): a flash seen at one place, then the eye moves and 
 
 
 def play(session: Session) -> list[bytes]:
-    return [tick(session, dt, [(c, 0.0) for c in controls])[0].payload for dt, controls in SCRIPT]
+    frames = [tick(session, dt, [(c, 0.0) for c in controls])[0] for dt, controls in SCRIPT]
+    return [bytes(f.payload) for f in frames]
 
 
 def test_same_inputs_same_frames() -> None:
