@@ -121,7 +121,7 @@ class SessionSettings:
 @dataclass(frozen=True)
 class Frame:
     header: FrameHeader
-    payload: bytes | memoryview  # a view of the step's frame (protocol.payload), or a packet
+    payload: bytes
     sim_seconds: float
     encode_seconds: float
     #: When the gaze this frame is the first to use reached the server (None: no new gaze).
