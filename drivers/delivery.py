@@ -62,9 +62,7 @@ from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog import EVENT_KINDS, ClockUpdate, Note
 from gazehdr.drivers.sources import SourceInfo
 
-#: The server's sustained limit per connection, gazehdr.gaze_link.GAZE_RATE_HZ (the daemon does
-#: not import the server; tests/test_server.py keeps the two equal).
-SERVER_RATE_HZ = 2000.0
+SERVER_RATE_HZ = 2000.0  # gazehdr.gaze_link.GAZE_RATE_HZ, kept equal by tests/test_server.py
 DEFAULT_RATE_HZ = 1900.0  # what the daemon sends at most: below the limit, with margin
 DEFAULT_BURST = 1000.0  # below the server's burst of 4000
 DEFAULT_BUFFER = 20_000  # items (samples and events): 10 s of a 2000 Hz tracker
