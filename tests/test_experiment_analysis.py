@@ -138,6 +138,10 @@ def test_ranksum_is_scipys_mann_whitney_with_matlabs_choice_of_method():
         [1, 2, 2, 3], [2, 4, 5, 5], method=stats.PermutationMethod(n_resamples=math.inf)
     )
     assert tied.method == "exact" and tied.p == pytest.approx(perm.pvalue)
+    # One observer in a group, with ties (two fits at the same search bound): no exact p to be
+    # had from the permutation test, the normal approximation instead of an error.
+    lone = ranksum([0.3], [-0.6, -0.6, 0.2, 0.1])
+    assert lone.method == "approximate" and 0 < lone.p <= 1 and lone.p_exact is None
     # The paper's mesopic p = 2.84e-6 is the exact p of 11 vs 11 observers without overlap.
     apart = ranksum(np.arange(11.0), np.arange(11.0) + 20)
     assert apart.p_exact == pytest.approx(2 / math.comb(22, 11)) == pytest.approx(2.84e-6, rel=2e-3)

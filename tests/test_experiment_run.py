@@ -18,8 +18,9 @@ from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.design import load_design, parse_design
 from gazehdr.experiment.observer import SimulatedObserver
 from gazehdr.experiment.runner import ExperimentRun, Presented, RunError, run_headless
-from gazehdr.experiment.schedule import Trial
-from gazehdr.experiment.stimulus import clip, palette_images
+from gazehdr.experiment.dataset import read_beh
+from gazehdr.experiment.schedule import Trial, log_ratio
+from gazehdr.experiment.stimulus import PHASES, Clip, clip, palette_images
 from tests.test_bids_dataset import validate
 from tests.test_experiment_design import PALETTE, TINY
 
@@ -253,3 +254,27 @@ def test_a_palette_trial_takes_only_known_options(tmp_path: Path) -> None:
     run.respond(palette=["C1"], response_time=1.5)
     run.present()
     assert run.respond(palette=["H1"]).finished
+
+
+def test_a_black_stimulus_frame_is_refused_not_scaled_to_nan() -> None:
+    design = parse_design(TINY)
+    black = Clip(
+        np.zeros((2, 4, 4, 3), np.float16), np.array([0.0, 0.1]), PHASES, 0.2, 2.2,
+        (0.2126, 0.7152, 0.0722),
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="stimulus frame 0 is black"):
+        black.shown(100.0, design)
+
+
+def test_relative_intensities_stay_finite_where_their_quotient_would_not(tmp_path: Path) -> None:
+    assert log_ratio(1e300, 1e-10) == pytest.approx(310.0)
+    assert log_ratio(1e-300, 1e100) == pytest.approx(-400.0)
+    path = tmp_path / "sub-a_task-x_beh.tsv"
+    rows = [dict.fromkeys(BEH_COLUMNS, "n/a") for _ in range(1)]
+    rows[0] |= {"test_intensity": "1e-300", "standard_intensity": "1e100"}
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        w = csv.DictWriter(f, list(BEH_COLUMNS), delimiter="\t", lineterminator="\n")
+        w.writeheader()
+        w.writerows(rows)
+    trials = read_beh(path)
+    assert trials[0].x == pytest.approx(-400.0)

@@ -153,6 +153,8 @@ def test_bad_parameters_are_refused() -> None:
         Params(m1=-3.0)
     with pytest.raises(ValueError, match="fovea_sigma_deg"):  # the fall-off divides by it
         Params(fovea_sigma_deg=0.0)
+    with pytest.raises(ValueError, match="alpha_eps"):  # contrast_floor takes log(1 - eps)
+        Params(alpha_eps=1.0)
     with pytest.raises(ValueError, match="unknown parameter"):
         Params.from_dict({"a3": 1.0})
     assert Params.from_dict(Params().to_dict()) == Params()

@@ -179,7 +179,9 @@ def ranksum(x: Sequence[float], y: Sequence[float]) -> RankSum:
     p_exact = None
     if np.all(ties == 1):
         p_exact = float(stats.mannwhitneyu(x, y, method="exact").pvalue)
-    elif math.comb(n, nx) <= 200_000:  # exhaustive permutations of the midranks, as MATLAB's
+    elif min(nx, ny) >= 2 and math.comb(n, nx) <= 200_000:
+        # Exhaustive permutations of the midranks, as MATLAB's (scipy's permutation test
+        # needs two values a side; a group of one gets the normal approximation).
         perm = stats.PermutationMethod(n_resamples=math.inf)
         p_exact = float(stats.mannwhitneyu(x, y, method=perm).pvalue)
     exact = min(nx, ny) < 10 and n < 20 and p_exact is not None

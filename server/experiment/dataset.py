@@ -12,6 +12,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from gazehdr.experiment.schedule import log_ratio
+
 NA = "n/a"
 #: The columns the analysis needs; the others of BEH_COLUMNS are carried but not required.
 REQUIRED = ("condition", "chose_test")
@@ -76,7 +78,7 @@ def _log_relative(row: dict[str, str], path: Path, line: int) -> float | None:
     test = _number(row.get("test_intensity", NA), path, line, "test_intensity")
     standard = _number(row.get("standard_intensity", NA), path, line, "standard_intensity")
     if test and standard and test > 0 and standard > 0:
-        return math.log10(test / standard)
+        return log_ratio(test, standard)
     return None
 
 

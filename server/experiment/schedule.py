@@ -14,6 +14,12 @@ import numpy as np
 from gazehdr.experiment.design import Design
 
 
+def log_ratio(test: float, standard: float) -> float:
+    """log10(test / standard) of two positive intensities, as a difference of logs: finite
+    for any two finite positive numbers (their quotient may overflow)."""
+    return math.log10(test) - math.log10(standard)
+
+
 @dataclass(frozen=True)
 class Trial:
     number: int  # in the run, from 1, in presentation order
@@ -31,7 +37,7 @@ class Trial:
 
     @property
     def log_relative_intensity(self) -> float:
-        return math.log10(self.test / self.standard)
+        return log_ratio(self.test, self.standard)
 
     @property
     def intensities(self) -> tuple[float, ...]:

@@ -104,7 +104,12 @@ class Clip:
                 have = float(Y.max())
             else:
                 have, want = float(Y.mean()), want * ratios[min(i, len(ratios) - 1)]
-            gain = (want / max(have, 1e-30)) ** self.gamma  # (k J)^gamma = k^gamma v
+            if not have > 0:  # nothing to scale: the gain would be infinite
+                raise ValueError(
+                    f"stimulus frame {i} is black: it cannot be scaled to {intensity:g} cd/m^2 "
+                    "(its look shows no light while the flash is on)"
+                )
+            gain = (want / have) ** self.gamma  # (k J)^gamma = k^gamma v
             v[i] = np.clip(v[i] * gain, 0.0, 1.0)
         return encode_output(v, "float16")
 
@@ -138,7 +143,8 @@ def palette_images(design: Design, size: tuple[int, int], backend: str) -> list[
     for choice in design.palette:
         c = render_clip(design, design.flash_look(choice.look, choice.flash), size, backend)
         i = c.phases.index("off")
-        y, x = np.unravel_index(np.argmax(c.luminance(i)), c.luminance(i).shape)
+        Y = c.luminance(i)
+        y, x = np.unravel_index(np.argmax(Y), Y.shape)
         h, w = c.frames.shape[1:3]
         side = max(1, min(h, w, round(design.palette_crop * h)))
         y0, x0 = min(max(y - side // 2, 0), h - side), min(max(x - side // 2, 0), w - side)

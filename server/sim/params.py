@@ -187,6 +187,8 @@ class Params:
                 raise ValueError(f"parameter {name} must be three finite positive numbers")
         if not self.m1 > self.m2:
             raise ValueError(f"m1 ({self.m1}) must be greater than m2 ({self.m2})")
+        if not self.alpha_eps < 1:  # Eq. 11's guard; contrast_floor takes log(1 - alpha_eps)
+            raise ValueError(f"alpha_eps must be below 1, got {self.alpha_eps}")
         if not 0 < self.plateau_m_over_n < 1:
             raise ValueError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
         if self.bands < 1:
