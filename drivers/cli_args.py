@@ -43,6 +43,12 @@ def screen_size_arg(text: str) -> tuple[int, int]:
     return int(match[1]), int(match[2])
 
 
+def size_list_arg(text: str) -> list[tuple[int, int]]:
+    """argparse type of sizes `WxH,WxH,...` (the benchmarks' `--sizes`), each as
+    `screen_size_arg` reads it."""
+    return [screen_size_arg(part) for part in text.split(",")]
+
+
 def positive_arg(text: str) -> float:
     """argparse type of a positive number, such as a length in metres."""
     try:

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from gazehdr.drivers.cli_args import size_list_arg
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import (
     LMS_TO_RGB,
@@ -299,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="gazehdr bench", description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=10, help="timed frames per size (default 10)")
     ap.add_argument("--scene", default="lamp", help="built-in scene (default lamp: 1e-1..1e6)")
-    ap.add_argument("--sizes", default=",".join(f"{w}x{h}" for w, h in SIZES))
+    ap.add_argument("--sizes", type=size_list_arg, default=",".join(f"{w}x{h}" for w, h in SIZES))
     ap.add_argument("--dt", type=float, default=1 / 60, help="seconds per frame (default 1/60)")
     ap.add_argument(
         "--opencl-only", action="store_true", help="time the kernels only, without OpenCV"
@@ -342,12 +343,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--roof-mib must be at least 1")
     if not 0 < args.dt <= 60:
         ap.error("--dt must be in (0, 60] seconds")
-    try:
-        sizes = [tuple(int(v) for v in s.split("x")) for s in args.sizes.split(",")]
-    except ValueError:
-        ap.error(f"--sizes must look like 640x360,1280x720, got {args.sizes!r}")
     roofs = None
-    for width, height in sizes:
+    for width, height in args.sizes:
         if args.roofline:
             roofs = _print_roofline(width, height, args, roofs)
         if models is not None:

@@ -26,8 +26,10 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from gazehdr import netlink
+from gazehdr.drivers.cli_args import size_list_arg
 from gazehdr.protocol import RAW, Encoding, split_frame
 
 CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
@@ -38,9 +40,28 @@ CHROMIUM_ARGS = [
 ]  # fmt: skip
 
 
-def _size(text: str) -> tuple[int, int]:
-    w, h = text.lower().split("x")
-    return int(w), int(h)
+def serve_web(page: Any, origin: str = "http://viewer.test", web_dir: Path | None = None) -> str:
+    """Serve the viewer's files (`web_dir`, default the installed viewer) to a Playwright
+    `page` under a made-up origin, with no server (the shaders need none), and open a blank
+    page there. WebCodecs needs a secure context: `http://localhost` is one."""
+    from gazehdr.viewer import default_web_dir
+
+    root = (web_dir or default_web_dir()).resolve()
+    types = {".js": "text/javascript", ".html": "text/html", ".css": "text/css"}
+
+    def handle(route: Any) -> None:
+        path = route.request.url[len(origin) :].split("?")[0].lstrip("/") or "blank.html"
+        file = root / path
+        if path == "blank.html":
+            route.fulfill(body="<!doctype html><title>blank</title>", content_type="text/html")
+        elif file.is_file() and root in file.resolve().parents:
+            route.fulfill(body=file.read_bytes(), content_type=types.get(file.suffix, "text/plain"))
+        else:
+            route.fulfill(status=404, body="not found")
+
+    page.route(f"{origin}/**", handle)
+    page.goto(f"{origin}/blank.html")
+    return origin
 
 
 def _server_snapshot(metrics) -> dict[str, float]:
@@ -197,7 +218,7 @@ async def _socket_client(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="gazehdr bench-live", description=__doc__.split("\n")[0])
-    parser.add_argument("--sizes", default="1280x720,1920x1080")
+    parser.add_argument("--sizes", type=size_list_arg, default="1280x720,1920x1080")
     parser.add_argument("--encodings", default="f16,rgb10a2")
     parser.add_argument("--clients", default="browser,socket")
     parser.add_argument("--scene", default="lamp")
@@ -228,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{'sim ms':>7} {'enc ms':>7} {'send ms':>7} {'lat p50':>8} {'lat p95':>8} {'n':>4} "
         f"{'Mbit/s':>7} {'dec ms':>7} {'lost':>4}"
     )
-    for size in (_size(s) for s in args.sizes.split(",")):
+    for size in args.sizes:
         for encoding in args.encodings.split(","):
             for client in args.clients.split(","):
                 chosen = Encoding[encoding]

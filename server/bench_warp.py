@@ -16,6 +16,7 @@ import statistics
 import time
 from typing import Any
 
+from gazehdr.drivers.cli_args import screen_size_arg
 from gazehdr.protocol import Encoding, Gaze
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.session import Frame, Session, SessionSettings
@@ -96,7 +97,7 @@ def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> di
     Chromium, plain against warp; Chromium as tests/test_browser.py starts it."""
     from playwright.sync_api import sync_playwright
 
-    from tests.test_browser import CHROMIUM, CHROMIUM_ARGS, _serve_web
+    from gazehdr.bench_live import CHROMIUM, CHROMIUM_ARGS, serve_web
 
     settings = SessionSettings(
         width=size[0], height=size[1], scene="flash", encoding=encoding, fit_viewport=False
@@ -110,7 +111,7 @@ def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> di
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page()
-            _serve_web(page)
+            serve_web(page)
             b64 = [base64.b64encode(m).decode() for m in (plain, warp)]
             return page.evaluate(BROWSER_JS, [*b64, draws])
         finally:
@@ -119,12 +120,12 @@ def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> di
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m gazehdr.bench_warp", description=__doc__)
-    parser.add_argument("--size", default="1280x720")
+    parser.add_argument("--size", type=screen_size_arg, default="1280x720")
     parser.add_argument("--encoding", default="rgb10a2", choices=("f16", "rgb10a2"))
     parser.add_argument("--rounds", type=int, default=20)
     parser.add_argument("--browser", action="store_true", help="also the viewer's cost")
     args = parser.parse_args(argv)
-    size = tuple(int(s) for s in args.size.split("x"))
+    size = args.size
     encoding = Encoding[args.encoding]
     print(f"{size[0]}x{size[1]}, plain frames {args.encoding}, {os.cpu_count()} CPUs")
     for mode, r in measure_server(size, encoding, args.rounds).items():  # type: ignore[arg-type]

@@ -125,13 +125,13 @@ _ONCE = threading.Lock()
 
 @cache
 def _program() -> tuple[Any, Any]:
-    """The kernels, built once per process on the simulator's device (no fast math: the
-    integer arithmetic and the one float rounding must be exact)."""
+    """The kernels, built once per process in the simulator's context (no fast math, so not
+    `build_program`: the integer arithmetic and the one float rounding must be exact)."""
     import pyopencl as cl
 
-    from gazehdr.sim.opencl import pick_device
+    from gazehdr.sim.opencl import shared_context
 
-    ctx = cl.Context([pick_device()])
+    ctx = shared_context()
     return ctx, cl.Program(ctx, KERNEL).build()
 
 

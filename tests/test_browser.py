@@ -27,21 +27,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from gazehdr.bench_live import CHROMIUM, CHROMIUM_ARGS, serve_web
 from tests.waiting import wait_until
 
-CHROMIUM = os.environ.get("GAZEHDR_CHROMIUM", "/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless=new",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-]
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 #: The frame header of docs/protocol.md, written out again here so that the test checks the
 #: browser's decoder against the document, not against the server's own code.
@@ -572,23 +560,8 @@ async ([size, frames, encoding, words]) => {
 
 
 def _serve_web(page: Any, origin: str = "http://viewer.test") -> str:
-    """Serve web/ from disk under a made-up origin: the shader needs no server. (WebCodecs
-    needs a secure context: `http://localhost` is one.)"""
-    types = {".js": "text/javascript", ".html": "text/html", ".css": "text/css"}
-
-    def handle(route: Any) -> None:
-        path = route.request.url[len(origin) :].split("?")[0].lstrip("/") or "blank.html"
-        file = WEB_DIR / path
-        if path == "blank.html":
-            route.fulfill(body="<!doctype html><title>blank</title>", content_type="text/html")
-        elif file.is_file() and WEB_DIR in file.resolve().parents:
-            route.fulfill(body=file.read_bytes(), content_type=types.get(file.suffix, "text/plain"))
-        else:
-            route.fulfill(status=404, body="not found")
-
-    page.route(f"{origin}/**", handle)
-    page.goto(f"{origin}/blank.html")
-    return origin
+    """web/ of this checkout, served from disk (`gazehdr.bench_live.serve_web`)."""
+    return serve_web(page, origin, WEB_DIR)
 
 
 def _dither(page: Any, encoding: int, words: list[int], size: int, frames: int) -> np.ndarray:

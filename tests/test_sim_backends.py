@@ -266,7 +266,7 @@ import gazehdr.sim.opencl as o
 got, start = [], threading.Barrier(6)
 def first_use():
     start.wait()
-    got.append((o._context(), o.build_program(o.KERNEL_FILES)))
+    got.append((o.shared_context(), o.build_program(o.KERNEL_FILES)))
 threads = [threading.Thread(target=first_use) for _ in range(6)]
 for t in threads: t.start()
 for t in threads: t.join()

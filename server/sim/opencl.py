@@ -76,13 +76,14 @@ def pick_device() -> cl.Device:
     return (gpus or devices)[0]
 
 
-#: Sessions start on threads of their own, several at once: without it, each first caller of
-#: `_context` would make a context of its own (functools.cache does not hold others back), and a
-#: program built on one would meet buffers of another (INVALID_CONTEXT).
+#: Sessions (and the av1 streams' converters, gazehdr.yuv) start on threads of their own,
+#: several at once: without it, each first caller of `shared_context` would make a context of
+#: its own (functools.cache does not hold others back), and a program built on one would meet
+#: buffers of another (INVALID_CONTEXT).
 _ONCE = threading.RLock()
 
 
-def _context() -> cl.Context:
+def shared_context() -> cl.Context:
     """The one OpenCL context of this process."""
     with _ONCE:
         return _make_context()
@@ -104,7 +105,7 @@ def build_program(files: tuple[str, ...]) -> cl.Program:
 
 @cache
 def _build_program(files: tuple[str, ...]) -> cl.Program:
-    ctx = _context()
+    ctx = shared_context()
     pkg = resources.files("gazehdr.sim") / "kernels"
     source = "\n".join([params_struct(), *((pkg / name).read_text() for name in files)])
     options = ["-cl-fast-relaxed-math"]
@@ -125,7 +126,7 @@ class OpenCLBackend:
 
     def __init__(self, layout: Layout, params: Params) -> None:
         self.lay, self.p = layout, params
-        self.ctx = _context()
+        self.ctx = shared_context()
         self.queue = cl.CommandQueue(self.ctx)
         self.device_name = self.ctx.devices[0].name.strip()
         self.k = self.kernels(KERNEL_FILES)
