@@ -14,6 +14,7 @@ serial render with the same seed writes.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import glob
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr import atomic
+from gazehdr.drivers.cli_args import screen_size_arg
 from gazehdr.render import RenderRequest, render_request
 from gazehdr.sim.models import Models
 
@@ -102,10 +104,10 @@ def manifest_fields(batch: Batch) -> dict[str, Any]:
     """The [render] table as `RenderRequest` fields, its paths resolved against the manifest."""
     fields = dict(batch.render)
     if "size" in fields:
-        match = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", str(fields.pop("size")))
-        if not match:
-            raise ValueError("batch manifest: size must be WIDTHxHEIGHT such as 640x360")
-        fields["width"], fields["height"] = int(match[1]), int(match[2])
+        try:
+            fields["width"], fields["height"] = screen_size_arg(str(fields.pop("size")))
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"batch manifest: size: {e}") from None
     for key in _PATH_KEYS:
         if isinstance(fields.get(key), str):
             fields[key] = str(batch.base / fields[key])
@@ -163,14 +165,14 @@ def expand(
         for model in models:
             for preset in presets:
                 fields: dict[str, Any] = {"gaze": str(Path(log).resolve())}
-                if model is not None:
-                    parsed = Models.parse(model)  # a wrong name: ValueError now
+                parsed = None if model is None else Models.parse(model)  # a wrong name: now
+                if parsed is not None:
                     fields |= {"afterimage": parsed.afterimage, "acuity": parsed.acuity}
                 if preset is not None:
                     fields["params"] = str(Path(preset).resolve())
                 job = dataclasses.replace(request, **fields)
                 stem = Path(preset).stem if preset is not None else None
-                ident = job_id(job, model and str(Models.parse(model)), stem)
+                ident = job_id(job, parsed and str(parsed), stem)
                 jobs.setdefault(ident, Job(ident, job))
     return list(jobs.values())
 
@@ -309,7 +311,8 @@ def run_batch(
     out_root.mkdir(parents=True, exist_ok=True)
     result = BatchResult()
     result.skipped = [] if redo else [j.id for j in jobs if is_finished(j, out_root)]
-    todo = [j for j in jobs if j.id not in set(result.skipped)]
+    skipped = set(result.skipped)
+    todo = [j for j in jobs if j.id not in skipped]
     bar = tqdm(total=len(jobs), initial=len(result.skipped), unit="job", disable=not progress)
     with bar, contextlib.ExitStack() as stack:
         if todo:

@@ -49,15 +49,23 @@ class Streams:
         self._streams: dict[Encoding, video.Stream] = {}
         self._thread: concurrent.futures.ThreadPoolExecutor | None = None
         self._busy: concurrent.futures.Future[dict[Encoding, Frame]] | None = None
+        self._dropping = False  # `idle` has sent the streams' end to their thread
+
+    def idle(self) -> None:
+        """Nobody watches a stream: end them (on their thread, where one may be encoding), so
+        that a new viewer starts a new stream; once, not at every frame until that is done."""
+        if self._streams and self._thread is not None and not self._dropping:
+            self._dropping = True
+            self._thread.submit(self._drop_all)
+
+    def _drop_all(self) -> None:
+        self._drop(list(self._streams))
+        self._dropping = False
 
     def submit(self, frame: Frame, encodings: frozenset[Encoding], done: Done) -> bool:
         """Encode `frame` for `encodings` on the streams' thread, then call `done` (there) with
         the future of `encode`'s result. False, and nothing done, while the last frame is still
         being encoded: frames come faster than they can be coded, so this one is left out."""
-        if not encodings:  # nobody watches: a new viewer starts a new stream
-            if self._streams and self._thread is not None:  # where a stream may be encoding
-                self._thread.submit(self._drop, list(self._streams))
-            return True
         if self._busy is not None and not self._busy.done():
             return False
         if self._thread is None:
@@ -198,6 +206,9 @@ class StreamViewers:
         next step runs; each packet then goes to their mailboxes, on the event loop."""
         viewers = list(viewers)
         encodings = frozenset(v.encoding for v in viewers if self.takes(v))
+        if not encodings:
+            self.streams.idle()
+            return
         if any(v.encoding in encodings and v.keyed and not v.wants_frame() for v in viewers):
             self._missed(viewers, encodings)
             return

@@ -77,8 +77,6 @@ def available() -> str | None:
 class Packet:
     data: bytes
     key: bool
-    #: The frame's size (w, h); the coded picture is that rounded up to even.
-    size: tuple[int, int]
 
 
 class Encoder:
@@ -136,7 +134,7 @@ class Encoder:
         packets = self._codec.encode(f)
         if len(packets) != 1:  # low delay gives exactly one; anything else breaks the stream
             raise RuntimeError(f"the AV1 encoder gave {len(packets)} packets for one frame")
-        return Packet(bytes(packets[0]), packets[0].is_keyframe, self.size)
+        return Packet(bytes(packets[0]), packets[0].is_keyframe)
 
     def close(self) -> None:
         """End the stream (SVT-AV1 complains of an encoder dropped without its end)."""

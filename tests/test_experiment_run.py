@@ -15,10 +15,10 @@ import pytest
 from gazehdr.cli import main as cli_main
 from gazehdr.drivers.sessionlog import read_session_log
 from gazehdr.experiment.columns import BEH_COLUMNS
+from gazehdr.experiment.dataset import read_beh
 from gazehdr.experiment.design import load_design, parse_design
 from gazehdr.experiment.observer import SimulatedObserver
 from gazehdr.experiment.runner import ExperimentRun, Presented, RunError, run_headless
-from gazehdr.experiment.dataset import read_beh
 from gazehdr.experiment.schedule import Trial, log_ratio
 from gazehdr.experiment.stimulus import PHASES, Clip, clip, palette_images
 from tests.test_bids_dataset import validate

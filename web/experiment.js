@@ -3,7 +3,7 @@
 // renderer (temporal dithering), ask, time the key press from the prompt, post the answer.
 // window.gazehdrExperiment exposes the state for tests and for the experimenter's console.
 
-import { decodeFrame, decodeHeader, ENCODING } from './protocol.js';
+import { BYTES_PER_PIXEL, decodeFrame, decodeHeader } from './protocol.js';
 import { Renderer } from './renderer.js';
 
 const $ = (id) => document.getElementById(id);
@@ -68,27 +68,45 @@ function nextKey(allowed) {
 function streamFrames(response) {
   const got = { frames: new Map(), last: -1, done: false, failed: null };
   const reader = response.body.getReader();
-  let pending = new Uint8Array(0);
+  // Bytes in, not yet framed: buf[start, end), grown by doubling, so that a frame arriving in
+  // many chunks is copied once into it and once out (its own buffer), not once per chunk.
+  let buf = new Uint8Array(1 << 16);
+  let start = 0;
+  let end = 0;
+  const append = (chunk) => {
+    if (end + chunk.length > buf.length) {
+      const held = end - start;
+      if (held + chunk.length > buf.length) {
+        const grown = new Uint8Array(2 * (held + chunk.length));
+        grown.set(buf.subarray(start, end));
+        buf = grown;
+      } else {
+        buf.copyWithin(0, start, end); // room enough once what is held moves to the front
+      }
+      start = 0;
+      end = held;
+    }
+    buf.set(chunk, end);
+    end += chunk.length;
+  };
   (async () => {
     for (;;) {
       const { value, done } = await reader.read();
       if (done) break;
-      const data = new Uint8Array(pending.length + value.length);
-      data.set(pending);
-      data.set(value, pending.length);
-      let at = 0;
-      while (data.length - at >= 8) {
-        const headerBytes = new DataView(data.buffer, at + 6, 2).getUint16(0, true);
-        if (data.length - at < headerBytes) break;
-        const h = decodeHeader(data.slice(at, at + headerBytes).buffer);
-        const size = headerBytes + h.width * h.height * (h.encoding === ENCODING.F16 ? 6 : 4);
-        if (data.length - at < size) break;
-        const frame = decodeFrame(data.slice(at, at + size).buffer);
+      append(value);
+      while (end - start >= 8) {
+        const headerBytes = new DataView(buf.buffer, start + 6, 2).getUint16(0, true);
+        if (end - start < headerBytes) break;
+        const h = decodeHeader(buf.buffer.slice(start, start + headerBytes));
+        const bpp = BYTES_PER_PIXEL[h.encoding];
+        if (bpp === undefined) throw new Error(`a trial frame in encoding ${h.encoding}, not f16 or rgb10a2`);
+        const size = headerBytes + h.width * h.height * bpp;
+        if (end - start < size) break;
+        const frame = decodeFrame(buf.buffer.slice(start, start + size));
         got.frames.set(frame.header.frame, frame);
         got.last = frame.header.frame;
-        at += size;
+        start += size;
       }
-      pending = data.slice(at);
     }
   })()
     .catch((e) => {

@@ -9,7 +9,7 @@ export const MAGIC = 'GZHF';
 export const HEADER_BYTES_V1 = 56;
 export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2, AV1: 3, WARP: 16 });
 export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2', 3: 'av1', 16: 'warp' });
-const BYTES_PER_PIXEL = { 1: 6, 2: 4 };
+export const BYTES_PER_PIXEL = Object.freeze({ 1: 6, 2: 4 });
 /** The server refuses gaze outside [-3, 4] frame fractions; clamp rather than get an error. */
 const GAZE_MIN = -3;
 const GAZE_MAX = 4;

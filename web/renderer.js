@@ -120,13 +120,13 @@ export class Renderer {
   uploadYuv({ width, height, data, layout }) {
     const gl = this.gl;
     const sizes = [[width, height], ...Array(2).fill([Math.ceil(width / 2), Math.ceil(height / 2)])];
+    const f = this.frame;
+    const again = f && f.encoding === ENCODING.AV1 && f.width === width && f.height === height;
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 2);
     for (let i = 0; i < 3; i++) {
       const [w, h] = sizes[i];
       gl.bindTexture(gl.TEXTURE_2D, this.planes[i]);
       gl.pixelStorei(gl.UNPACK_ROW_LENGTH, layout[i].stride / 2);
-      const f = this.frame;
-      const again = f && f.encoding === ENCODING.AV1 && f.width === width && f.height === height;
       if (again) {
         gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED_INTEGER, gl.UNSIGNED_SHORT, data, layout[i].offset / 2);
       } else {

@@ -13,11 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr.atomic import write_text
-from gazehdr.drivers.formats.bids.layout import BIDS_VERSION, write_json
+from gazehdr.drivers.formats.bids.files import NA
+from gazehdr.drivers.formats.bids.layout import open_dataset, write_json
 from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.design import Design
-
-NA = "n/a"
 
 
 def participant_columns(task: str) -> dict[str, dict[str, Any]]:
@@ -38,27 +37,11 @@ def participant_columns(task: str) -> dict[str, dict[str, Any]]:
 def start_dataset(root: Path, design: Design) -> None:
     """Make `root` a dataset for `design`'s results, or check that it is one already; a folder
     that is neither new, empty, nor a dataset is refused (it is the root, not a folder in it)."""
-    description = root / "dataset_description.json"
-    if description.exists():
-        if "BIDSVersion" not in json.loads(description.read_text(encoding="utf-8")):
-            raise ValueError(f"{description}: no BIDSVersion: not a BIDS dataset")
-        return
-    if root.exists() and any(root.iterdir()):
-        raise ValueError(
-            f"{root}: not empty and not a BIDS dataset (no dataset_description.json): give a new "
-            "or empty folder, or an existing dataset's root"
-        )
-    root.mkdir(parents=True, exist_ok=True)
-    write_json(description, {
-        "Name": design.title, "BIDSVersion": BIDS_VERSION, "DatasetType": "raw",
-        "GeneratedBy": [{"Name": "gazehdr", "Version": version("gazehdr")}],
-    })  # fmt: skip
-    (root / "README.md").write_text(
-        f"# {design.title}\n\nResults of `gazehdr experiment` (design `{design.source}`): one "
-        "`_beh.tsv` per run, two-alternative forced-choice brightness judgements; the runs' "
-        "session logs (every trial's events, the gaze, the responses) are in `sourcedata/`.\n",
-        encoding="utf-8",
-    )
+    open_dataset(root, design.title, {"Name": "gazehdr", "Version": version("gazehdr")}, (
+        f"Results of `gazehdr experiment` (design `{design.source}`): one `_beh.tsv` per run, "
+        "two-alternative forced-choice brightness judgements; the runs' session logs (every "
+        "trial's events, the gaze, the responses) are in `sourcedata/`.\n"
+    ))  # fmt: skip
 
 
 def beh_path(root: Path, observer_id: str, stem: str) -> Path:

@@ -12,9 +12,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from gazehdr.drivers.formats.bids.files import NA
 from gazehdr.experiment.schedule import log_ratio
 
-NA = "n/a"
 #: The columns the analysis needs; the others of BEH_COLUMNS are carried but not required.
 REQUIRED = ("condition", "chose_test")
 _TRUE = {"1", "true", "yes", "y", "t", "excluded", "exclude"}

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -453,4 +453,4 @@ class _Reader:
         return tuple(out)
 
 
-_TEXTS = ("consent", "instructions", "question", "thanks", "excluded", "right", "wrong")
+_TEXTS = tuple(f.name for f in fields(Texts))

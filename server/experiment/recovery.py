@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from gazehdr.drivers.formats.bids.files import NA
 from gazehdr.experiment.analysis import Settings, analyse
 from gazehdr.experiment.columns import BEH_COLUMNS
-from gazehdr.experiment.dataset import NA, load
+from gazehdr.experiment.dataset import load
 from gazehdr.experiment.observer import SimulatedObserver
 
 RunOnce = Callable[[int, SimulatedObserver, Path], Path]

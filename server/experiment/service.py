@@ -32,7 +32,7 @@ from gazehdr.dither import dither8
 from gazehdr.experiment.design import Design
 from gazehdr.experiment.runner import ExperimentRun, RunError
 from gazehdr.experiment.stimulus import clip, palette_images, trial_looks
-from gazehdr.protocol import Encoding, FrameHeader
+from gazehdr.protocol import Encoding, FrameHeader, payload
 
 log = logging.getLogger("gazehdr.experiment")
 PAGE = "experiment.html"
@@ -224,7 +224,7 @@ def _frame_messages(shown: Any, design: Design) -> Iterator[bytes]:
     out (the page shows the last one it has until the next one's time)."""
     last = None
     for i, (t, _, _, v) in enumerate(shown.frames(design)):
-        data = v.astype("<f2").tobytes()
+        data = payload(v)
         if data == last:
             continue
         last = data

@@ -130,45 +130,43 @@ def _run_in_folder(folder: Path, select: Mapping[str, str]) -> list[Path]:
 # --- export -----------------------------------------------------------------------------------
 
 
-def prepare_dataset(root: Path, subject: str, generated_by: dict[str, str]) -> list[Path]:
-    """Make `root` a BIDS dataset (or check that it is one) with `subject` in participants.tsv.
-
-    Returns the files written. A folder that is not empty and has no `dataset_description.json`
-    is refused: `--out` names a dataset's root, not a folder inside one.
-    """
+def open_dataset(root: Path, name: str, generated_by: dict[str, str], about: str) -> list[Path]:
+    """Make `root` a raw BIDS dataset called `name` (its description, and a README of `about`
+    under that title), or check that it is one; returns the files written. A folder that is not
+    empty and has no `dataset_description.json` is refused: it is a dataset's root that is
+    asked for, not a folder inside one."""
     description = root / "dataset_description.json"
-    written = []
     if description.exists():
         data = _load_json(description)
         if "BIDSVersion" not in data:
             raise FormatError(description, None, "BIDSVersion", "required: not a BIDS dataset")
-    else:
-        if root.exists() and any(root.iterdir()):
-            inside = next((p for p in root.parents if (p / description.name).exists()), None)
-            hint = f"; its dataset root is {inside}" if inside else ""
-            raise ValueError(
-                f"{root}: not empty and not a BIDS dataset (no dataset_description.json): "
-                f"give a new or empty folder, or an existing dataset's root{hint}"
-            )
-        root.mkdir(parents=True, exist_ok=True)
-        write_json(
-            description,
-            {
-                "Name": "gazehdr sessions",
-                "BIDSVersion": BIDS_VERSION,
-                "DatasetType": "raw",
-                "GeneratedBy": [generated_by],
-            },
+        return []
+    if root.exists() and any(root.iterdir()):
+        inside = next((p for p in root.parents if (p / description.name).exists()), None)
+        hint = f"; its dataset root is {inside}" if inside else ""
+        raise ValueError(
+            f"{root}: not empty and not a BIDS dataset (no dataset_description.json): "
+            f"give a new or empty folder, or an existing dataset's root{hint}"
         )
-        readme = root / "README.md"
-        readme.write_text(
-            "# gazehdr sessions\n\nGaze recorded with gazehdr, a gaze-adaptive HDR display, and "
-            "exported as BIDS eye-tracking physio (`gazehdr export`).\nEach run holds one "
-            "recording per eye (`recording-eye<N>`), its fixations and blinks "
-            "(`_physioevents`) and the session's scene and setting changes (`_events.tsv`).\n",
-            encoding="utf-8",
-        )
-        written += [description, readme]
+    root.mkdir(parents=True, exist_ok=True)
+    write_json(description, {
+        "Name": name, "BIDSVersion": BIDS_VERSION, "DatasetType": "raw",
+        "GeneratedBy": [generated_by],
+    })  # fmt: skip
+    readme = root / "README.md"
+    readme.write_text(f"# {name}\n\n{about}", encoding="utf-8")
+    return [description, readme]
+
+
+def prepare_dataset(root: Path, subject: str, generated_by: dict[str, str]) -> list[Path]:
+    """Make `root` a BIDS dataset (or check that it is one, `open_dataset`) with `subject` in
+    participants.tsv. Returns the files written."""
+    written = open_dataset(root, "gazehdr sessions", generated_by, (
+        "Gaze recorded with gazehdr, a gaze-adaptive HDR display, and exported as BIDS "
+        "eye-tracking physio (`gazehdr export`).\nEach run holds one recording per eye "
+        "(`recording-eye<N>`), its fixations and blinks (`_physioevents`) and the session's "
+        "scene and setting changes (`_events.tsv`).\n"
+    ))  # fmt: skip
     participants = root / "participants.tsv"
     if _add_participant(participants, f"sub-{subject}"):
         written.append(participants)
