@@ -108,10 +108,15 @@ def _build_program(files: tuple[str, ...]) -> cl.Program:
     ctx = shared_context()
     pkg = resources.files("gazehdr.sim") / "kernels"
     source = "\n".join([params_struct(), *((pkg / name).read_text() for name in files)])
+    return cl.Program(ctx, source).build(options=build_options(ctx))
+
+
+def build_options(ctx: cl.Context) -> list[str]:
+    """The compiler options of every program of the kernels."""
     options = ["-cl-fast-relaxed-math"]
     if "Portable Computing Language" in ctx.devices[0].platform.name:
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
-    return cl.Program(ctx, source).build(options=options)
+    return options
 
 
 def _round_up(n: int, m: int) -> int:

@@ -281,23 +281,39 @@ HOT float8 pow8_pos(float8 x, float y) {
     return x > 0.0f ? exp8(y * log8(MAX(x, FLT_MIN))) : 0.0f;
 }
 
-// x^y for x in [0, 1] and y > 0 (the display gamma), as 2^(y log2 x): cheaper than pow8_pos
-// (log2 from the same series as log8 in one FMA; 2^f on [-0.5, 0.5], Cephes' exp2f, with the
-// rounding of y <= 0 done by one conversion), within a few ulp.
-HOT float8 pow8_unit(float8 x, float y) {
-    int8 e;
-    float8 p = half_log_mantissa8(MAX(x, FLT_MIN), &e);
-    float8 z = y * (p * 2.885390082f + TO_FLOAT8(e));  // y log2 x <= 0; 2.885 = 2 / ln 2
-    int8 n = TO_INT8(z - 0.5f);                         // round(z), toward zero from below
-    float8 f = z - TO_FLOAT8(n);
-    float8 q = 1.535336188319500e-4f;
-    q = q * f + 1.339887440266574e-3f;
-    q = q * f + 9.618437357674640e-3f;
-    q = q * f + 5.550332471162809e-2f;
-    q = q * f + 2.402264791363012e-1f;
-    q = q * f + 6.931472028550421e-1f;
+// log2 and 2^x of float8 to display precision, for what is only shown (compose), at about half
+// the cost of log8 and exp8: log2 of the mantissa m in [sqrt(1/2), sqrt(2)) by a degree-5
+// polynomial in m - 1 (no division), within 3.5e-5; 2^f on [-0.5, 0.5] by a degree-4 one with
+// 2^0 = 1 exactly, within 3.5e-6 relative (both fitted on Chebyshev nodes; measured in float32
+// by tests/test_kernel_math.py). log2_shown8 takes x > 0 (normal numbers); exp2_shown8 takes z
+// in [-126, 126].
+HOT float8 log2_shown8(float8 x) {
+    int8 bits = AS_INT8(x);
+    int8 e = (bits - 0x3f3504f3) >> 23;  // exponent after moving m into [sqrt(1/2), sqrt(2))
+    float8 t = AS_FLOAT8(bits - (e << 23)) - 1.0f;
+    float8 p = 2.493932843e-01f;
+    p = p * t - 3.894295692e-01f;
+    p = p * t + 4.858239293e-01f;
+    p = p * t - 7.206443548e-01f;
+    p = p * t + 1.442639351e+00f;
+    return p * t + TO_FLOAT8(e);
+}
+
+HOT float8 exp2_shown8(float8 z) {
+    float8 n = floor8(z + 0.5f);
+    float8 f = z - n;
+    float8 q = 9.600402787e-03f;
+    q = q * f + 5.591693521e-02f;
+    q = q * f + 2.402371913e-01f;
+    q = q * f + 6.931219697e-01f;
     q = q * f + 1.0f;
-    float8 r = q * AS_FLOAT8((MAX(n, -126) + 127) << 23);
+    return q * AS_FLOAT8((TO_INT8(n) + 127) << 23);
+}
+
+// x^y for x in [0, 1] and y > 0, the display gamma: within 1.4e-5 relative (1e-5 absolute) of
+// x^0.455 over all floats in (0, 1], a tenth of a 10-bit step; 0^y = 0 and 1^y = 1 exactly.
+HOT float8 pow8_unit(float8 x, float y) {
+    float8 r = exp2_shown8(MAX(y * log2_shown8(MAX(x, FLT_MIN)), -126.0f));
     return x > 0.0f ? r : 0.0f;
 }
 
@@ -305,6 +321,13 @@ HOT float8 pow8_unit(float8 x, float y) {
 // no light gives exactly 0 so that black stays black.
 HOT float8 tone8(__constant const params_t *P, float ln_sigma_n, float8 I) {
     float8 e = exp8(MIN(ln_sigma_n - P->n * log8(MAX(I, FLT_MIN)), 80.0f));
+    return I > 0.0f ? 1.0f / (1.0f + e) : 0.0f;
+}
+
+// tone8 to display precision (compose): within 2e-5 relative of it.
+HOT float8 tone8_shown(__constant const params_t *P, float ln_sigma_n, float8 I) {
+    float8 z = ln_sigma_n * (1.0f / 0.693147181f) - P->n * log2_shown8(MAX(I, FLT_MIN));
+    float8 e = exp2_shown8(CLAMP(z, -125.0f, 115.0f));  // e^-87 .. e^80, as tone8's clamps
     return I > 0.0f ? 1.0f / (1.0f + e) : 0.0f;
 }
 

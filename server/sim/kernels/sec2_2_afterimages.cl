@@ -18,6 +18,9 @@ HOT float8 input_taps8(__global const float *down, __global const float *surroun
     int row_in = y >= 0 && y < low_h, cols_in = x0 >= 0 && x0 + VEC <= low_w;
     if (row_in && cols_in) return LOAD8_G(down + y * low_w + x0);
     __global const float *m = surround + CLAMP(y, 0, low_h - 1) * low_w;
+    // Wholly left or right of the screen (most of the grid): one surround cell for all 8.
+    if (x0 + VEC <= 0) return (float8)(m[0]);
+    if (x0 >= low_w) return (float8)(m[low_w - 1]);
     int8 x = x0 + LANE_I, xc = CLAMP(x, 0, low_w - 1);
     float8 s = cols_in ? LOAD8_G(m + x0) : gather8(m, xc);
     if (!row_in) return s;

@@ -20,8 +20,9 @@ HOT rgb8_t base8(__constant const params_t *P, __global const float *G,
     float8 b = eyes * load8_row(G + 2 * plane + row, x, W);
     float8 rc = CLAMP(load8_row(rho_full + row, x, W), 0.0f, 1.0f);
     float8 yp = dot8(P->w_P, r, g, b), ys = dot8(P->w_S, r, g, b);
-    float8 R = tone8(P, ln_sigma_n_of(P, A[0]), rc * yp + (1.0f - rc) * ys);  // Eq. 1 + Purkinje
-    float8 ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);        // hue shift
+    float8 I = rc * yp + (1.0f - rc) * ys;                              // Purkinje (Eq. 13)
+    float8 R = tone8_shown(P, ln_sigma_n_of(P, A[0]), I);               // Eq. 1
+    float8 ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);  // hue shift
     rgb8_t J = {ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
                 ratio * b + grey * P->k_s[2]};
     return J;
