@@ -28,6 +28,8 @@ typedef uchar8 uchar8_u __attribute__((aligned(1)));
 #define TO_UCHAR8(x) __builtin_convertvector(x, uchar8)
 #define AS_INT8(x) __builtin_astype(x, int8)
 #define AS_FLOAT8(x) __builtin_astype(x, float8)
+typedef float4 float4_u __attribute__((aligned(4)));
+#define LOAD4_G(p) (*(__global const float4_u *)(p))
 typedef uint8 uint8_u __attribute__((aligned(4)));
 #define STORE8_UI(p, v) (*(__global uint8_u *)(p) = (v))
 #if defined(__AVX__)  // sqrt() on a float8 is a library call too
@@ -39,6 +41,7 @@ typedef float __v8sf_t __attribute__((__vector_size__(32)));
 #else  // other implementations inline their builtins
 #define LOAD8_G(p) vload8(0, p)
 #define LOAD8_L(p) vload8(0, p)
+#define LOAD4_G(p) vload4(0, p)
 #define STORE8_G(p, v) vstore8(v, 0, p)
 #define STORE8_L(p, v) vstore8(v, 0, p)
 #define LOAD8_D(p) vload8(0, p)
@@ -309,6 +312,11 @@ HOT float8 exp2_shown8(float8 z) {
     q = q * f + 1.0f;
     return q * AS_FLOAT8((TO_INT8(n) + 127) << 23);
 }
+
+// ln and e^x from the same, for what is only shown (the afterimage maps): e^x for x in
+// [-87, 87].
+HOT float8 log_shown8(float8 x) { return log2_shown8(x) * 0.693147181f; }
+HOT float8 exp_shown8(float8 x) { return exp2_shown8(CLAMP(x, -87.0f, 87.0f) * 1.442695041f); }
 
 // x^y for x in [0, 1] and y > 0, the display gamma: within 1.4e-5 relative (1e-5 absolute) of
 // x^0.455 over all floats in (0, 1], a tenth of a 10-bit step; 0^y = 0 and 1^y = 1 exactly.

@@ -150,6 +150,8 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
 // side of Eq. 11's vector and fading where the two are near right angles (ours:
 // reference.opponent_gain, linear_contrast). Add: Eq. 12's bleaching term times the display gain, as the cone's
 // response to its equivalent light (ours: reference.bleach_response), to linear RGB through H.
+// The maps are only shown (compose, the warp), never fed back: the gain's logs and exps are
+// the display-precision ones (log_shown8, exp_shown8), within the maps' oracle tolerance.
 inline void maps8(__constant const params_t *P, __global const float *down,
                   __global const float *surround, float8 *st, __global float *maps, float lsn,
                   int low_w, int low_h, int cell, int grid_w, int grid_h, float gx, float gy,
@@ -163,8 +165,8 @@ inline void maps8(__constant const params_t *P, __global const float *down,
     float eps = P->alpha_eps, lsn_floor = ln_sigma_n_of(P, P->A_min), xs = inv_sigma(P, lsn);
     float floor_x = P->contrast_floor;
     for (int c = 0; c < 3; ++c) {
-        float8 ca = st[3 + c], R_now = tone8(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
-        float8 ln_now = log8(R_now + eps), ln_then = log8(1.0f - ca + eps);
+        float8 ca = st[3 + c], R_now = tone8_shown(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
+        float8 ln_now = log_shown8(R_now + eps), ln_then = log_shown8(1.0f - ca + eps);
         ln_gain[c] = P->j2 * (ln_now - ln_then);  // ln alpha^j2, Eq. 11
         float8 x_inf = In[c] * xs;
         u[c] = (st[6 + c] - x_inf) / MAX(x_inf, floor_x);  // reference.linear_contrast
@@ -197,7 +199,8 @@ inline void maps8(__constant const params_t *P, __global const float *down,
     len_g = SQRT8(len_g);
     float8 side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
     float8 scale = -len_g * side;
-    for (int c = 0; c < 3; ++c) store_cell8(maps + c * plane + row, exp8(scale * u[c]), j, grid_w);
+    for (int c = 0; c < 3; ++c)
+        store_cell8(maps + c * plane + row, exp_shown8(scale * u[c]), j, grid_w);
     rgb8_t add = mat8_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
     store_cell8(maps + 3 * plane + row, add.r, j, grid_w);
     store_cell8(maps + 4 * plane + row, add.g, j, grid_w);

@@ -28,6 +28,16 @@ HOT rgb8_t base8(__constant const params_t *P, __global const float *G,
     return J;
 }
 
+// Columns c0 .. c0 + 3 of rows ra and rb of a map, mixed by ty's weights: a float4 a row.
+HOT float4 rows_mix4(__global const float *ra, __global const float *rb, lerp1_t ty, int c0) {
+    return ty.wa * LOAD4_G(ra + c0) + ty.wb * LOAD4_G(rb + c0);
+}
+
+// The 8 lanes' horizontal mix of 4 consecutive columns v, lane weights w0 .. w3.
+HOT float8 cols_mix8(float4 v, float8 w0, float8 w1, float8 w2, float8 w3) {
+    return w0 * v.s0 + w1 * v.s1 + w2 * v.s2 + w3 * v.s3;
+}
+
 inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
                        __global const float *rho_full, __global const float *maps,
                        __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
@@ -43,24 +53,18 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     int gp = grid_w * grid_h;
     float8 m0, m1, m2, m3, m4, m5;
     int8 o = tx.x0 - tx.x0.s0;
-    if (o.s7 <= 2) {
+    int c0 = tx.x0.s0;
+    if (o.s7 <= 2 && c0 >= 0 && c0 + 3 < grid_w) {
         // The 8 positions are less than a column apart (cell >= 4, or the fine end of it): at
-        // most 4 columns c0 .. c0 + 3 serve them. Their vertical mix is one scalar per column
-        // (ty's weights are the row's), then 4 broadcast FMAs per map; no arrays, no spills.
+        // most 4 columns c0 .. c0 + 3 serve them. Their vertical mix is one float4 per map
+        // (ty's weights are the row's), then 4 broadcast FMAs; no arrays, no spills.
         float8 w0 = o == 0 ? tx.wa : 0.0f;
         float8 w1 = (o == 1 ? tx.wa : 0.0f) + (o == 0 ? tx.wb : 0.0f);
         float8 w2 = (o == 2 ? tx.wa : 0.0f) + (o == 1 ? tx.wb : 0.0f);
         float8 w3 = o == 2 ? tx.wb : 0.0f;
-        int c0 = tx.x0.s0, k0 = CLAMP(c0, 0, grid_w - 1), k1 = CLAMP(c0 + 1, 0, grid_w - 1),
-            k2 = CLAMP(c0 + 2, 0, grid_w - 1), k3 = CLAMP(c0 + 3, 0, grid_w - 1);
         __global const float *ra = maps + ty.a * grid_w, *rb = maps + ty.b * grid_w;
-        float ya = ty.wa, yb = ty.wb;
-#define MIX4(c)                                                                         \
-    (w0 * (ya * ra[(c) * gp + k0] + yb * rb[(c) * gp + k0]) +                           \
-     w1 * (ya * ra[(c) * gp + k1] + yb * rb[(c) * gp + k1]) +                           \
-     w2 * (ya * ra[(c) * gp + k2] + yb * rb[(c) * gp + k2]) +                           \
-     w3 * (ya * ra[(c) * gp + k3] + yb * rb[(c) * gp + k3]))
-        float8 w_out = 1.0f - (ya + yb) * (tx.wa + tx.wb);  // off the grid: equilibrium
+        float8 w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
+#define MIX4(c) cols_mix8(rows_mix4(ra + (c) * gp, rb + (c) * gp, ty, c0), w0, w1, w2, w3)
         m0 = MIX4(0) + w_out;
         m1 = MIX4(1) + w_out;
         m2 = MIX4(2) + w_out;
