@@ -111,6 +111,15 @@ def test_warp_shader_warps_each_pane_in_split_view(browser) -> None:
     assert (moved[:, -1] == 0).all()
 
 
+# The live warp tests' session rate. A 320×176 warp frame carries the whole retina grid's maps
+# (640×352 cells at this size): 3 MB, and Playwright's driver gets every WebSocket frame a page
+# receives, base64 in JSON. At the live_server's 20 fps that is 80 MB/s through the driver, more
+# than it keeps up with on 2 cores: its backlog grew until the page's answers to the test never
+# came (the test hung, most often late in the full suite). The warp itself runs at the display's
+# rate, whatever the session's.
+WARP_FPS = 5.0
+
+
 READ_NEXT_REFRESH_JS = """
 () => new Promise((resolve) => requestAnimationFrame(() => {
   // Runs after the viewer's own draw of this refresh (its callback was queued first).
@@ -146,7 +155,7 @@ def test_afterimage_follows_the_pointer_between_frames(live_server, open_viewer)
     moves with the pointer at the very next display refresh, by the pointer's shift; with the
     warp off (the panel's box) it stays where the held frame has it."""
     W, H = 320, 176
-    srv = live_server(scene="flash", size=(W, H))
+    srv = live_server(scene="flash", size=(W, H), fps=WARP_FPS)
     viewer = open_viewer(srv.url + "?warp=1", W, H)
     flash = np.array([0.5 * W, 0.42 * H])
     viewer.move_gaze(*flash)
@@ -229,7 +238,7 @@ def test_afterimage_follows_a_tracker_between_frames(live_server, open_viewer) -
     fixation at the very next display refresh after its forwarded `gaze` note arrives, by the
     fixation's shift; a blink then (the tracker's place held) leaves it there."""
     W, H = 320, 176
-    srv = live_server(scene="flash", size=(W, H), gaze_source="remote:rig")
+    srv = live_server(scene="flash", size=(W, H), gaze_source="remote:rig", fps=WARP_FPS)
     flash = np.array([0.5 * W, 0.42 * H])
     with connect(srv.ws_url + "/ws/gaze", additional_headers=srv.auth) as daemon:
         daemon.send(json.dumps({"type": "hello", "protocol": 1, "tracker": "rig"}))
