@@ -15,27 +15,20 @@ from __future__ import annotations
 
 import argparse
 import statistics
-from importlib import resources
 from pathlib import Path
 
 import pyopencl as cl
 
 from gazehdr.drivers.cli_args import screen_size_arg
 from gazehdr.sim import opencl
-from gazehdr.sim.kernel_params import params_struct
 
 DEFAULT_KERNELS = "retina_update,retina_blur_maps,acuity_levels,acuity_bank,compose_rgb10"
 
 
 def build(ctx: cl.Context, kernel_dir: Path | None) -> cl.Program:
-    """The default pipeline's program from the package's kernel files, or DIR's where it has
-    them."""
-    pkg = resources.files("gazehdr.sim") / "kernels"
-    texts = [
-        (kernel_dir / n if kernel_dir and (kernel_dir / n).is_file() else pkg / n).read_text()
-        for n in opencl.KERNEL_FILES
-    ]
-    return cl.Program(ctx, "\n".join([params_struct(), *texts])).build(opencl.build_options(ctx))
+    """The default pipeline's program, with DIR's files where it has them."""
+    source = opencl.kernel_source(opencl.KERNEL_FILES, kernel_dir)
+    return cl.Program(ctx, source).build(opencl.build_options(ctx))
 
 
 def record_launches(size: tuple[int, int], scene_name: str) -> tuple[cl.Context, dict]:
@@ -44,27 +37,29 @@ def record_launches(size: tuple[int, int], scene_name: str) -> tuple[cl.Context,
     from gazehdr.sim import Simulator
 
     launches: dict[str, tuple] = {}
-    plain_queue, plain_call = cl.CommandQueue, cl.Kernel.__call__
-
-    def profiling_queue(ctx, *args, **kwargs):
-        return plain_queue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
+    plain_call = cl.Kernel.__call__
 
     def call(kernel, queue, global_size, local_size, *args, **kwargs):
         launches[kernel.function_name] = (queue, global_size, local_size, args)
         return plain_call(kernel, queue, global_size, local_size, *args, **kwargs)
 
     w, h = size
-    opencl.cl.CommandQueue, cl.Kernel.__call__ = profiling_queue, call
+    sim = Simulator(w, h, backend="opencl", seed=0)
+    backend = sim._backend
+    backend.queue.finish()
+    backend.queue = cl.CommandQueue(
+        backend.ctx, properties=cl.command_queue_properties.PROFILING_ENABLE
+    )  # every stage of the default pipeline enqueues on it
+    cl.Kernel.__call__ = call
     try:
-        sim = Simulator(w, h, backend="opencl", seed=0)
         sim.start(open_scene(scene_name).render(0.0, w, h), (w / 2, h / 2))
         for i in range(6):
             gaze = (w * (0.3 + 0.2 * (i % 3)), h * (0.4 + 0.2 * (i % 2)))
             sim.step(1 / 60, gaze=gaze, output="rgb10a2")
     finally:
-        opencl.cl.CommandQueue, cl.Kernel.__call__ = plain_queue, plain_call
-    sim._backend.queue.finish()
-    return sim._backend.ctx, launches
+        cl.Kernel.__call__ = plain_call
+    backend.queue.finish()
+    return backend.ctx, launches
 
 
 def compare(kernel_dir: Path, names: list[str], size, reps: int, scene: str) -> list[tuple]:

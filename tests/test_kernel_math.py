@@ -1,49 +1,58 @@
 """The kernels' own transcendentals to display precision (kernels/common.cl: log2_shown8,
-exp2_shown8, pow8_unit, tone8_shown), run on the OpenCL device against float64 NumPy, over
-every binade they take: compose's gamma and tone curve rest on them."""
+exp2_shown8, log_shown8, exp_shown8, pow8_unit, tone8_shown), run on the OpenCL device against
+float64 NumPy, over every binade they take and past their ends: compose's gamma and tone curve
+and the afterimage maps rest on them."""
 
 from __future__ import annotations
 
-from importlib import resources
+from functools import cache
 
 import numpy as np
 import pyopencl as cl
 import pytest
 
-from gazehdr.sim.kernel_params import pack_params, params_struct, plateau_m
-from gazehdr.sim.opencl import build_options, shared_context
+from gazehdr.sim.kernel_params import pack_params, plateau_m
+from gazehdr.sim.opencl import build_options, kernel_source, shared_context
 from gazehdr.sim.params import Params
 
+OUTPUTS = ("log2", "gamma", "tone_shown", "tone", "exp2", "log", "exp")
 KERNEL = """
 __kernel void shown(__constant const params_t *P, __global const float *x,
                     __global const float *z, float lsn, __global float *out) {
     int i = get_global_id(0) * 8;
-    float8 v = LOAD8_G(x + i);
+    size_t n = get_global_size(0) * 8;
+    float8 v = LOAD8_G(x + i), w = LOAD8_G(z + i);
     STORE8_G(out + i, log2_shown8(MAX(v, FLT_MIN)));
-    STORE8_G(out + i + get_global_size(0) * 8, pow8_unit(v, P->gamma));
-    STORE8_G(out + i + 2 * get_global_size(0) * 8, tone8_shown(P, lsn, v));
-    STORE8_G(out + i + 3 * get_global_size(0) * 8, tone8(P, lsn, v));
-    STORE8_G(out + i + 4 * get_global_size(0) * 8, exp2_shown8(LOAD8_G(z + i)));
+    STORE8_G(out + i + n, pow8_unit(v, P->gamma));
+    STORE8_G(out + i + 2 * n, tone8_shown(P, lsn, v));
+    STORE8_G(out + i + 3 * n, tone8(P, lsn, v));
+    STORE8_G(out + i + 4 * n, exp2_shown8(w));
+    STORE8_G(out + i + 5 * n, log_shown8(MAX(v, FLT_MIN)));
+    STORE8_G(out + i + 6 * n, exp_shown8(w));
 }
 """
 
 
-def run(x: np.ndarray, lsn: float, p: Params) -> np.ndarray:
-    """log2_shown8(x), pow8_unit(x, gamma), tone8_shown and tone8 at x, and exp2_shown8 at
-    z = -126 + 252 x (float32)."""
+@cache
+def kernel() -> cl.Kernel:
     ctx = shared_context()
-    common = (resources.files("gazehdr.sim") / "kernels" / "common.cl").read_text()
-    prg = cl.Program(ctx, "\n".join([params_struct(), common, KERNEL])).build(build_options(ctx))
+    prg = cl.Program(ctx, kernel_source(("common.cl",)) + KERNEL).build(build_options(ctx))
+    return cl.Kernel(prg, "shown")
+
+
+def run(x: np.ndarray, z: np.ndarray, lsn: float, p: Params) -> dict[str, np.ndarray]:
+    """Each of OUTPUTS: the log2/log/gamma/tone functions at x, the exp2/exp ones at z."""
+    ctx = shared_context()
     queue = cl.CommandQueue(ctx)
     mf = cl.mem_flags
     xs = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
-    zs = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=exp2_inputs(x))
+    zs = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=z)
     P = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(p))
-    out = np.empty((5, x.size), np.float32)
+    out = np.empty((len(OUTPUTS), x.size), np.float32)
     buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    prg.shown(queue, (x.size // 8,), None, P, xs, zs, np.float32(lsn), buf)
+    kernel()(queue, (x.size // 8,), None, P, xs, zs, np.float32(lsn), buf)
     cl.enqueue_copy(queue, out, buf)
-    return out.astype(np.float64)
+    return dict(zip(OUTPUTS, out.astype(np.float64), strict=True))
 
 
 def exp2_inputs(x: np.ndarray) -> np.ndarray:
@@ -59,27 +68,50 @@ def unit() -> np.ndarray:
 
 def test_display_gamma_within_a_tenth_of_a_10_bit_step(unit: np.ndarray) -> None:
     p = Params()
-    log2, gamma, _, _, exp2 = run(unit, 0.0, p)
+    got = run(unit, exp2_inputs(unit), 0.0, p)
     x = unit.astype(np.float64)
     on = x > 0
-    assert np.abs(log2[on] - np.log2(x[on])).max() < 3.5e-5
+    assert np.abs(got["log2"][on] - np.log2(x[on])).max() < 3.5e-5
     z = exp2_inputs(unit).astype(np.float64)
-    assert (np.abs(exp2 / 2.0**z - 1) < 3.5e-6).all()
-    exact = x**p.gamma
+    assert (np.abs(got["exp2"] / 2.0**z - 1) < 3.5e-6).all()
+    gamma, exact = got["gamma"], x**p.gamma
     assert np.abs(gamma - exact).max() < 1.2e-5  # a 10-bit step: 1/1023 = 9.8e-4
     assert (np.abs(gamma[on] / exact[on] - 1) < 1.5e-5).all()
     assert gamma[x == 0].max() == 0.0 and (gamma[x == 1] == 1.0).all()  # black and white kept
 
 
+def test_ln_and_e_for_the_afterimage_maps(unit: np.ndarray) -> None:
+    """log_shown8 over (0, 1] (maps8 takes logs of R + eps and 1 - c + eps, both in it) and
+    exp_shown8 over [-87, 87], clamped there beyond: finite for any float. Both far inside the
+    maps' oracle tolerance (5e-4)."""
+    z = np.concatenate([np.linspace(-87, 87, unit.size - 6), [-1e30, -200, -87.5, 88, 200, 1e30]])
+    z = z.astype(np.float32)
+    got = run(unit, z, 0.0, Params())
+    z = z.astype(np.float64)
+    x = unit.astype(np.float64)
+    on = x > 0
+    assert np.abs(got["log"][on] - np.log(x[on])).max() < 2.5e-5
+    inside = np.abs(z) <= 87
+    # 2^(x log2 e): the product's rounding in float32 (5e-6 at |x| = 87) adds to exp2_shown8's
+    assert (np.abs(got["exp"][inside] / np.exp(z[inside]) - 1) < 1e-5).all()
+    np.testing.assert_allclose(got["exp"][~inside], np.exp(np.clip(z[~inside], -87, 87)), 1e-5)
+
+
 def test_display_tone_curve_follows_the_model_tone_curve(unit: np.ndarray) -> None:
-    """tone8_shown (compose) against tone8 (the retina's) and the exact Naka-Rushton curve, at
-    luminances from 1e-6 to 1e8 cd/m^2 and adaptation levels from the floor to a sunlit scene."""
+    """tone8_shown (compose) against tone8 (the retina's) and the exact Naka-Rushton curve, from
+    darkness through 1e8 cd/m^2 to the radiance cap and the largest float, at adaptation levels
+    from the floor to a sunlit scene: 0 for no light, at most 1, never NaN."""
     p = Params()
-    lum = np.geomspace(1e-6, 1e8, unit.size // 8 * 8).astype(np.float32)
+    lum = np.concatenate(
+        [[0.0, 1.2e-38, p.radiance_max, 3.4e38], np.geomspace(1e-6, 1e8, unit.size - 4)]
+    ).astype(np.float32)
     for A in (np.log10(100.0), 3.0, 5.0):
         m = plateau_m(p)
         lsn = (p.n - m) * A * np.log(10) + m * np.log(p.plateau_K)  # sigma^n = I^(n-m) K^m
-        _, _, shown, model, _ = run(lum, lsn, p)
-        exact = 1 / (1 + np.exp(lsn - p.n * np.log(lum.astype(np.float64))))
-        assert (np.abs(shown / exact - 1) < 2e-5).all()
-        assert (np.abs(shown / model - 1) < 2e-5).all()
+        got = run(lum, np.zeros_like(lum), lsn, p)
+        shown, model = got["tone_shown"], got["tone"]
+        assert shown[0] == 0.0 and np.isfinite(shown).all() and shown.max() <= 1.0
+        on = lum > 0
+        exact = 1 / (1 + np.exp(lsn - p.n * np.log(lum[on].astype(np.float64))))
+        assert (np.abs(shown[on] / exact - 1) < 2e-5).all()
+        assert (np.abs(shown[on] / model[on] - 1) < 2e-5).all()

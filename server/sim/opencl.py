@@ -17,6 +17,7 @@ import os
 import threading
 from functools import cache
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
@@ -106,9 +107,18 @@ def build_program(files: tuple[str, ...]) -> cl.Program:
 @cache
 def _build_program(files: tuple[str, ...]) -> cl.Program:
     ctx = shared_context()
+    return cl.Program(ctx, kernel_source(files)).build(options=build_options(ctx))
+
+
+def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
+    """The program text of `kernels/` files: `params_t` first, then the files in order; a file
+    that the folder `changed` holds is read from there instead (gazehdr.bench_ab)."""
     pkg = resources.files("gazehdr.sim") / "kernels"
-    source = "\n".join([params_struct(), *((pkg / name).read_text() for name in files)])
-    return cl.Program(ctx, source).build(options=build_options(ctx))
+    texts = [
+        (changed / n if changed is not None and (changed / n).is_file() else pkg / n).read_text()
+        for n in files
+    ]
+    return "\n".join([params_struct(), *texts])
 
 
 def build_options(ctx: cl.Context) -> list[str]:
