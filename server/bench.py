@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from gazehdr import roofline
 from gazehdr.drivers.cli_args import size_list_arg
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import (
@@ -194,6 +195,8 @@ def _bench_size(
     # A second eye for the live frames, so that `sim` stays in step with the OpenCV side.
     live = Simulator(width, height, backend="opencl", seed=0)
     live.start(scene, gazes[0])
+    for s in (sim, live):
+        roofline.to_steady_acuity(s)
     b, lay, p = sim._backend, sim.layout, sim.params
     cvp = OpenCVPipeline(lay, p) if opencv else None
     if cvp is not None:
@@ -258,6 +261,7 @@ def _bench_models(
             width, height, backend="opencl", seed=0, afterimage=m.afterimage, acuity=m.acuity
         )
         sims[str(m)].load_scene(scene)
+        roofline.to_steady_acuity(sims[str(m)])
     times: dict[str, list[float]] = {name: [] for name in sims}
     for i in range(frames + 2):
         gaze = (width * (0.3 + 0.2 * (i % 3)), height * (0.4 + 0.2 * (i % 2)))
@@ -271,7 +275,6 @@ def _bench_models(
 
 def _print_roofline(width: int, height: int, args, roofs):
     """The roofline table of one size (roofline.py); the roofs are measured once per run."""
-    from gazehdr import roofline
 
     sim = Simulator(width, height, backend="opencl", seed=0)
     b = sim._backend

@@ -16,11 +16,17 @@ from gazehdr.sim import Simulator
 W, H = 96, 54
 
 
-def _live_step_launches():
+def _live_step_launches(new_scene: bool = False):
+    """A live step's launches on a scene that stays (acuity from the level stack), or with
+    `new_scene` on a scene just changed (acuity in the tiled bank)."""
     sim = Simulator(W, H, backend="opencl", seed=0)
     sim.start(open_scene("lamp").render(0.0, W, H), (W / 2, H / 2))
-    sim.step(1 / 60)
     b = sim._backend
+    sim.step(1 / 60)
+    while b.level_stack_pending:  # a scene that stays moves to its level stack
+        sim.step(1 / 60)
+    if new_scene:
+        b.put("scene", b.get("scene"))
     rec = roofline.Recorder(b)
     gaze = (30.0, 20.0)
     for stage, fn in (
@@ -40,14 +46,17 @@ def test_bytes_are_the_buffers_each_stage_reads_and_writes() -> None:
     sim, b, gaze, launches = _live_step_launches()
     lay, buf = sim.layout, b.buf
     full = W * H
-    costs = roofline.account(launches, lay, sim.params, b.get("d"))
+    d = b.get("d")
+    costs = roofline.account(launches, lay, sim.params, d)
     assert [ln.stage for ln in launches][-1] == "compose"
-    # the acuity stage: acuity_levels reads rho_full and the noise, writes d; the tiled bank
-    # reads the scene and d and writes G (plus its small constant buffers)
-    bank = b._bank
-    consts = b.P.size + bank["taps"].size + bank["levels"].size
-    expect = buf["rho_full"].size + b._noise_buf.size + 2 * buf["d"].size + consts
-    expect += buf["scene"].size + buf["G"].size
+    # the acuity stage: acuity_levels reads rho_full and the noise, writes d; acuity_pick
+    # reads d and, per pixel, the scene (d = 0) or the one level it shows, and writes G
+    picked = [ln.name for ln in launches if ln.stage == "acuity"]
+    assert picked == ["acuity_levels", "acuity_pick"]
+    kept = float(np.mean(d == 0))
+    assert 0 < kept < 1, "the lamp scene should drop bands at some pixels, not all"
+    expect = buf["rho_full"].size + b._noise_buf.size + 2 * buf["d"].size + b.P.size
+    expect += buf["scene"].size + buf["G"].size  # one float per channel and pixel either way
     assert costs["acuity"].bytes == pytest.approx(expect)
     assert buf["scene"].size == buf["G"].size == 3 * 4 * full and buf["d"].size == full
     # compose: G, rho at every pixel, the maps of the cells the screen shows, A, the fovea
@@ -64,8 +73,21 @@ def test_bytes_are_the_buffers_each_stage_reads_and_writes() -> None:
         assert c.bytes > 0 and c.flops > 0
 
 
+def test_the_bank_reads_the_scene_and_d_and_writes_g() -> None:
+    sim, b, _, launches = _live_step_launches(new_scene=True)
+    buf = b.buf
+    costs = roofline.account(launches, sim.layout, sim.params, b.get("d"))
+    assert [ln.name for ln in launches if ln.stage == "acuity"] == ["acuity_levels", "acuity_bank"]
+    # plus the bank's small constant buffers
+    bank = b._bank
+    consts = b.P.size + bank["taps"].size + bank["levels"].size
+    expect = buf["rho_full"].size + b._noise_buf.size + 2 * buf["d"].size + consts
+    expect += buf["scene"].size + buf["G"].size
+    assert costs["acuity"].bytes == pytest.approx(expect)
+
+
 def test_flops_follow_the_launch_and_unknown_kernels_are_refused() -> None:
-    sim, _, _, launches = _live_step_launches()
+    sim, _, _, launches = _live_step_launches(new_scene=True)
     bank = next(ln for ln in launches if ln.name == "acuity_bank")
     lay, p = sim.layout, sim.params
     none = roofline.launch_cost(

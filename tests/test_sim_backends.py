@@ -201,6 +201,43 @@ def test_each_stage_alone(seed: int) -> None:
         assert_close("v", ref.compose(gaze, eyes), cl.compose(gaze, eyes))
 
 
+@pytest.mark.parametrize("size", [(W, H), (137, 41)])
+def test_acuity_from_the_level_stack_matches_reference(size: tuple[int, int]) -> None:
+    """A scene blurs in the bank until it has stayed LEVEL_STACK_AFTER_FRAMES frames, then
+    makes its level stack one level a frame, then picks each pixel's level from it
+    (acuity_pick); a new scene (put or set_scene) starts over. Every frame against the
+    reference, with many rows of 8 pixels between levels."""
+    from gazehdr.sim.opencl import LEVEL_STACK_AFTER_FRAMES
+
+    w, h = size
+    p = Params()
+    lay = Layout.for_frame(w, h, p)
+    ref, cl = ReferenceBackend(lay, p), OpenCLBackend(lay, p)
+    rng = np.random.default_rng(8)
+    field = NoiseField(lay, p, 8)
+    frames = LEVEL_STACK_AFTER_FRAMES + p.bands + 2
+    for k, scene in enumerate((mixed_scene(8), mixed_scene(9) * 1e-2)):
+        planar = np.ascontiguousarray(np.resize(scene, (h, w, 3)).transpose(2, 0, 1))
+        for b in (ref, cl):  # the second scene through put, as tests and tools change it
+            if k:
+                b.put("scene", planar)
+            else:
+                b.set_scene(planar)
+        assert cl.level_stack_pending
+        for frame in range(frames):
+            _load_same(ref, cl, ["rho"], rng)
+            noise = field.at(0.1 * frame)
+            ref.acuity(noise)
+            cl.acuity(noise)
+            d = cl.get("d")
+            flipped = ref.get("d") != d
+            assert flipped.mean() <= 0.002
+            mixed = np.lib.stride_tricks.sliding_window_view(d[:, : w // 8 * 8], 8, 1)[:, ::8]
+            assert (mixed.min(-1) != mixed.max(-1)).mean() > 0.05, "rows of 8 between levels"
+            assert_close("G", ref.get("G")[:, ~flipped], cl.get("G")[:, ~flipped])
+        assert not cl.level_stack_pending, "the last frames should have picked from the stack"
+
+
 def test_sec5_cues_match_reference() -> None:
     """The afterimage boost after a blink and a saccade, and the scotopic foveal blind spot
     (with a perfect tracker, so at full strength), on a scene dimmed to scotopic light."""

@@ -3,11 +3,14 @@
 A GPU is used when one exists, otherwise the CPU (PoCL from PyPI). Set GAZEHDR_CL_DEVICE to a
 substring of a device name to pick one. Kernel files live in `kernels/`, one per paper section.
 
-Written for speed on PoCL (see kernels/common.cl): the per-pixel kernels make 8 pixels per
-work-item; the acuity bank runs all its levels per screen tile in local memory (GPUs, or
-GAZEHDR_CL_ACUITY=levels, use the level-by-level bank instead); the afterimage maps are made
-only where the screen shows them, the rest of the grid on demand (get("maps"), or a compose at
-another gaze); rho at every pixel is kept from the last scene load.
+Written for speed on PoCL (see kernels/common.cl):
+- the per-pixel kernels make 8 pixels per work-item;
+- a scene that stays gets its acuity levels made once, and each frame picks every pixel's level
+  from them; until then the acuity bank runs all its levels per screen tile in local memory
+  (GPUs, or GAZEHDR_CL_ACUITY=levels, use the level-by-level bank instead);
+- the afterimage maps are made only where the screen shows them, the rest of the grid on demand
+  (get("maps"), or a compose at another gaze);
+- rho at every pixel is kept from the last scene load.
 """
 
 from __future__ import annotations
@@ -51,6 +54,13 @@ ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
 ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: VEC multiple, <= 128)
+# Ours: the most memory a backend gives its stack of the scene's acuity levels (bands x 3
+# planes: 199 MB at 1920x1080 with 8 bands); larger frames blur per frame instead.
+LEVEL_STACK_MAX_BYTES = 512 << 20
+# Ours: acuity frames a scene must stay before its level stack is made (half a second at
+# 60 fps). Making it costs about 8 frames of the bank's work (one level a frame, so no frame
+# spikes); a scene that changes sooner (the flash while it fires) would not pay it back.
+LEVEL_STACK_AFTER_FRAMES = 30
 
 # compose's outputs: kernel, buffer, shape
 COMPOSE_OUTPUTS = {
@@ -192,6 +202,11 @@ class OpenCLBackend:
         self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
         self._fill_taps = self.taps_for(lay.px(2 * params.rod_free_radius_deg) / lay.cell)
         self._settle_buf: dict[str, cl.Buffer] = {}  # made at the first settle
+        # The scene's acuity levels (_level_stack), made once the scene has stayed a while.
+        self._stack: cl.Buffer | None = None
+        self._stack_stride = self._level_stack_stride()
+        self._stack_levels = 0  # levels of the current scene made so far
+        self._scene_frames = 0  # acuity frames since the scene last changed
 
     # --- host access (tests, adaptation readout) ----------------------------------------------
 
@@ -215,6 +230,8 @@ class OpenCLBackend:
         cl.enqueue_copy(self.queue, self.buf[name], arr)
         if name == "rho":
             self._rho_full_stale = True
+        if name == "scene":
+            self._scene_changed()
         if name == "maps":
             self._maps_partial = None
 
@@ -318,6 +335,17 @@ class OpenCLBackend:
 
     def set_scene(self, planar: np.ndarray) -> None:
         cl.enqueue_copy(self.queue, self.buf["scene"], planar)
+        self._scene_changed()
+
+    def _scene_changed(self) -> None:
+        self._stack_levels = 0
+        self._scene_frames = 0
+
+    @property
+    def level_stack_pending(self) -> bool:
+        """Whether the current scene's acuity will move to its level stack (benchmarks wait
+        for that: it is the steady state of a scene that stays)."""
+        return self._stack_stride is not None and self._stack_levels < self.p.bands
 
     def prepare(self, eyes: float) -> None:
         lay, b = self.lay, self.buf
@@ -474,14 +502,22 @@ class OpenCLBackend:
         lay, b = self.lay, self.buf
         self._upload_noise(noise)
         rho_full = self.rho_full()
-        if self._bank is None:
+        stack = self._level_stack()
+        self._scene_frames += 1
+        by_levels = stack is None and self._bank is None
+        if by_levels:
             cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
         self.k["acuity_levels"](
             self.queue, self.rows8(), None, self.P, rho_full, self._noise_buf,
             np.float32(noise.spacing), np.int32(noise.key0.shape[1]),
-            np.int32(lay.width), np.int32(lay.height), b["d"], b["d_max"],
-            np.int32(self._bank is None),
+            np.int32(lay.width), np.int32(lay.height), b["d"], b["d_max"], np.int32(by_levels),
         )  # fmt: skip
+        if stack is not None:
+            self.k["acuity_pick"](
+                self.queue, self.rows8(), None, b["scene"], stack, np.int32(self._stack_stride),
+                b["d"], b["G"], np.int32(lay.width), np.int32(lay.height),
+            )  # fmt: skip
+            return
         if self._bank is not None:
             bank = self._bank
             self.k["acuity_bank"](
@@ -500,6 +536,43 @@ class OpenCLBackend:
             taps = self._acuity_taps[level]
             self.blur(src, dst, b["lvl_tmp"], taps, lay.width, lay.height, 3, level)
             src, dst = dst, (b["lvl_b"] if dst is b["lvl_a"] else b["lvl_a"])
+
+    def _level_stack_stride(self) -> int | None:
+        """Floats from one level of the stack to the next (a level's three planes, rounded up
+        so that each level can be a sub-buffer), or None where the stack is not used: when it
+        would take more than LEVEL_STACK_MAX_BYTES, or GAZEHDR_CL_ACUITY names a bank."""
+        if os.environ.get("GAZEHDR_CL_ACUITY", ""):
+            return None
+        align = self.ctx.devices[0].mem_base_addr_align // 8  # bits to bytes
+        level = _round_up(4 * 3 * self.lay.width * self.lay.height, align)
+        if level * self.p.bands > LEVEL_STACK_MAX_BYTES:
+            return None
+        return level // 4
+
+    def _level_stack(self) -> cl.Buffer | None:
+        """The scene's Gaussian acuity levels 0 .. bands - 1, so that a frame's Eq. 14 is a
+        pick per pixel (kernel acuity_pick) instead of blurs. Once the scene has stayed
+        LEVEL_STACK_AFTER_FRAMES frames, each frame makes one more level (the bank still makes
+        G meanwhile); None until all are made, or where the stack is not used
+        (_level_stack_stride)."""
+        stride = self._stack_stride
+        if stride is None or self._scene_frames < LEVEL_STACK_AFTER_FRAMES:
+            return None
+        bands = self.p.bands
+        if self._stack_levels == bands:
+            return self._stack
+        if self._stack is None:
+            self._stack = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, 4 * stride * bands)
+        lay, i = self.lay, self._stack_levels
+
+        def level(k: int) -> cl.Buffer:
+            return self._stack.get_sub_region(4 * stride * k, 4 * 3 * lay.width * lay.height)
+
+        src, dst = (self.buf["scene"] if i == 0 else level(i - 1)), level(i)
+        # G is free as the blur's scratch: the bank writes it after this
+        self.blur(src, dst, self.buf["G"], self._acuity_taps[i], lay.width, lay.height, 3)
+        self._stack_levels += 1
+        return None
 
     def _upload_noise(self, noise: NoiseFrame) -> None:
         """The two key frames mixed in time, X = ((1-f) key0 + f key1) / sqrt((1-f)^2 + f^2):

@@ -98,6 +98,42 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
     if (m > *d_max) atomic_max(d_max, m);  // rarely contended: most reads see it done
 }
 
+// --- Eq. 14 on a scene that stays: a pick from levels made once ------------------------------
+//
+// Level l - 1 of each pixel that drops l bands, from `stack`: the scene's Gaussian levels
+// 0 .. bands - 1, made once per scene by blur_h/blur_v (level l at stack + l * stride, three
+// planes each). Eight pixels mostly drop the same number of bands (rho and the noise are
+// smooth), so they read one level with vector loads; else each level they span is selected.
+__kernel void acuity_pick(__global const float *scene, __global const float *stack, int stride,
+                          __global const uchar *d_map, __global float *G, int W, int H) {
+    int x = get_global_id(0) * VEC, y = get_global_id(1);
+    if (x >= W) return;
+    size_t plane = (size_t)W * H, at = (size_t)y * W + x;
+    int n = MIN(W - x, VEC);
+    int8 d;
+    if (n == VEC) {
+        d = TO_INT8(LOAD8_D(d_map + at));
+    } else {  // the row's last pixels
+        int t[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+        for (int i = 0; i < n; ++i) t[i] = d_map[at + i];
+        d = (int8)(t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]);
+    }
+    int4 lo4 = MIN(d.lo, d.hi), hi4 = MAX(d.lo, d.hi);
+    int2 lo2 = MIN(lo4.lo, lo4.hi), hi2 = MAX(hi4.lo, hi4.hi);
+    int lo = MIN(lo2.x, lo2.y), hi = MAX(hi2.x, hi2.y);
+    for (int c = 0; c < 3; ++c) {
+        size_t o = c * plane + at;
+        __global const float *first = lo == 0 ? scene : stack + (size_t)(lo - 1) * stride;
+        float8 g = load8_row(first + c * plane + (size_t)y * W, x, W);
+        for (int l = lo + 1; l <= hi; ++l) {  // lanes that drop more than lo bands
+            float8 v = load8_row(stack + (size_t)(l - 1) * stride + c * plane + (size_t)y * W, x, W);
+            g = d == l ? v : g;
+        }
+        if (n == VEC) STORE8_G(G + o, g);
+        else store8_part(G + o, g, n);
+    }
+}
+
 // --- the acuity bank in tiles (CPU) ------------------------------------------------------------
 //
 // Eq. 14 needs Gaussian level d - 1 at each pixel, and level i is level i - 1 blurred by the
