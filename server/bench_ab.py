@@ -22,7 +22,9 @@ import pyopencl as cl
 from gazehdr.drivers.cli_args import screen_size_arg
 from gazehdr.sim import opencl
 
-DEFAULT_KERNELS = "retina_update,retina_blur_maps,acuity_levels,acuity_bank,compose_rgb10"
+DEFAULT_KERNELS = (
+    "retina_update,retina_blur_maps,acuity_levels,acuity_bank,acuity_pick,compose_rgb10"
+)
 
 
 def build(ctx: cl.Context, kernel_dir: Path | None) -> cl.Program:
@@ -33,6 +35,7 @@ def build(ctx: cl.Context, kernel_dir: Path | None) -> cl.Program:
 
 def record_launches(size: tuple[int, int], scene_name: str) -> tuple[cl.Context, dict]:
     """Step a simulator on a profiling queue; each kernel's last launch, by kernel name."""
+    from gazehdr.roofline import to_steady_acuity
     from gazehdr.scenes import open_scene
     from gazehdr.sim import Simulator
 
@@ -53,6 +56,7 @@ def record_launches(size: tuple[int, int], scene_name: str) -> tuple[cl.Context,
     cl.Kernel.__call__ = call
     try:
         sim.start(open_scene(scene_name).render(0.0, w, h), (w / 2, h / 2))
+        to_steady_acuity(sim)  # the bank's launches are kept too, from the frames before
         for i in range(6):
             gaze = (w * (0.3 + 0.2 * (i % 3)), h * (0.4 + 0.2 * (i % 2)))
             sim.step(1 / 60, gaze=gaze, output="rgb10a2")

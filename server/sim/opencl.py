@@ -143,6 +143,10 @@ def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
 
+def _done(event: cl.Event) -> bool:
+    return event.command_execution_status == cl.command_execution_status.COMPLETE
+
+
 class OpenCLBackend:
     """Device buffers for every map of `Layout`; stage methods match ReferenceBackend's. What a
     baseline stage may use is declared by `models.OpenCLStageBackend`."""
@@ -197,6 +201,7 @@ class OpenCLBackend:
         self.P = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(params))
         self._taps: dict[float, tuple[cl.Buffer, int]] = {}
         self._noise_buf: cl.Buffer | None = None
+        self._uploads: list[cl.Event] = []  # host-to-device copies still in flight (_upload)
         self._acuity_taps = [self.taps_for(s) for s in acuity_increments(params, lay.ppd)]
         self._rho_taps = self.taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
         self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
@@ -582,7 +587,14 @@ class OpenCLBackend:
         mixed = np.ascontiguousarray(mixed / math.sqrt((1 - f) ** 2 + f * f), np.float32)
         if self._noise_buf is None:
             self._noise_buf = cl.Buffer(self.ctx, cl.mem_flags.READ_ONLY, mixed.nbytes)
-        cl.enqueue_copy(self.queue, self._noise_buf, mixed)
+        self._upload(self._noise_buf, mixed)
+
+    def _upload(self, buf: cl.Buffer, host: np.ndarray) -> None:
+        """Copy a frame's small host array to the device without waiting: a blocking copy
+        would idle the device while the host makes the next launches. The transfer's event
+        keeps `host` alive; events are let go once done (they wait for their copy when freed)."""
+        self._uploads = [e for e in self._uploads if not _done(e)]
+        self._uploads.append(cl.enqueue_copy(self.queue, buf, host, is_blocking=False))
 
     def blind_spot(self, gaze) -> None:
         """Sec. 5: the scotopic foveal blind spot, on G (reference.foveal_blind_spot)."""
@@ -590,7 +602,7 @@ class OpenCLBackend:
         s = lay.px(self.p.rod_free_radius_deg) / math.sqrt(2 * math.log(2))
         w = self._gaussian_xy(gaze, s)
         w[: lay.width] *= blind_spot_strength(self.p)
-        cl.enqueue_copy(self.queue, b["blind_xy"], w)
+        self._upload(b["blind_xy"], w)
         self.k["foveal_blind_spot"](
             self.queue, self.rows8(), None, self.P, b["G"], self.rho_full(), b["fill"],
             b["blind_xy"], np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
@@ -623,7 +635,7 @@ class OpenCLBackend:
             self._full_maps()
         fovea = self._gaussian_xy(gaze, lay.px(self.p.fovea_sigma_deg))  # the foveal fall-off
         fovea[: lay.width] *= visibility
-        cl.enqueue_copy(self.queue, b["fovea"], fovea)
+        self._upload(b["fovea"], fovea)
         self.k[kernel](
             self.queue, self.rows8(), None,
             self.P, b["G"], rho_full, b["maps"], b["A"],
