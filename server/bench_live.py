@@ -226,12 +226,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--warmup", type=float, default=3.0)
     parser.add_argument(
+        "--late-gaze",
+        default="on",
+        help="on, off or on,off: frames from the gaze read once the step is simulated "
+        "(SessionSettings.late_gaze), or from the one it started with; both compares them",
+    )
+    parser.add_argument(
         "--link-mbit",
         type=float,
         help="run over a link of this many Mbit/s (a network namespace, loopback shaped by tc)",
     )
     parser.add_argument("--link-delay-ms", type=float, default=0.0, help="and this delay each way")
     args = parser.parse_args(argv)
+    lates = args.late_gaze.split(",")
+    if not lates or any(v not in ("on", "off") for v in lates):
+        parser.error(f"--late-gaze takes on, off or on,off, not {args.late_gaze!r}")
     if args.link_mbit and netlink.link() is None:
         import sys
 
@@ -245,36 +254,42 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"link: {netlink.link() or 'loopback, not shaped'}")
     print(
-        f"{'size':>10} {'encoding':>8} {'client':>7} {'fps':>6} {'KiB/frame':>10} "
+        f"{'size':>10} {'encoding':>8} {'client':>7} {'late':>4} {'fps':>6} {'KiB/frame':>10} "
         f"{'sim ms':>7} {'enc ms':>7} {'send ms':>7} {'lat p50':>8} {'lat p95':>8} {'n':>4} "
         f"{'Mbit/s':>7} {'dec ms':>7} {'lost':>4}"
     )
-    for size in args.sizes:
-        for encoding in args.encodings.split(","):
-            for client in args.clients.split(","):
-                chosen = Encoding[encoding]
-                settings = SessionSettings(
-                    width=size[0], height=size[1], fps=args.fps, scene=args.scene,
-                    encoding=chosen if chosen in RAW else Encoding.rgb10a2, fit_viewport=False,
-                )  # fmt: skip
-                with tempfile.TemporaryDirectory() as data:
-                    live = BackgroundServer(ServerConfig(session=settings, data_dir=Path(data)))
-                    try:
-                        if client == "browser":
-                            r = run_browser(live, size, args.seconds, args.warmup, chosen)
-                        else:
-                            r = asyncio.run(_socket_client(live, args.seconds, args.warmup, chosen))
-                    finally:
-                        live.stop()
-                print(
-                    f"{size[0]:>5}x{size[1]:<4} {encoding:>8} {client:>7} {r['fps']:6.1f} "
-                    f"{r['bytes_per_frame'] / 1024:10.0f} {r['sim_ms']:7.1f} "
-                    f"{r['encode_ms']:7.2f} {r['send_ms']:7.2f} {r['lat_p50']:8.0f} "
-                    f"{r['lat_p95']:8.0f} {r['lat_n']:4d} "
-                    f"{r['bytes_per_frame'] * 8 * r['fps'] / 1e6:7.1f} "
-                    f"{r.get('decode_ms', float('nan')):7.2f} {r.get('lost', 0):4d}",
-                    flush=True,
-                )
+    runs = [
+        (size, encoding, client, late)
+        for size in args.sizes
+        for encoding in args.encodings.split(",")
+        for client in args.clients.split(",")
+        for late in lates
+    ]
+    for size, encoding, client, late in runs:
+        chosen = Encoding[encoding]
+        settings = SessionSettings(
+            width=size[0], height=size[1], fps=args.fps, scene=args.scene,
+            encoding=chosen if chosen in RAW else Encoding.rgb10a2, fit_viewport=False,
+            late_gaze=late == "on",
+        )  # fmt: skip
+        with tempfile.TemporaryDirectory() as data:
+            live = BackgroundServer(ServerConfig(session=settings, data_dir=Path(data)))
+            try:
+                if client == "browser":
+                    r = run_browser(live, size, args.seconds, args.warmup, chosen)
+                else:
+                    r = asyncio.run(_socket_client(live, args.seconds, args.warmup, chosen))
+            finally:
+                live.stop()
+        print(
+            f"{size[0]:>5}x{size[1]:<4} {encoding:>8} {client:>7} {late:>4} {r['fps']:6.1f} "
+            f"{r['bytes_per_frame'] / 1024:10.0f} {r['sim_ms']:7.1f} "
+            f"{r['encode_ms']:7.2f} {r['send_ms']:7.2f} {r['lat_p50']:8.0f} "
+            f"{r['lat_p95']:8.0f} {r['lat_n']:4d} "
+            f"{r['bytes_per_frame'] * 8 * r['fps'] / 1e6:7.1f} "
+            f"{r.get('decode_ms', float('nan')):7.2f} {r.get('lost', 0):4d}",
+            flush=True,
+        )
     return 0
 
 

@@ -199,6 +199,12 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         help="frame pixel budget; the frame takes the viewer's aspect ratio (default: 640x360)",
     )
     p.add_argument("--fixed-size", action="store_true", help="never fit the frame to the viewer")
+    p.add_argument(
+        "--no-late-gaze",
+        action="store_true",
+        help="show each frame from the gaze its step started with, not the newest one read once "
+        "the step is simulated (offline renders of recordings then match the live frames)",
+    )
     p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
     p.add_argument(
         "--scale",
@@ -295,6 +301,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         fps=args.fps,
         size=args.size,
         fit_viewport=not args.fixed_size,
+        late_gaze=not args.no_late_gaze,
         params_file=args.params,
         token=token,
         data_dir=_data_dir(args.data_dir),

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -118,12 +118,21 @@ class Eye:
             sim.reset()
 
     def step(
-        self, dt: float, gaze: tuple[float, float], eyes_open: bool, output: str | None = "float32"
+        self,
+        dt: float,
+        gaze: tuple[float, float],
+        eyes_open: bool,
+        output: str | None = "float32",
+        late_gaze: Callable[[], tuple[float, float] | None] | None = None,
     ) -> list[np.ndarray]:
         """Advance every pane by `dt` s looking at `gaze`; each pane's frame, in `output`
         (`Simulator.step`'s encodings; None: no frame, for a late gaze warp only, see
         `warp_layers`). The step is split where the scene changes, and each part sees the
-        scene as it is at the part's start."""
+        scene as it is at the part's start.
+
+        `late_gaze`, when given, is asked once the panes have advanced (their device work
+        done) for a gaze newer than `gaze`, or None: the frames are seen from it
+        (`Simulator.frame`), so a gaze that came during the step is in them."""
         pane_gaze = self.pane_gaze(gaze)
         start = self.time
         end = start + dt
@@ -134,13 +143,17 @@ class Eye:
             self._follow_scene()
         self._follow_scene()
         rest = dt if self.time == start else max(0.0, end - self.time)
+        for sim in self.sims:
+            sim.advance(rest, gaze=pane_gaze, eyes_open=eyes_open)
         if output is None:
-            for sim in self.sims:
-                sim.advance(rest, gaze=pane_gaze, eyes_open=eyes_open)
             return []
-        return [
-            sim.step(rest, gaze=pane_gaze, eyes_open=eyes_open, output=output) for sim in self.sims
-        ]
+        newer = None
+        if late_gaze is not None:
+            for sim in self.sims:
+                sim.wait()
+            newer = late_gaze()
+        seen = None if newer is None else self.pane_gaze(newer)
+        return [sim.frame(output, seen) for sim in self.sims]
 
     def warp_layers(self) -> list[WarpLayers]:
         """Each pane's last step as a late gaze warp sends it (`Simulator.warp_layers`)."""

@@ -126,10 +126,10 @@ def _io(name: str, a: tuple, gsize: tuple, lay, params, d_map) -> tuple[list, fl
         acc += [(5, "w", cells / grid), (6, "r", 1), (7, "r", 1)]
         taps = 2 * r + 1
         return acc, grid * 9 * 2 * (taps * taps + taps) + cells * MAPS_FLOPS, cells * MAPS_TRANS
-    if name == "afterimage_maps":  # P, down, surround, state, maps, A, ..., j0, i0
-        j0, i0 = int(a[-2]), int(a[-1])
-        j1 = min(j0 + gsize[0] * VEC, lay.grid_w) - 1
-        cells = _cells((j0, i0, j1, min(i0 + gsize[1], lay.grid_h) - 1))
+    if name == "afterimage_maps":  # P, down, surround, state, maps, A, ..., window, made
+        window, made = [int(v) for v in a[-8:-4]], [int(v) for v in a[-4:]]
+        both = (*map(max, window[:2], made[:2]), *map(min, window[2:], made[2:]))
+        cells = _cells(window) - _cells(both)
         f = cells / grid
         acc = [(0, "r", 1), (1, "r", 3 / 5), (2, "r", edge / low), (3, "r", f), (4, "w", f)]
         return [*acc, (5, "r", 1)], cells * MAPS_FLOPS, cells * MAPS_TRANS

@@ -51,6 +51,7 @@ def build_config(
     acuity: str = "stochastic",
     split: str | None = None,
     record: bool = False,
+    late_gaze: bool = True,
     lsl_outlet: str | None = None,
     layer: str | None = None,
     auth: bool = True,
@@ -96,6 +97,7 @@ def build_config(
         encoding=Encoding[encoding],
         fit_viewport=fit_viewport,
         record=record,
+        late_gaze=late_gaze,
     )
     return ServerConfig(
         host=host,

@@ -28,6 +28,7 @@ the same step the live session did.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -116,6 +117,13 @@ class SessionSettings:
     fit_viewport: bool = True
     #: Keep a journal of session-log records (`Session.take_journal`).
     record: bool = False
+    #: Show each frame from the newest gaze, read once the step's simulation is done, rather
+    #: than the one the step started with (`Eye.step`'s late_gaze): a pointer or tracker gaze
+    #: that comes during a step is in its frame. The eye's own step (adaptation, the retina)
+    #: follows the gaze it started with, which is what the session log keeps; offline renders
+    #: of the log show frames from that gaze, so they match the live frames exactly only with
+    #: this off (`gazehdr serve --no-late-gaze`).
+    late_gaze: bool = True
 
 
 @dataclass(frozen=True)
@@ -513,9 +521,10 @@ class Session:
         if changed:
             self._log(sessionlog.ParamsChange(self._now_ns, changed))
 
-    def _log_gaze(self) -> None:
-        """The gaze and eyes this step follows, when they changed: the gaze in the scene's
-        terms (a pane's, in split view), as a sample in `log_screen` pixels and one fixation."""
+    def _log_gaze(self, t: int) -> None:
+        """The gaze and eyes this step follows, when they changed, at `t` ns: the gaze in the
+        scene's terms (a pane's, in split view), as a sample in `log_screen` pixels and one
+        fixation."""
         if self._journal is None:  # every step: nothing to work out unless it is kept
             return
         (gx, gy), (w, h) = self.eye.pane_gaze(self.gaze), self.eye.pane_size
@@ -525,7 +534,6 @@ class Session:
         )
         last_point, last_eyes = self._journaled
         eyes_open = self.reading.eyes_open
-        t = self._now_ns
         if point != last_point:
             self._fixations += 1
             self._log(GazeSample(t, *point))
@@ -536,16 +544,31 @@ class Session:
             self._log(sessionlog.GazeEvent(kind, self._blinks, t))
         self._journaled = (point, eyes_open)
 
+    def _late_gaze(self, t: float) -> tuple[float, float] | None:
+        """The gaze source read again at `t` once the step is simulated: its gaze when it has
+        a newer one (a pointer that moved meanwhile; a track's is the same at `t`), which the
+        frame, its header and the next step take up. The eyes stay as the step had them."""
+        reading = self._input.at(t)
+        if reading.received_at == self.reading.received_at:
+            return None
+        self.reading = dataclasses.replace(reading, eyes_open=self.reading.eyes_open)
+        # Logged 1 ns after the step's own gaze (at the step's end): an offline render then
+        # steps this step from that one, as the eye did, and the next from this one.
+        self._log_gaze(self._now_ns + 1)
+        return self.gaze
+
     def _advance(self, dt: float, plain: bool = True, warp: bool = False) -> Frame:
         started = self.clock()
-        previous, self.reading = self.reading, self._input.at(self.sim.time)
-        new_gaze_at = self.reading.received_at
-        if new_gaze_at == previous.received_at:
-            new_gaze_at = None
-        self._log_gaze()
+        read_at = self.sim.time
+        previous, self.reading = self.reading, self._input.at(read_at)
+        self._log_gaze(self._now_ns)
         eyes_open = self.reading.eyes_open
         output = SIM_OUTPUT[self.settings.encoding] if plain else None
-        outs = self.eye.step(dt, self.gaze, eyes_open, output)
+        late = functools.partial(self._late_gaze, read_at) if self.settings.late_gaze else None
+        outs = self.eye.step(dt, self.gaze, eyes_open, output, late)
+        new_gaze_at = self.reading.received_at  # the step's gaze, or the late one
+        if new_gaze_at == previous.received_at:
+            new_gaze_at = None
         layers = self.eye.warp_layers() if warp else None
         stepped = self.clock()
         w, h = self.size

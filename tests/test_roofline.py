@@ -107,6 +107,23 @@ def test_flops_follow_the_launch_and_unknown_kernels_are_refused() -> None:
         roofline.launch_cost("made_up", (8,), (), lay, p)
 
 
+def test_afterimage_maps_count_the_cells_of_the_window_not_made_yet() -> None:
+    """The late gaze's maps (`OpenCLBackend._more_maps`): one launch over the whole grid, the
+    cells of a box less those of the window made with the step."""
+    sim, b, gaze, _ = _live_step_launches()
+    rec = roofline.Recorder(b)
+    box, made = (2, 3, 41, 22), (10, 5, 29, 14)
+    for inner in ((0, 0, -1, -1), made):
+        b._map_cells(gaze, box, inner)
+    rec.restore()
+    full, rest = (
+        roofline.launch_cost(ln.name, ln.gsize, ln.args, sim.layout, sim.params)
+        for ln in rec.launches
+    )
+    assert full.flops == 40 * 20 * roofline.MAPS_FLOPS
+    assert rest.flops == (40 * 20 - 20 * 10) * roofline.MAPS_FLOPS
+
+
 NUM = r"-?\d+(?:\.\d+)?"
 
 

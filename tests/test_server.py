@@ -194,12 +194,14 @@ def test_frames_flow_at_real_time_and_follow_the_pointer(live_server) -> None:
         # Simulation time follows the wall clock, which only causality can check on a loaded
         # machine. Each step moves the eye by the wall time since the last one: at least a
         # frame interval (no faster than fps), at most MAX_FRAME_DT. And it never runs ahead:
-        # `first` was stepped after the gaze it shows was sent, each later frame before it
+        # the step of `first` started at most its own length before the gaze it shows was sent
+        # (the late gaze: read once the step is simulated), each later frame before it
         # arrived here.
         headers = [first]
+        started = sent_at - first.server_ms / 1e3
         while len(headers) < 12:
             header, _ = await client.frame()
-            assert header.time - first.time <= time.monotonic() - sent_at
+            assert header.time - first.time <= time.monotonic() - started
             headers.append(header)
         for a, b in itertools.pairwise(headers):
             steps = b.frame - a.frame
@@ -664,16 +666,33 @@ def test_a_viewer_that_acks_gets_at_most_two_frames_in_flight(live_server) -> No
     run(check())
 
 
+def _serve_options(data_dir) -> dict:
+    """`build_config`'s options as `gazehdr serve` would pass them, for a small test server."""
+    return dict(
+        host="127.0.0.1", port=0, scene="flash", scale=None, gaze="mouse", fps=30.0,
+        size=(96, 54), fit_viewport=False, params_file=None, token="t", data_dir=data_dir,
+        allow_origins=(), encoding="rgb10a2", backend="reference", seed=0,
+    )  # fmt: skip
+
+
+def test_serve_shows_frames_from_the_late_gaze_unless_told_not_to(tmp_path) -> None:
+    """`gazehdr serve --no-late-gaze` reaches the sessions' settings (docs/server.md)."""
+    from gazehdr.cli import build_parser
+    from gazehdr.serve import build_config
+
+    options = _serve_options(tmp_path)
+    parser = build_parser()
+    for argv, late in (["serve"], True), (["serve", "--no-late-gaze"], False):
+        args = parser.parse_args(argv)
+        assert build_config(**options, late_gaze=not args.no_late_gaze).session.late_gaze is late
+
+
 def test_serve_can_start_sessions_in_split_view(live_server, tmp_path) -> None:
     """`gazehdr serve --split MODEL`: new sessions open with MODEL in the right pane."""
     from gazehdr.serve import build_config
     from gazehdr.sim.models import Models
 
-    options = dict(
-        host="127.0.0.1", port=0, scene="flash", scale=None, gaze="mouse", fps=30.0,
-        size=(96, 54), fit_viewport=False, params_file=None, token="t", data_dir=tmp_path,
-        allow_origins=(), encoding="rgb10a2", backend="reference", seed=0,
-    )  # fmt: skip
+    options = _serve_options(tmp_path)
     assert build_config(**options).session.split is None
     config = build_config(**options, split="jacobs+thompson")
     assert config.session.split == Models("jacobs", "thompson")

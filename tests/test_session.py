@@ -69,6 +69,50 @@ def test_header_reports_what_the_frame_used() -> None:
     assert frame.gaze_received_at is None and frame.header.frame == 1  # no new gaze this time
 
 
+@pytest.mark.parametrize("late", [True, False])
+def test_a_gaze_that_comes_during_the_step_is_in_its_frame(late: bool) -> None:
+    """A pointer move that reaches the session while its step is simulated is in that step's
+    frame: its header's gaze, sequence number and arrival time, and the afterimages seen from
+    there. The eye's step followed the gaze it started with; the log has the new gaze 1 ns
+    after the step (which the next step follows). With late_gaze off the move waits a step."""
+    session = new_session(scene="lamp", late_gaze=late, record=True)
+    tick(session, 0.0, [(Gaze(0.5, 0.42, 1), 1.0)])
+    tick(session, 0.5, [])  # an afterimage of the lamp forms at (0.5, 0.42)
+    sim = session.eye.sims[0]
+    plain_advance = sim.advance
+    moves = [Gaze(0.3, 0.6, 2)]
+
+    def simulating(*args, **kwargs) -> None:  # the move arrives while the step is simulated
+        plain_advance(*args, **kwargs)
+        if moves:
+            session.pointer.take(moves.pop(), 2.0)
+
+    sim.advance = simulating
+    session.take_journal()
+    frame, _ = tick(session, 1 / 30, [])
+    h = frame.header
+    logged = [r for r in session.take_journal() if type(r).__name__ == "GazeSample"]
+    t_ns = round(session.sim.time * 1e9)
+    assert not moves
+    if not late:
+        assert not logged
+        assert (h.gaze_seq, h.gaze_x, frame.gaze_received_at) == (1, 0.5, None)
+        frame, _ = tick(session, 1 / 30, [])
+        assert (frame.header.gaze_seq, frame.gaze_received_at) == (2, 2.0)
+        return
+    assert (h.gaze_seq, h.gaze_x, h.gaze_y, frame.gaze_received_at) == (2, 0.3, 0.6, 2.0)
+    screen = session.log_screen
+    point = (0.3 * screen.screen_width_px, 0.6 * screen.screen_height_px)
+    assert [(r.t_ns, r.x, r.y) for r in logged] == [(t_ns + 1, *point)]
+    # The frame is the eye as stepped, seen from the new gaze: the afterimage moved with it.
+    seen_there = sim.frame("float16", gaze=(0.3 * 96, 0.6 * 54))
+    assert np.array_equal(decode_frame(h.pack() + frame.payload)[1], seen_there)
+    at_start = sim.frame("float16", gaze=(0.5 * 96, 0.42 * 54))
+    assert not np.array_equal(seen_there, at_start)
+    frame, _ = tick(session, 1 / 30, [])  # the next step starts from the new gaze
+    assert frame.gaze_received_at is None and frame.header.gaze_seq == 2
+
+
 def test_long_stall_is_clamped() -> None:
     session = new_session()
     tick(session, 5.0, [])

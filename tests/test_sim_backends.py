@@ -201,6 +201,35 @@ def test_each_stage_alone(seed: int) -> None:
         assert_close("v", ref.compose(gaze, eyes), cl.compose(gaze, eyes))
 
 
+def test_a_frame_seen_from_a_newer_gaze_matches_reference() -> None:
+    """Simulator.frame(gaze): the eye steps at one gaze and its frame is seen from another
+    (the live path's late gaze). The OpenCL backend then makes the afterimage maps of only
+    the cells the new gaze adds to the step's window; cells outside it still hold an older
+    step's maps, so a cell missed shows. Each frame against the reference, and against the
+    same compose once the whole grid's maps are made."""
+    sims = [Simulator(W, H, backend=b, seed=6) for b in ("reference", "opencl")]
+    scene = mixed_scene(6)
+    for s in sims:
+        s.load_scene(scene)
+    for gaze in ((20.0, 10.0), (100.0, 60.0)):  # older maps at other windows
+        for s in sims:
+            s.step(0.2, gaze=gaze)
+    for s in sims:  # the light goes off: afterimages, unlike the older steps' maps
+        s.load_scene(scene * 1e-3, reset=False)
+        s.advance(1 / 30, gaze=(60.0, 34.0))
+    cl = sims[1]._backend
+    for late in ((61.5, 34.5), (10.0, 60.0), (-40.0, 10.0), (118.0, 2.0)):
+        ref_v, cl_v = (s.frame("float32", gaze=late) for s in sims)
+        assert sims[1].gaze == late
+        flipped = sims[0]._backend.get("d") != cl.get("d")
+        assert_close("v", ref_v[~flipped], cl_v[~flipped])
+    made = cl._maps_made
+    assert made is not None, "a late gaze should add the cells it needs, not the whole grid"
+    cl.get("maps")  # completes the grid
+    assert cl._maps_made is None
+    assert np.array_equal(cl.compose(late, 1.0), cl_v)
+
+
 @pytest.mark.parametrize("size", [(W, H), (137, 41)])
 def test_acuity_from_the_level_stack_matches_reference(size: tuple[int, int]) -> None:
     """A scene blurs in the bank until it has stayed LEVEL_STACK_AFTER_FRAMES frames, then

@@ -139,6 +139,11 @@ def build_options(ctx: cl.Context) -> list[str]:
     return options
 
 
+#: Retina cells (j0, i0, j1, i1), inclusive.
+Window = tuple[int, int, int, int]
+NO_CELLS: Window = (0, 0, -1, -1)
+
+
 def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
@@ -195,13 +200,15 @@ class OpenCLBackend:
             cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, buf.size)
         # rho at every pixel (from "rho"), remade when rho changes
         self._rho_full_stale = True
-        # The afterimage maps are made only where the screen shows them; this is the gaze of
-        # the last retina step when the rest of the grid is still to be made (_full_maps).
-        self._maps_partial: tuple[float, float] | None = None
+        # The afterimage maps are made only where the screen shows them: (the gaze of the last
+        # retina step, the window of cells made) while the rest of the grid is still to be
+        # made (_more_maps, _full_maps); None when all of it is.
+        self._maps_made: tuple[tuple[float, float], Window] | None = None
         self.P = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(params))
         self._taps: dict[float, tuple[cl.Buffer, int]] = {}
         self._noise_buf: cl.Buffer | None = None
         self._uploads: list[cl.Event] = []  # host-to-device copies still in flight (_upload)
+        self._before_acuity: cl.Event | None = None  # the last step's, until wait() takes it
         self._acuity_taps = [self.taps_for(s) for s in acuity_increments(params, lay.ppd)]
         self._rho_taps = self.taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
         self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
@@ -238,7 +245,7 @@ class OpenCLBackend:
         if name == "scene":
             self._scene_changed()
         if name == "maps":
-            self._maps_partial = None
+            self._maps_made = None
 
     @property
     def A(self) -> float:
@@ -416,7 +423,7 @@ class OpenCLBackend:
                 b["state"], b["maps"], b["A"], tbuf, np.int32(r), *args,
                 *(np.int32(v) for v in window),
             )  # fmt: skip
-            self._maps_partial = tuple(gaze)
+            self._maps_made = (tuple(gaze), window)
         else:
             self._maps(gaze, window)
 
@@ -456,7 +463,7 @@ class OpenCLBackend:
                 np.int32(k == plan.iterations - 1),
             )  # fmt: skip
 
-    def _screen_window(self, gaze) -> tuple[int, int, int, int]:
+    def _screen_window(self, gaze) -> Window:
         """Retina cells (j0, i0, j1, i1), inclusive, that compose reads at this gaze."""
         lay = self.lay
 
@@ -469,42 +476,45 @@ class OpenCLBackend:
         (i0, i1) = span(gaze[1], lay.height, lay.grid_h)
         return j0, i0, j1, i1
 
-    def _maps(self, gaze, window) -> None:
+    def _maps(self, gaze, window: Window) -> None:
         self._map_cells(gaze, window)
-        full = window == (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
-        self._maps_partial = None if full else tuple(gaze)
+        self._maps_made = None if window == self._whole_grid() else (tuple(gaze), window)
 
-    def _map_cells(self, gaze, window) -> None:
-        """The maps of the cells (j0, i0, j1, i1), inclusive (a row's last 8 may run over j1)."""
+    def _whole_grid(self) -> Window:
+        return (0, 0, self.lay.grid_w - 1, self.lay.grid_h - 1)
+
+    def _map_cells(self, gaze, window: Window, made: Window = NO_CELLS) -> None:
+        """The maps of the cells of `window` (j0, i0, j1, i1), inclusive, except those of `made`,
+        in runs of 8 cells (a run may reach past the window's sides; one inside `made` stays)."""
         b = self.buf
-        j0, i0, j1, i1 = window
-        if j1 < j0 or i1 < i0:
-            return
         self.k["afterimage_maps"](
-            self.queue, (-(-(j1 - j0 + 1) // VEC), i1 - i0 + 1), None, self.P, b["down"],
-            b["surround"], b["state"], b["maps"], b["A"], *self.grid_args(gaze), np.int32(j0),
-            np.int32(i0),
+            self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["state"],
+            b["maps"], b["A"], *self.grid_args(gaze), *(np.int32(v) for v in (*window, *made)),
         )  # fmt: skip
 
-    def _full_maps(self) -> None:
-        """Complete the afterimage maps of the last retina step: the grid around the screen's
-        window (made with the step), in four bands (above, below, left, right of it)."""
-        gaze = self._maps_partial
-        if gaze is None:
+    def _more_maps(self, window: Window) -> None:
+        """Make the maps cover `window` too (a compose at a newer gaze than the retina step's,
+        `Simulator.step`'s late_gaze): the cells of the box around both windows not made yet,
+        from the step's state at the step's gaze. `_full_maps` with `window` the whole grid."""
+        if self._maps_made is None:
             return
-        j0, i0, j1, i1 = self._screen_window(gaze)
-        w, h = self.lay.grid_w - 1, self.lay.grid_h - 1
-        for band in (
-            (0, 0, w, i0 - 1),
-            (0, i1 + 1, w, h),
-            (0, i0, j0 - 1, i1),
-            (j1 + 1, i0, w, i1),
-        ):
-            self._map_cells(gaze, band)
-        self._maps_partial = None
+        gaze, made = self._maps_made
+        box = (
+            min(made[0], window[0]), min(made[1], window[1]),
+            max(made[2], window[2]), max(made[3], window[3]),
+        )  # fmt: skip
+        if box == made:
+            return
+        self._map_cells(gaze, box, made)
+        self._maps_made = None if box == self._whole_grid() else (gaze, box)
+
+    def _full_maps(self) -> None:
+        """Complete the afterimage maps of the last retina step (get("maps"), the warp)."""
+        self._more_maps(self._whole_grid())
 
     def acuity(self, noise: NoiseFrame) -> None:
         lay, b = self.lay, self.buf
+        self._before_acuity = cl.enqueue_marker(self.queue)  # for wait()
         self._upload_noise(noise)
         rho_full = self.rho_full()
         stack = self._level_stack()
@@ -617,6 +627,13 @@ class OpenCLBackend:
         )
         return np.exp(-(xs * xs) / (2.0 * sigma * sigma)).astype(np.float32)
 
+    def wait(self) -> None:
+        """Block until only the last step's acuity, which no gaze changes, is left to run: a
+        gaze read now is nearly as new as one can be, and a compose enqueued now follows the
+        acuity with no idle device in between (after a step without acuity: until all is done)."""
+        mark, self._before_acuity = self._before_acuity, None
+        (mark or cl.enqueue_marker(self.queue)).wait()
+
     def compose(
         self, gaze, eyes: float, out_dtype=np.float32, visibility: float = 1.0
     ) -> np.ndarray:
@@ -631,8 +648,7 @@ class OpenCLBackend:
             raise ValueError(f"out_dtype must be float32, float16 or uint32, got {out_dtype!r}")
         kernel, buf_name, shape = COMPOSE_OUTPUTS[kind]
         rho_full = self.rho_full()
-        if self._maps_partial is not None and self._maps_partial != tuple(gaze):
-            self._full_maps()
+        self._more_maps(self._screen_window(gaze))
         fovea = self._gaussian_xy(gaze, lay.px(self.p.fovea_sigma_deg))  # the foveal fall-off
         fovea[: lay.width] *= visibility
         self._upload(b["fovea"], fovea)

@@ -465,6 +465,9 @@ class ReferenceBackend:
         a = self.a
         a["G"] = foveal_blind_spot(a["G"], a["rho"], a["fill"], gaze, self.lay, self.p)
 
+    def wait(self) -> None:
+        """Stages run at once, on the host: nothing is left to wait for."""
+
     def compose(self, gaze, eyes: float, visibility: float = 1.0) -> np.ndarray:
         a = self.a
         v = compose(a["G"], a["rho"], a["maps"], self.A, gaze, eyes, self.lay, self.p, visibility)

@@ -44,6 +44,13 @@ class WarpLayers:
 
 
 _DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}
+
+
+def _check_output(output: str) -> None:
+    if output not in OUTPUTS:
+        raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+
+
 MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no longer a frame)
 
 
@@ -226,13 +233,30 @@ class Simulator:
         `output` "float16" or "rgb10a2" returns `v` encoded for the viewer (see
         `layout.encode_output`); the OpenCL backend encodes on the device, so the host never
         makes a pass over the frame."""
-        if output not in OUTPUTS:
-            raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        _check_output(output)
         self.advance(dt, gaze, eyes_open)
+        return self.frame(output)
+
+    def frame(self, output: str = "float32", gaze: Sequence[float] | None = None) -> np.ndarray:
+        """The frame of the eye as the last step left it (`step` is `advance` then this).
+
+        With `gaze` (screen px) it is seen from there instead of from the step's gaze: the
+        afterimages, locked to the retina, and their foveal fall-off move with it, as they do
+        in the eye. A gaze newer than the step's, read just before this (after `wait`), cuts
+        the time from a gaze to the frame that shows it by the step's own (`Eye.step`'s
+        `late_gaze`); the gaze becomes the eye's."""
+        _check_output(output)
+        if gaze is not None:
+            self._gaze = self._check_gaze(gaze)
         b = self._backend
         if output != "float32" and b.name == "opencl":
             return b.compose(self._gaze, self._eyes, _DEVICE_OUTPUT[output], self._visibility)
         return encode_output(b.compose(self._gaze, self._eyes, visibility=self._visibility), output)
+
+    def wait(self) -> None:
+        """Block until the device has done the steps asked of it: a gaze read after this is
+        as new as one can be for `frame`."""
+        self._backend.wait()
 
     def warp_layers(self) -> WarpLayers:
         """The last step's frame as a late gaze warp sends it (`gazehdr.warp`): the parts of

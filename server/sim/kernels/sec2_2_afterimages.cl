@@ -207,15 +207,19 @@ inline void maps8(__constant const params_t *P, __global const float *down,
     store_cell8(maps + 5 * plane + row, add.b, j, grid_w);
 }
 
-// The maps of the cells from (j0, i0) on (global size: the window that the screen reads at
-// this gaze), from the current state.
+// The maps of the cells in [j0, j1] x [i0, i1], from the current state, in runs of 8 cells
+// from the row's start; runs wholly inside the window [mj0, mj1] x [mi0, mi1] are left as they
+// are (made already). Global size: the whole grid, (ceil(grid_w / 8), grid_h), whatever the
+// windows: PoCL compiles a kernel anew for each global size it meets (about 0.2 s).
 __kernel void afterimage_maps(__constant const params_t *P, __global const float *down,
                               __global const float *surround, __global const float *state,
                               __global float *maps, __global const float *A, int low_w,
                               int low_h, int cell, int grid_w, int grid_h, float gx, float gy,
-                              int j0, int i0) {
-    int j = j0 + get_global_id(0) * VEC, i = i0 + get_global_id(1);
-    if (j >= grid_w || i >= grid_h) return;
+                              int j0, int i0, int j1, int i1, int mj0, int mi0, int mj1,
+                              int mi1) {
+    int j = get_global_id(0) * VEC, i = get_global_id(1);
+    if (j >= grid_w || i < i0 || i > i1 || j + VEC <= j0 || j > j1) return;
+    if (i >= mi0 && i <= mi1 && j >= mj0 && j + VEC - 1 <= mj1) return;
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
     float8 st[9];
