@@ -235,7 +235,7 @@ def test_acuity_from_the_level_stack_matches_reference(size: tuple[int, int]) ->
     """A scene blurs in the bank until it has stayed LEVEL_STACK_AFTER_FRAMES frames, then
     makes its level stack one level a frame, then picks each pixel's level from it
     (acuity_pick); a new scene (put or set_scene) starts over. Every frame against the
-    reference, with many rows of 8 pixels between levels."""
+    reference (G, and v composed from it), with many rows of 8 pixels between levels."""
     from gazehdr.sim.opencl import LEVEL_STACK_AFTER_FRAMES
 
     w, h = size
@@ -253,14 +253,18 @@ def test_acuity_from_the_level_stack_matches_reference(size: tuple[int, int]) ->
             else:
                 b.set_scene(planar)
         assert cl.level_stack_pending
+        _load_same(ref, cl, ["maps", "A"], rng)
         for frame in range(frames):
             _load_same(ref, cl, ["rho"], rng)
             noise = field.at(0.1 * frame)
             ref.acuity(noise)
             cl.acuity(noise)
+            assert cl.level_stack_pending == (frame < LEVEL_STACK_AFTER_FRAMES + p.bands - 1)
             d = cl.get("d")
             flipped = ref.get("d") != d
             assert flipped.mean() <= 0.002
+            gaze = (w * 0.4, h * 0.6)
+            assert_close("v", ref.compose(gaze, 1.0)[~flipped], cl.compose(gaze, 1.0)[~flipped])
             mixed = np.lib.stride_tricks.sliding_window_view(d[:, : w // 8 * 8], 8, 1)[:, ::8]
             assert (mixed.min(-1) != mixed.max(-1)).mean() > 0.05, "rows of 8 between levels"
             assert_close("G", ref.get("G")[:, ~flipped], cl.get("G")[:, ~flipped])
