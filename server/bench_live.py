@@ -6,7 +6,9 @@ over the same window: frames per second delivered to the page, bytes per frame, 
 per frame split into simulation, encoding and sending, and the latency from a pointer move to
 the first frame that used it, as the page measured it (p50, p95). The same run with a plain
 WebSocket client instead of the browser separates the browser's own cost (on a 2-core machine
-Chromium's software WebGL competes with the simulation for the CPU).
+Chromium's software WebGL competes with the simulation for the CPU); that client runs in this
+process (`socket`, sharing the server's interpreter) or in one of its own (`process`, as a
+browser does).
 
 `av1` (gazehdr.video) is a viewer's choice: the session simulates `rgb10a2`, the page opens with
 `?encoding=av1`, the socket client asks for it, acks each frame as the page does and decodes
@@ -146,16 +148,63 @@ def run_browser(
     }
 
 
+def run_socket(live, seconds: float, warmup: float, encoding: Encoding) -> dict[str, float]:
+    """The plain WebSocket client on this process's main thread, beside the server's threads."""
+    marks: dict[str, dict[str, float]] = {}
+
+    def mark(event: str) -> None:
+        marks[event] = _server_snapshot(live.metrics)
+
+    client = _socket_client(live.ws_url, live.auth, seconds, warmup, encoding, mark)
+    figures = asyncio.run(client)
+    return {**figures, **_server_figures(marks["warm"], marks["done"])}
+
+
+def run_socket_process(live, seconds: float, warmup: float, encoding: Encoding) -> dict[str, float]:
+    """The same client in a process of its own, as a browser is: it shares the CPU, not the
+    server's interpreter (its GIL)."""
+    import multiprocessing
+
+    spawn = multiprocessing.get_context("spawn")
+    ours, theirs = spawn.Pipe()
+    args = (theirs, live.ws_url, live.auth, seconds, warmup, encoding)
+    child = spawn.Process(target=_socket_process, args=args, daemon=True)
+    child.start()
+    marks: dict[str, dict[str, float]] = {}
+    try:
+        while True:
+            if not ours.poll(seconds + warmup + 60):
+                raise RuntimeError("the socket client process stopped answering")
+            event, figures = ours.recv()
+            if event == "figures":
+                break
+            marks[event] = _server_snapshot(live.metrics)
+    finally:
+        child.join(10)
+        if child.is_alive():
+            child.kill()
+    return {**figures, **_server_figures(marks["warm"], marks["done"])}
+
+
+def _socket_process(conn, url: str, auth, seconds: float, warmup: float, encoding: Encoding):
+    def mark(event: str) -> None:
+        conn.send((event, None))
+
+    figures = asyncio.run(_socket_client(url, auth, seconds, warmup, encoding, mark))
+    conn.send(("figures", figures))
+
+
 async def _socket_client(
-    live, seconds: float, warmup: float, encoding: Encoding
+    url: str, auth, seconds: float, warmup: float, encoding: Encoding, mark
 ) -> dict[str, float]:
+    """Frames per second and pointer-to-frame latency as a plain client sees them; `mark` is
+    called with "warm" when the timed window starts and "done" when it ends (the server's
+    figures are taken there)."""
     import websockets
 
     from gazehdr.video import Decoder
 
-    async with websockets.connect(
-        f"{live.ws_url}/ws/view", max_size=None, additional_headers=live.auth
-    ) as ws:
+    async with websockets.connect(f"{url}/ws/view", max_size=None, additional_headers=auth) as ws:
         stream = encoding not in RAW
         decoder = Decoder() if stream else None
         decode_s, lost = 0.0, 0
@@ -167,11 +216,11 @@ async def _socket_client(
         rng = random.Random(0)
         start = time.monotonic()
         next_move = start
-        before: dict[str, float] = {}
         while True:
             now = time.monotonic()
             if t0 is None and now - start >= warmup:
-                t0, frames, before = now, 0, _server_snapshot(live.metrics)
+                t0, frames = now, 0
+                mark("warm")
             if t0 is not None and now - t0 >= seconds:
                 break
             if now >= next_move:
@@ -203,7 +252,7 @@ async def _socket_client(
             for old in [s for s in sent if s < header.gaze_seq]:
                 sent.pop(old)
         elapsed = time.monotonic() - t0
-        after = _server_snapshot(live.metrics)
+        mark("done")
     p50, p95 = _percentiles(latencies)
     return {
         "fps": frames / elapsed,
@@ -212,7 +261,6 @@ async def _socket_client(
         "lat_n": len(latencies),
         "decode_ms": 1e3 * decode_s / max(frames, 1),
         "lost": lost,
-        **_server_figures(before, after),
     }
 
 
@@ -220,7 +268,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="gazehdr bench-live", description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=size_list_arg, default="1280x720,1920x1080")
     parser.add_argument("--encodings", default="f16,rgb10a2")
-    parser.add_argument("--clients", default="browser,socket")
+    parser.add_argument(
+        "--clients",
+        default="browser,socket",
+        help="browser (headless Chromium), socket (a plain WebSocket client in this process), "
+        "process (the same in a process of its own); default browser,socket",
+    )
     parser.add_argument("--scene", default="lamp")
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--seconds", type=float, default=10.0)
@@ -238,6 +291,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--link-delay-ms", type=float, default=0.0, help="and this delay each way")
     args = parser.parse_args(argv)
+    clients = args.clients.split(",")
+    if not clients or any(c not in ("browser", "socket", "process") for c in clients):
+        parser.error(f"--clients takes browser, socket and process, not {args.clients!r}")
     lates = args.late_gaze.split(",")
     if not lates or any(v not in ("on", "off") for v in lates):
         parser.error(f"--late-gaze takes on, off or on,off, not {args.late_gaze!r}")
@@ -262,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
         (size, encoding, client, late)
         for size in args.sizes
         for encoding in args.encodings.split(",")
-        for client in args.clients.split(",")
+        for client in clients
         for late in lates
     ]
     for size, encoding, client, late in runs:
@@ -278,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
                 if client == "browser":
                     r = run_browser(live, size, args.seconds, args.warmup, chosen)
                 else:
-                    r = asyncio.run(_socket_client(live, args.seconds, args.warmup, chosen))
+                    run = run_socket if client == "socket" else run_socket_process
+                    r = run(live, args.seconds, args.warmup, chosen)
             finally:
                 live.stop()
         print(

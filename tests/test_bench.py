@@ -38,3 +38,27 @@ def test_bench_times_each_model_beside_the_default(capsys) -> None:
         assert ratio == 1.0 if m == each_beside_default()[0] else ratio > 0
     with pytest.raises(SystemExit):
         main(["--models", "jacobs+sharp"])
+
+
+def test_bench_live_measures_a_client_in_this_process_and_in_its_own(capsys) -> None:
+    """`gazehdr bench-live` with plain WebSocket clients, in the server's process and in one of
+    their own, with the late gaze on and off: a row each, with frames delivered and latencies
+    (a real server on loopback; 1 s each, so figures only, nothing timed is asserted)."""
+    from gazehdr import bench_live
+
+    argv = ["--sizes", "96x54", "--encodings", "rgb10a2", "--clients", "socket,process"]
+    argv += ["--seconds", "1", "--warmup", "0.5", "--fps", "30", "--late-gaze", "on,off"]
+    assert bench_live.main(argv) == 0
+    rows = re.findall(
+        r"^\s+96x54\s+rgb10a2\s+(\w+)\s+(on|off)\s+([\d.]+)\s+(\d+)", capsys.readouterr().out, re.M
+    )
+    assert [(c, late) for c, late, _, _ in rows] == [
+        ("socket", "on"),
+        ("socket", "off"),
+        ("process", "on"),
+        ("process", "off"),
+    ]
+    for _, _, fps, kib in rows:
+        assert float(fps) > 0 and int(kib) == 20  # 96 x 54 x 4 bytes and a header, in KiB
+    with pytest.raises(SystemExit):
+        bench_live.main(["--clients", "socket,telnet"])
