@@ -230,16 +230,21 @@ def test_a_frame_seen_from_a_newer_gaze_matches_reference() -> None:
     assert np.array_equal(cl.compose(late, 1.0), cl_v)
 
 
-@pytest.mark.parametrize("size", [(W, H), (137, 41)])
-def test_acuity_from_the_level_stack_matches_reference(size: tuple[int, int]) -> None:
+@pytest.mark.parametrize(
+    ("size", "blind_spot"), [((W, H), False), ((137, 41), False), ((W, H), True)]
+)
+def test_acuity_from_the_level_stack_matches_reference(
+    size: tuple[int, int], blind_spot: bool
+) -> None:
     """A scene blurs in the bank until it has stayed LEVEL_STACK_AFTER_FRAMES frames, then
     makes its level stack one level a frame, then picks each pixel's level from it
-    (acuity_pick); a new scene (put or set_scene) starts over. Every frame against the
-    reference (G, and v composed from it), with many rows of 8 pixels between levels."""
+    (acuity_pick); a new scene (put or set_scene) starts over. The blind spot changes G after
+    the pick. Every frame against the reference (G, and v composed from it), with many rows
+    of 8 pixels between levels."""
     from gazehdr.sim.opencl import LEVEL_STACK_AFTER_FRAMES
 
     w, h = size
-    p = Params()
+    p = Params(foveal_blind_spot=1.0, tracker_accuracy_deg=0.0) if blind_spot else Params()
     lay = Layout.for_frame(w, h, p)
     ref, cl = ReferenceBackend(lay, p), OpenCLBackend(lay, p)
     rng = np.random.default_rng(8)
@@ -253,17 +258,19 @@ def test_acuity_from_the_level_stack_matches_reference(size: tuple[int, int]) ->
             else:
                 b.set_scene(planar)
         assert cl.level_stack_pending
-        _load_same(ref, cl, ["maps", "A"], rng)
+        _load_same(ref, cl, ["maps", "A", "rho", "fill"], rng)
         for frame in range(frames):
-            _load_same(ref, cl, ["rho"], rng)
-            noise = field.at(0.1 * frame)
+            noise = field.at(0.02 * frame)
             ref.acuity(noise)
             cl.acuity(noise)
             assert cl.level_stack_pending == (frame < LEVEL_STACK_AFTER_FRAMES + p.bands - 1)
+            gaze = (w * 0.4, h * 0.6)
+            if blind_spot:
+                ref.blind_spot(gaze)
+                cl.blind_spot(gaze)
             d = cl.get("d")
             flipped = ref.get("d") != d
             assert flipped.mean() <= 0.002
-            gaze = (w * 0.4, h * 0.6)
             assert_close("v", ref.compose(gaze, 1.0)[~flipped], cl.compose(gaze, 1.0)[~flipped])
             mixed = np.lib.stride_tricks.sliding_window_view(d[:, : w // 8 * 8], 8, 1)[:, ::8]
             assert (mixed.min(-1) != mixed.max(-1)).mean() > 0.05, "rows of 8 between levels"
