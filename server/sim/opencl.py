@@ -208,7 +208,6 @@ class OpenCLBackend:
         self._taps: dict[float, tuple[cl.Buffer, int]] = {}
         self._noise_buf: cl.Buffer | None = None
         self._uploads: list[cl.Event] = []  # host-to-device copies still in flight (_upload)
-        self._before_acuity: cl.Event | None = None  # the last step's, until wait() takes it
         self._acuity_taps = [self.taps_for(s) for s in acuity_increments(params, lay.ppd)]
         self._rho_taps = self.taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
         self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
@@ -514,7 +513,6 @@ class OpenCLBackend:
 
     def acuity(self, noise: NoiseFrame) -> None:
         lay, b = self.lay, self.buf
-        self._before_acuity = cl.enqueue_marker(self.queue)  # for wait()
         self._upload_noise(noise)
         rho_full = self.rho_full()
         stack = self._level_stack()
@@ -628,11 +626,12 @@ class OpenCLBackend:
         return np.exp(-(xs * xs) / (2.0 * sigma * sigma)).astype(np.float32)
 
     def wait(self) -> None:
-        """Block until only the last step's acuity, which no gaze changes, is left to run: a
-        gaze read now is nearly as new as one can be, and a compose enqueued now follows the
-        acuity with no idle device in between (after a step without acuity: until all is done)."""
-        mark, self._before_acuity = self._before_acuity, None
-        (mark or cl.enqueue_marker(self.queue)).wait()
+        """Block until the device has done all that was enqueued (a step's kernels). Waiting
+        only until the acuity, which no gaze changes, is left to run keeps the device busy
+        through compose's launch but reads the gaze that much earlier: in bench-live at 720p,
+        three runs of each in turn, 4 % more frames and 15 ms more latency at p95 (51 against
+        36 ms)."""
+        self.queue.finish()
 
     def compose(
         self, gaze, eyes: float, out_dtype=np.float32, visibility: float = 1.0
