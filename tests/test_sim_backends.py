@@ -241,7 +241,7 @@ def test_acuity_from_the_level_stack_matches_reference(
     (acuity_pick); a new scene (put or set_scene) starts over. The blind spot changes G after
     the pick. Every frame against the reference (G, and v composed from it), with many rows
     of 8 pixels between levels."""
-    from gazehdr.sim.opencl import LEVEL_STACK_AFTER_FRAMES
+    from gazehdr.sim.level_stack import LEVEL_STACK_AFTER_FRAMES
 
     w, h = size
     p = Params(foveal_blind_spot=1.0, tracker_accuracy_deg=0.0) if blind_spot else Params()

@@ -37,6 +37,7 @@ from gazehdr.sim.layout import (
     map_blur_sigma,
     settle_plan,
 )
+from gazehdr.sim.level_stack import LevelStack
 from gazehdr.sim.params import Params
 from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
 
@@ -54,13 +55,6 @@ ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
 ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: VEC multiple, <= 128)
-# Ours: the most memory a backend gives its stack of the scene's acuity levels (bands x 3
-# planes: 199 MB at 1920x1080 with 8 bands); larger frames blur per frame instead.
-LEVEL_STACK_MAX_BYTES = 512 << 20
-# Ours: acuity frames a scene must stay before its level stack is made (half a second at
-# 60 fps). Making it costs about 8 frames of the bank's work (one level a frame, so no frame
-# spikes); a scene that changes sooner (the flash while it fires) would not pay it back.
-LEVEL_STACK_AFTER_FRAMES = 30
 
 # compose's outputs: kernel, buffer, shape
 COMPOSE_OUTPUTS = {
@@ -213,11 +207,8 @@ class OpenCLBackend:
         self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
         self._fill_taps = self.taps_for(lay.px(2 * params.rod_free_radius_deg) / lay.cell)
         self._settle_buf: dict[str, cl.Buffer] = {}  # made at the first settle
-        # The scene's acuity levels (_level_stack), made once the scene has stayed a while.
-        self._stack: cl.Buffer | None = None
-        self._stack_stride = self._level_stack_stride()
-        self._stack_levels = 0  # levels of the current scene made so far
-        self._scene_frames = 0  # acuity frames since the scene last changed
+        # The scene's acuity levels, made once the scene has stayed a while.
+        self._stack = LevelStack(self)
 
     # --- host access (tests, adaptation readout) ----------------------------------------------
 
@@ -349,14 +340,12 @@ class OpenCLBackend:
         self._scene_changed()
 
     def _scene_changed(self) -> None:
-        self._stack_levels = 0
-        self._scene_frames = 0
+        self._stack.scene_changed()
 
     @property
     def level_stack_pending(self) -> bool:
-        """Whether the current scene's acuity will move to its level stack (benchmarks wait
-        for that: it is the steady state of a scene that stays)."""
-        return self._stack_stride is not None and self._stack_levels < self.p.bands
+        """`LevelStack.pending`: whether the scene's acuity will move to its level stack."""
+        return self._stack.pending
 
     def prepare(self, eyes: float) -> None:
         lay, b = self.lay, self.buf
@@ -492,9 +481,10 @@ class OpenCLBackend:
         )  # fmt: skip
 
     def _more_maps(self, window: Window) -> None:
-        """Make the maps cover `window` too (a compose at a newer gaze than the retina step's,
-        `Simulator.step`'s late_gaze): the cells of the box around both windows not made yet,
-        from the step's state at the step's gaze. `_full_maps` with `window` the whole grid."""
+        """Make the maps cover `window` too (a compose at a newer gaze than the retina step's:
+        `Simulator.frame(output, gaze)`, the live sessions' late gaze): the cells of the box
+        around both windows not made yet, from the step's state at the step's gaze, in one
+        launch. `_full_maps` is this with `window` the whole grid."""
         if self._maps_made is None:
             return
         gaze, made = self._maps_made
@@ -515,8 +505,7 @@ class OpenCLBackend:
         lay, b = self.lay, self.buf
         self._upload_noise(noise)
         rho_full = self.rho_full()
-        stack = self._level_stack()
-        self._scene_frames += 1
+        stack = self._stack.for_frame()
         by_levels = stack is None and self._bank is None
         if by_levels:
             cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
@@ -527,7 +516,7 @@ class OpenCLBackend:
         )  # fmt: skip
         if stack is not None:
             self.k["acuity_pick"](
-                self.queue, self.rows8(), None, b["scene"], stack, np.int32(self._stack_stride),
+                self.queue, self.rows8(), None, b["scene"], stack, np.int32(self._stack.stride),
                 b["d"], b["G"], np.int32(lay.width), np.int32(lay.height),
             )  # fmt: skip
             return
@@ -549,43 +538,6 @@ class OpenCLBackend:
             taps = self._acuity_taps[level]
             self.blur(src, dst, b["lvl_tmp"], taps, lay.width, lay.height, 3, level)
             src, dst = dst, (b["lvl_b"] if dst is b["lvl_a"] else b["lvl_a"])
-
-    def _level_stack_stride(self) -> int | None:
-        """Floats from one level of the stack to the next (a level's three planes, rounded up
-        so that each level can be a sub-buffer), or None where the stack is not used: when it
-        would take more than LEVEL_STACK_MAX_BYTES, or GAZEHDR_CL_ACUITY names a bank."""
-        if os.environ.get("GAZEHDR_CL_ACUITY", ""):
-            return None
-        align = self.ctx.devices[0].mem_base_addr_align // 8  # bits to bytes
-        level = _round_up(4 * 3 * self.lay.width * self.lay.height, align)
-        if level * self.p.bands > LEVEL_STACK_MAX_BYTES:
-            return None
-        return level // 4
-
-    def _level_stack(self) -> cl.Buffer | None:
-        """The scene's Gaussian acuity levels 0 .. bands - 1, so that a frame's Eq. 14 is a
-        pick per pixel (kernel acuity_pick) instead of blurs. Once the scene has stayed
-        LEVEL_STACK_AFTER_FRAMES frames, each frame makes one more level (the bank still makes
-        G meanwhile); None until all are made, or where the stack is not used
-        (_level_stack_stride)."""
-        stride = self._stack_stride
-        if stride is None or self._scene_frames < LEVEL_STACK_AFTER_FRAMES:
-            return None
-        bands = self.p.bands
-        if self._stack_levels == bands:
-            return self._stack
-        if self._stack is None:
-            self._stack = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, 4 * stride * bands)
-        lay, i = self.lay, self._stack_levels
-
-        def level(k: int) -> cl.Buffer:
-            return self._stack.get_sub_region(4 * stride * k, 4 * 3 * lay.width * lay.height)
-
-        src, dst = (self.buf["scene"] if i == 0 else level(i - 1)), level(i)
-        # G is free as the blur's scratch: the bank writes it after this
-        self.blur(src, dst, self.buf["G"], self._acuity_taps[i], lay.width, lay.height, 3)
-        self._stack_levels += 1
-        return None
 
     def _upload_noise(self, noise: NoiseFrame) -> None:
         """The two key frames mixed in time, X = ((1-f) key0 + f key1) / sqrt((1-f)^2 + f^2):

@@ -1,0 +1,79 @@
+"""The scene's Gaussian acuity levels, made once for a scene that stays (the OpenCL backend).
+
+Eq. 14 telescopes to one Gaussian level of the scene per pixel: level d - 1 where d bands are
+dropped. The tiled bank (kernel acuity_bank) blurs every frame as far as each tile needs. For a
+scene that stays the levels are the same every frame, so they are made once, one level a frame,
+and each frame then only picks every pixel's level (kernel acuity_pick): whole live step 0.92×
+at 1280×720 and 0.89× at 1920×1080 (docs/cli.md, "A fourth pass").
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import pyopencl as cl
+
+#: Ours: the most memory a backend gives its stack (bands × 3 planes: 199 MB at 1920×1080 with
+#: 8 bands); larger frames blur per frame instead.
+LEVEL_STACK_MAX_BYTES = 512 << 20
+#: Ours: acuity frames a scene must stay before its stack is made (half a second at 60 fps).
+#: Making it costs about 8 frames of the bank's work (one level a frame, so no frame spikes);
+#: a scene that changes sooner (the flash while it fires) would not pay it back.
+LEVEL_STACK_AFTER_FRAMES = 30
+
+
+class LevelStack:
+    """Levels 0 .. bands - 1 of the backend's scene in one buffer, level l at l * `stride`
+    floats, three planes each (as acuity_pick reads them)."""
+
+    def __init__(self, backend: Any) -> None:
+        self.backend = backend  # an OpenCLBackend: its context, layout, scene, blur and taps
+        self.stride = self._stride()
+        self.buf: cl.Buffer | None = None
+        self.levels = 0  # levels of the current scene made so far
+        self.frames = 0  # acuity frames since the scene last changed
+
+    def _stride(self) -> int | None:
+        """Floats from one level to the next (a level's three planes, rounded up so that each
+        level can be a sub-buffer), or None where no stack is used: when it would take more
+        than LEVEL_STACK_MAX_BYTES, or GAZEHDR_CL_ACUITY names a bank."""
+        b = self.backend
+        if os.environ.get("GAZEHDR_CL_ACUITY", ""):
+            return None
+        align = b.ctx.devices[0].mem_base_addr_align // 8  # bits to bytes
+        level = -(-4 * 3 * b.lay.width * b.lay.height // align) * align
+        if level * b.p.bands > LEVEL_STACK_MAX_BYTES:
+            return None
+        return level // 4
+
+    @property
+    def pending(self) -> bool:
+        """Whether the current scene's acuity will move to the stack (benchmarks wait for
+        that: it is the steady state of a scene that stays)."""
+        return self.stride is not None and self.levels < self.backend.p.bands
+
+    def scene_changed(self) -> None:
+        self.levels = self.frames = 0
+
+    def for_frame(self) -> cl.Buffer | None:
+        """Once per acuity frame: the stack when it is whole; else None, after making its next
+        level if the scene has stayed LEVEL_STACK_AFTER_FRAMES frames (the bank makes G on
+        those frames, after this: G is the blur's scratch here)."""
+        self.frames += 1
+        b, stride = self.backend, self.stride
+        if stride is None or self.frames <= LEVEL_STACK_AFTER_FRAMES:
+            return None
+        if self.levels == b.p.bands:
+            return self.buf
+        if self.buf is None:
+            self.buf = cl.Buffer(b.ctx, cl.mem_flags.READ_WRITE, 4 * stride * b.p.bands)
+        lay, i = b.lay, self.levels
+
+        def level(k: int) -> cl.Buffer:
+            return self.buf.get_sub_region(4 * stride * k, 4 * 3 * lay.width * lay.height)
+
+        src, dst = (b.buf["scene"] if i == 0 else level(i - 1)), level(i)
+        b.blur(src, dst, b.buf["G"], b._acuity_taps[i], lay.width, lay.height, 3)
+        self.levels += 1
+        return None
