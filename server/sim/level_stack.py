@@ -28,17 +28,19 @@ class LevelStack:
     floats, three planes each (as acuity_pick reads them)."""
 
     def __init__(self, backend: Any) -> None:
-        self.backend = backend  # an OpenCLBackend: its context, layout, scene, blur and taps
-        self.stride = self._stride()
+        # `backend` (an OpenCLBackend: its context, layout, scene, blur and taps) is not kept:
+        # a cycle would outlive the session until the garbage collector ran (test_limits).
+        self.bands = backend.p.bands
+        self.stride = self._stride(backend)
         self.buf: cl.Buffer | None = None
         self.levels = 0  # levels of the current scene made so far
         self.frames = 0  # acuity frames since the scene last changed
 
-    def _stride(self) -> int | None:
+    @staticmethod
+    def _stride(b: Any) -> int | None:
         """Floats from one level to the next (a level's three planes, rounded up so that each
         level can be a sub-buffer), or None where no stack is used: when it would take more
         than LEVEL_STACK_MAX_BYTES, or GAZEHDR_CL_ACUITY names a bank."""
-        b = self.backend
         if os.environ.get("GAZEHDR_CL_ACUITY", ""):
             return None
         align = b.ctx.devices[0].mem_base_addr_align // 8  # bits to bytes
@@ -51,23 +53,23 @@ class LevelStack:
     def pending(self) -> bool:
         """Whether the current scene's acuity will move to the stack (benchmarks wait for
         that: it is the steady state of a scene that stays)."""
-        return self.stride is not None and self.levels < self.backend.p.bands
+        return self.stride is not None and self.levels < self.bands
 
     def scene_changed(self) -> None:
         self.levels = self.frames = 0
 
-    def for_frame(self) -> cl.Buffer | None:
-        """Once per acuity frame: the stack when it is whole; else None, after making its next
-        level if the scene has stayed LEVEL_STACK_AFTER_FRAMES frames (the bank makes G on
-        those frames, after this: G is the blur's scratch here)."""
+    def for_frame(self, b: Any) -> cl.Buffer | None:
+        """Once per acuity frame of backend `b`: the stack when it is whole; else None, after
+        making its next level if the scene has stayed LEVEL_STACK_AFTER_FRAMES frames (the
+        bank makes G on those frames, after this: G is the blur's scratch here)."""
         self.frames += 1
-        b, stride = self.backend, self.stride
+        stride = self.stride
         if stride is None or self.frames <= LEVEL_STACK_AFTER_FRAMES:
             return None
-        if self.levels == b.p.bands:
+        if self.levels == self.bands:
             return self.buf
         if self.buf is None:
-            self.buf = cl.Buffer(b.ctx, cl.mem_flags.READ_WRITE, 4 * stride * b.p.bands)
+            self.buf = cl.Buffer(b.ctx, cl.mem_flags.READ_WRITE, 4 * stride * self.bands)
         lay, i = b.lay, self.levels
 
         def level(k: int) -> cl.Buffer:

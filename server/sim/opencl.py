@@ -505,7 +505,7 @@ class OpenCLBackend:
         lay, b = self.lay, self.buf
         self._upload_noise(noise)
         rho_full = self.rho_full()
-        stack = self._stack.for_frame()
+        stack = self._stack.for_frame(self)
         by_levels = stack is None and self._bank is None
         if by_levels:
             cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
