@@ -264,6 +264,14 @@ async def _socket_client(
     }
 
 
+def _choices(parser: argparse.ArgumentParser, flag: str, text: str, known: tuple) -> list[str]:
+    """`text` split at commas, each one of `known`, or the parser's error naming the flag."""
+    picked = text.split(",")
+    if any(v not in known for v in picked):
+        parser.error(f"{flag} takes a comma-separated list of {', '.join(known)}, not {text!r}")
+    return picked
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="gazehdr bench-live", description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=size_list_arg, default="1280x720,1920x1080")
@@ -291,12 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--link-delay-ms", type=float, default=0.0, help="and this delay each way")
     args = parser.parse_args(argv)
-    clients = args.clients.split(",")
-    if not clients or any(c not in ("browser", "socket", "process") for c in clients):
-        parser.error(f"--clients takes browser, socket and process, not {args.clients!r}")
-    lates = args.late_gaze.split(",")
-    if not lates or any(v not in ("on", "off") for v in lates):
-        parser.error(f"--late-gaze takes on, off or on,off, not {args.late_gaze!r}")
+    clients = _choices(parser, "--clients", args.clients, ("browser", "socket", "process"))
+    lates = _choices(parser, "--late-gaze", args.late_gaze, ("on", "off"))
     if args.link_mbit and netlink.link() is None:
         import sys
 

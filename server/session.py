@@ -6,9 +6,10 @@ gaze and steps and a model each, so two models can be compared side by side.
 `Session` is synchronous and knows no sockets and no clock: the caller passes the elapsed
 time, the control messages that arrived and a clock to time the step with, and gets back an
 encoded frame plus the JSON messages to tell the viewers. `gazehdr.live` runs it on a thread at
-real time. Its gaze comes through one `gazehdr.gaze.GazeInput`, read once per step: the
-viewer's pointer (`pointer`, which the caller writes), a tracker, or a track. The simulated eye
-and its stepping are `gazehdr.eye.Eye`'s, shared with offline rendering.
+real time. Its gaze comes through one `gazehdr.gaze.GazeInput`, read when a step starts and,
+with `SessionSettings.late_gaze`, again once the step is simulated: the viewer's pointer
+(`pointer`, which the caller writes), a tracker, or a track. The simulated eye and its stepping
+are `gazehdr.eye.Eye`'s, shared with offline rendering.
 
 The gaze source also sets the parameters `tracker_accuracy_deg` and `tracker_rate_hz` (what the
 Sec. 5 foveal blind spot can show depends on them) from its figures (`GazeInput.figures`): the
@@ -23,6 +24,10 @@ caller to write: the scene, parameters and models it ran with and every change t
 and the gaze and eyes it followed, on its simulation clock. Each carries the end time of the
 first step it drove, so an offline render at any frame rate (server/render.py) meets each at
 the same step the live session did.
+
+Past 600 lines because a session's controls (scene, models, parameters, gaze source, viewport)
+each change the same simulators, journal and viewer state, which this one class owns; the
+pieces that stand alone already live elsewhere (gaze inputs, the eye, the journal format).
 """
 
 from __future__ import annotations

@@ -96,6 +96,32 @@ def test_long_darkness_then_light_stays_bounded(backend: str, models: tuple[str,
     check_frame(sim.step(1 / 60, gaze=(48.0, 27.0)))
 
 
+@pytest.mark.parametrize("scene", ["darkness", "1e8", "dark and 1e8", "nan/inf/negative"])
+def test_the_level_stack_and_the_late_gaze_at_the_edges(scene: str, monkeypatch) -> None:
+    """A scene that stays long enough for acuity from its level stack (level_stack.py),
+    stepped by dt = 0 and 1/60, each frame also seen from a late gaze far off the screen
+    (`Simulator.frame`): finite frames in range, and the same frames (to v's oracle tolerance)
+    as a simulator that blurs every frame in the tiled bank."""
+    from gazehdr.sim.level_stack import LEVEL_STACK_AFTER_FRAMES
+
+    stacked = Simulator(W, H, backend="opencl", seed=2)
+    monkeypatch.setenv("GAZEHDR_CL_ACUITY", "tiles")
+    tiled = Simulator(W, H, backend="opencl", seed=2)
+    for sim in (stacked, tiled):
+        sim.load_scene(scenes()[scene])
+    for i in range(LEVEL_STACK_AFTER_FRAMES + stacked.params.bands + 4):
+        dt, gaze = (0.0, (48.0, 27.0)) if i % 3 == 0 else (1 / 60, (20.0 + i, 30.0))
+        frames = [sim.step(dt, gaze=gaze) for sim in (stacked, tiled)]
+        late = [sim.frame(gaze=(-1e6, 3e9)) for sim in (stacked, tiled)]
+        for v in (*frames, *late):
+            check_frame(v)
+    assert stacked._backend._stack.levels == stacked.params.bands  # picking from the stack
+    assert tiled._backend._stack.stride is None  # no stack: the tiled bank every frame
+    np.testing.assert_allclose(frames[0], frames[1], atol=2e-3)
+    np.testing.assert_allclose(late[0], late[1], atol=2e-3)
+    assert np.isfinite(stacked._backend.get("G")).all()
+
+
 @pytest.mark.parametrize("models", MODELS, ids="+".join)
 def test_dt_zero_changes_nothing(models: tuple[str, str]) -> None:
     sim = Simulator(W, H, backend="reference", afterimage=models[0], acuity=models[1])

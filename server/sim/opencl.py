@@ -11,6 +11,11 @@ Written for speed on PoCL (see kernels/common.cl):
 - the afterimage maps are made only where the screen shows them, the rest of the grid on demand
   (get("maps"), or a compose at another gaze);
 - rho at every pixel is kept from the last scene load.
+
+Past 600 lines because every stage's launches share the backend's buffers and their
+bookkeeping (which maps are made, which uploads are in flight); the parts that stand alone
+live apart: the parameter block (kernel_params.py), the acuity levels (level_stack.py), PoCL's
+CPU name (pocl_cpu.py).
 """
 
 from __future__ import annotations
@@ -233,7 +238,7 @@ class OpenCLBackend:
         if name == "rho":
             self._rho_full_stale = True
         if name == "scene":
-            self._scene_changed()
+            self._stack.scene_changed()
         if name == "maps":
             self._maps_made = None
 
@@ -337,9 +342,6 @@ class OpenCLBackend:
 
     def set_scene(self, planar: np.ndarray) -> None:
         cl.enqueue_copy(self.queue, self.buf["scene"], planar)
-        self._scene_changed()
-
-    def _scene_changed(self) -> None:
         self._stack.scene_changed()
 
     @property

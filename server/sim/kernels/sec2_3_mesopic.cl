@@ -108,7 +108,7 @@ __kernel void acuity_pick(__global const float *scene, __global const float *sta
                           __global const uchar *d_map, __global float *G, int W, int H) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    size_t plane = (size_t)W * H, at = (size_t)y * W + x;
+    size_t plane = (size_t)W * H, row = (size_t)y * W, at = row + x;
     int n = MIN(W - x, VEC);
     int8 d;
     if (n == VEC) {
@@ -122,15 +122,13 @@ __kernel void acuity_pick(__global const float *scene, __global const float *sta
     int2 lo2 = MIN(lo4.lo, lo4.hi), hi2 = MAX(hi4.lo, hi4.hi);
     int lo = MIN(lo2.x, lo2.y), hi = MAX(hi2.x, hi2.y);
     for (int c = 0; c < 3; ++c) {
-        size_t o = c * plane + at;
+        size_t o = c * plane + row;  // this channel's row, in every level, the scene and G
         __global const float *first = lo == 0 ? scene : stack + (size_t)(lo - 1) * stride;
-        float8 g = load8_row(first + c * plane + (size_t)y * W, x, W);
-        for (int l = lo + 1; l <= hi; ++l) {  // lanes that drop more than lo bands
-            float8 v = load8_row(stack + (size_t)(l - 1) * stride + c * plane + (size_t)y * W, x, W);
-            g = d == l ? v : g;
-        }
-        if (n == VEC) STORE8_G(G + o, g);
-        else store8_part(G + o, g, n);
+        float8 g = load8_row(first + o, x, W);
+        for (int l = lo + 1; l <= hi; ++l)  // lanes that drop more than lo bands
+            g = d == l ? load8_row(stack + (size_t)(l - 1) * stride + o, x, W) : g;
+        if (n == VEC) STORE8_G(G + o + x, g);
+        else store8_part(G + o + x, g, n);
     }
 }
 
