@@ -136,12 +136,14 @@ class Eye:
         pane_gaze = self.pane_gaze(gaze)
         start = self.time
         end = start + dt
+        # Before the first part too: a step that starts on a change (the last one ended there)
+        # sees the scene as it is from then on, not as the last step left it.
+        self._follow_scene()
         while (change := self.scene.next_change(self.time)) is not None and change < end:
             part = change - self.time
             for sim in self.sims:  # no frame for a part: only the last one is shown
                 sim.advance(part, gaze=pane_gaze, eyes_open=eyes_open)
             self._follow_scene()
-        self._follow_scene()
         rest = dt if self.time == start else max(0.0, end - self.time)
         for sim in self.sims:
             sim.advance(rest, gaze=pane_gaze, eyes_open=eyes_open)

@@ -166,16 +166,21 @@ def _bleaching_peak(session: Session) -> float:
     return float(state[0].max())
 
 
-def test_a_flash_inside_a_long_frame_is_seen_for_its_duration() -> None:
-    """The flash fires for [1, 1.125) s. A 0.5 s frame from 0.9 s ends after it: the step is
-    split at the flash's edges, so the eye bleaches as much as with 10 ms frames."""
+@pytest.mark.parametrize("before", [(0.9,), (0.5, 0.5)], ids=["across_it", "from_its_start"])
+def test_a_flash_inside_a_long_frame_is_seen_for_its_duration(before: tuple[float, ...]) -> None:
+    """The flash fires for [1, 1.125) s. A frame from 0.9 s to 1.5 s spans it, and one from
+    exactly 1 s (the frame before ended on the flash's edge, as 2 fps frames do) starts with
+    it: the step is split at the flash's edges, each part seeing the scene as it is at the
+    part's start, so the eye bleaches as much as with 10 ms frames."""
     coarse, fine = new_session(), new_session()
     for s in (coarse, fine):
         tick(s, 0.0, [(Gaze(0.5, 0.42, 1), 0.0)])
-        tick(s, 0.9, [])
+    for dt in before:
+        tick(coarse, dt, [])
+    tick(fine, 0.9, [])
     rest = _bleaching_peak(coarse)
-    tick(coarse, 0.5, [])
-    for _ in range(50):
+    tick(coarse, 1.5 - coarse.sim.time, [])
+    for _ in range(60):
         tick(fine, 0.01, [])
     assert coarse.sim.time == pytest.approx(fine.sim.time)
     assert _bleaching_peak(coarse) > 5 * rest
