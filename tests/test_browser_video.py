@@ -125,9 +125,10 @@ def test_viewer_shows_av1_frames_and_recovers_from_a_corrupt_packet(
     got = viewer.js(
         """async () => {
           const g = window.gazehdr, r = g.renderer;
-          const planes = await new Promise((ok) => {
+          const planes = await new Promise((ok, no) => {
             const s = g.video, on = s.onPlanes;
             s.onPlanes = (p) => { s.onPlanes = on; on(p); ok(p); };
+            setTimeout(() => no(new Error('no picture decoded in 30 s')), 30000);
           });
           r.uploadYuv(planes);
           r.draw();

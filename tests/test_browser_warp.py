@@ -118,23 +118,27 @@ def test_warp_shader_warps_each_pane_in_split_view(browser) -> None:
 # came (the test hung, most often late in the full suite). At 5 fps it still hung, twice in a
 # row, once stop 22 took away PoCL's compile for each new gaze (0.2 s each), which had held
 # the warp frames back. The warp itself runs at the display's rate, whatever the session's.
+# (At 2 fps a step ends exactly on the flash's start at 1 s, which Eye.step used to miss.)
 WARP_FPS = 2.0
 
 
+# Read back in the next refresh's callback, into a global that `Viewer.wait` polls: a promise
+# that `page.evaluate` awaited would wait without a timeout if no refresh came.
 READ_NEXT_REFRESH_JS = """
-() => new Promise((resolve) => requestAnimationFrame(() => {
+() => { window.__nextRefresh = null; requestAnimationFrame(() => {
   // Runs after the viewer's own draw of this refresh (its callback was queued first).
   const g = window.gazehdr;
   const c = g.renderer.canvas;
-  resolve([window.__b64(g.renderer.readPixels().buffer), c.width, c.height, g.shown]);
-}))
+  window.__nextRefresh = [window.__b64(g.renderer.readPixels().buffer), c.width, c.height, g.shown];
+}); }
 """
 
 
 def _canvas_next_refresh(viewer: Any) -> tuple[np.ndarray, dict[str, Any]]:
     """The canvas as drawn at the next display refresh (RGB in [0, 1], top row first) and the
     header of the frame it shows."""
-    b64, w, h, shown = viewer.js(READ_NEXT_REFRESH_JS)
+    viewer.js(READ_NEXT_REFRESH_JS)
+    b64, w, h, shown = viewer.wait("() => window.__nextRefresh")
     px = np.frombuffer(base64.b64decode(b64), np.uint8).reshape(h, w, 4)[::-1, :, :3]
     return px.astype(np.float64) / 255.0, shown
 
