@@ -212,10 +212,9 @@ async def _socket_client(
             await ws.send(json.dumps({"type": "encoding", "name": encoding.name}))
         sent: dict[int, float] = {}
         latencies: list[float] = []
-        seq, frames, t0 = 0, 0, None
-        rng = random.Random(0)
+        frames, t0 = 0, None
+        pointer = asyncio.create_task(_move_pointer(ws, sent))
         start = time.monotonic()
-        next_move = start
         while True:
             now = time.monotonic()
             if t0 is None and now - start >= warmup:
@@ -223,12 +222,6 @@ async def _socket_client(
                 mark("warm")
             if t0 is not None and now - t0 >= seconds:
                 break
-            if now >= next_move:
-                seq += 1
-                sent[seq] = now
-                gaze = {"type": "gaze", "x": rng.random(), "y": rng.random(), "seq": seq}
-                await ws.send(json.dumps(gaze))
-                next_move = now + 0.1
             message = await ws.recv()
             if isinstance(message, str):
                 continue
@@ -253,6 +246,7 @@ async def _socket_client(
                 sent.pop(old)
         elapsed = time.monotonic() - t0
         mark("done")
+        pointer.cancel()
     p50, p95 = _percentiles(latencies)
     return {
         "fps": frames / elapsed,
@@ -262,6 +256,20 @@ async def _socket_client(
         "decode_ms": 1e3 * decode_s / max(frames, 1),
         "lost": lost,
     }
+
+
+async def _move_pointer(ws, sent: dict[int, float]) -> None:
+    """Pointer moves every 100 ms on average, at times of their own (a hand's are not in step
+    with the frames: a move sent just as a frame arrives would wait a fixed part of a step),
+    each noted in `sent` by its seq."""
+    rng = random.Random(0)
+    seq = 0
+    while True:
+        await asyncio.sleep(rng.uniform(0.05, 0.15))
+        seq += 1
+        sent[seq] = time.monotonic()
+        gaze = {"type": "gaze", "x": rng.random(), "y": rng.random(), "seq": seq}
+        await ws.send(json.dumps(gaze))
 
 
 def _choices(parser: argparse.ArgumentParser, flag: str, text: str, known: tuple) -> list[str]:
