@@ -94,7 +94,7 @@ async ([plainB64, warpB64, draws]) => {
 def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> dict[str, Any]:
     """Median ms to decode + upload a frame and to draw it (a 1-pixel read-back after each
     waits for the GL work: gl.finish need not) in headless
-    Chromium, plain against warp; Chromium as tests/test_browser.py starts it."""
+    Chromium, plain against warp; Chromium as tests/browser.py starts it."""
     from playwright.sync_api import sync_playwright
 
     from gazehdr.bench_live import CHROMIUM, CHROMIUM_ARGS, serve_web

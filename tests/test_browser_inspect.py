@@ -1,8 +1,8 @@
-"""The viewer's HDR inspection and panel in real headless Chromium (see test_browser.py for
+"""The viewer's HDR inspection and panel in real headless Chromium (see tests/browser.py for
 the browser set-up): images made by OpenCV (not by gazehdr) upload, show and read out in
 cd/m²; false colour and histogram follow the scene's scale; keys work whatever has focus."""
 
-# ruff: noqa: F811  (the browser fixtures are imported from test_browser.py, used as arguments)
+# ruff: noqa: F811  (the browser fixtures are imported from tests/browser.py, used as arguments)
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.test_browser import browser, open_viewer  # noqa: F401
+from tests.browser import browser, open_viewer  # noqa: F401
 
 W, H = 160, 96  # the frame; the images are this size, so the scene map is the image itself
 

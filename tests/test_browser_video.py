@@ -1,11 +1,11 @@
 """The `av1` encoding in real headless Chromium: WebCodecs decodes the server's packets (dav1d,
 in software), the page copies the 10-bit planes out and the dither shader draws them.
 
-The browser, the pages and the dither statistics are tests/test_browser.py's (its fixtures and
+The browser, the pages and the dither statistics are tests/browser.py's (its fixtures and
 helpers, imported). WebCodecs exists only in a secure context: the server's pages are on
 http://127.0.0.1, which is one; the shader-only page is served as http://localhost.
 """
-# ruff: noqa: F811  (the browser fixtures are imported from test_browser.py, used as arguments)
+# ruff: noqa: F811  (the browser fixtures are imported from tests/browser.py, used as arguments)
 
 from __future__ import annotations
 
@@ -16,13 +16,13 @@ import numpy as np
 from gazehdr.protocol import Encoding
 from gazehdr.video import Decoder, Encoder
 from gazehdr.yuv import to_rgb
-from tests.test_browser import (  # noqa: F401
+from tests.browser import (  # noqa: F401
     B64_JS,
-    _check_dither,
-    _levels,
-    _serve_web,
     browser,
+    check_dither,
+    dither_levels,
     open_viewer,
+    serve_checkout_web,
 )
 
 #: Decode packets with the page's VideoStream, then draw the newest picture `frames` times
@@ -66,15 +66,16 @@ def _planes(data: bytes, layout: list[dict[str, int]], w: int, h: int) -> list[n
 
 
 def test_dither_shader_is_unbiased_and_uncorrelated_on_decoded_av1(browser) -> None:
-    """tests/test_browser.py's dither statistics, unchanged, on a picture that went through the
-    encoder, the browser's AV1 decoder and the YUV shader: the mean of the shown levels is the
-    decoded value, and the decisions are independent across pixels, channels and frames."""
+    """The dither statistics (tests/browser.py's check_dither), unchanged, on a picture that
+    went through the encoder, the browser's AV1 decoder and the YUV shader: the mean of the
+    shown levels is the decoded value, and the decisions are independent across pixels,
+    channels and frames."""
     page = browser.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.add_init_script(B64_JS)
     try:
-        _serve_web(page, origin="http://localhost")
+        serve_checkout_web(page, origin="http://localhost")
         size, frames = 32, 256
         colour = np.array([100.3, 40.7, 200.5]) / 255  # between two 8-bit levels each
         v = np.broadcast_to(colour.astype(np.float32), (size, size, 3))
@@ -99,7 +100,7 @@ def test_dither_shader_is_unbiased_and_uncorrelated_on_decoded_av1(browser) -> N
         assert np.abs(decoded_v - colour).max() < 3 / 1023, decoded_v * 255
         # ... and the shader dithers around it as it does around raw frames.
         out = np.frombuffer(base64.b64decode(out_b64), np.uint8).reshape(frames, size, size, 3)
-        _check_dither(out, decoded_v)
+        check_dither(out, decoded_v)
     finally:
         page.close()
     assert not errors, errors
@@ -142,7 +143,7 @@ def test_viewer_shows_av1_frames_and_recovers_from_a_corrupt_packet(
     assert (got[3], got[4]) == (W, H)
     assert v.std() > 0.01  # a picture, not a blank
     shown = np.frombuffer(base64.b64decode(got[2]), np.uint8).reshape(H, W, 4)[::-1, :, :3]
-    lo, hi = _levels(v)
+    lo, hi = dither_levels(v)
     bad = (shown < lo) | (shown > hi)
     assert not bad.any(), f"{bad.sum()} values off their two levels, first at {np.argwhere(bad)[0]}"
 
@@ -172,10 +173,10 @@ def test_a_page_that_cannot_decode_says_why(browser) -> None:
     is told why in words it can show, rather than failing on the first packet."""
     page = browser.new_page()
     try:
-        _serve_web(page)  # http://viewer.test: not a secure context
+        serve_checkout_web(page)  # http://viewer.test: not a secure context
         why = page.evaluate("async () => (await import('/video.js')).unsupported()")
         assert why is not None and "secure context" in why and "https" in why, why
-        _serve_web(page, origin="http://localhost")
+        serve_checkout_web(page, origin="http://localhost")
         assert page.evaluate("async () => (await import('/video.js')).unsupported()") is None
     finally:
         page.close()

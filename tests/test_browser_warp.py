@@ -1,4 +1,4 @@
-"""The late gaze warp in real headless Chromium (web/warp.js; fixtures of test_browser.py).
+"""The late gaze warp in real headless Chromium (web/warp.js; fixtures of tests/browser.py).
 
 The shader, run by the viewer's own Renderer, composes a warp frame as the server does; and
 with the warp on the afterimage on the canvas follows a pointer move at the next display
@@ -7,6 +7,7 @@ where with the warp off it stays put; and likewise with a gaze daemon's tracker 
 at the tracker's gaze the server forwards (tests/test_gaze_forward.py).
 """
 
+# ruff: noqa: F811  (the browser fixtures are imported from tests/browser.py, used as arguments)
 from __future__ import annotations
 
 import base64
@@ -20,13 +21,9 @@ from gazehdr import warp
 from gazehdr.protocol import HEADER_BYTES, Encoding, FrameHeader, Gaze, decode_frame, parse_control
 from gazehdr.session import SessionSettings
 from gazehdr.sim import Simulator
-from tests import test_browser
+from tests.browser import afterimage_centroid, browser, open_viewer, web_page  # noqa: F401
 from tests.sessions import new_session
-from tests.test_browser import _afterimage_centroid, web_page
 from tests.test_sim_backends import mixed_scene
-
-browser = test_browser.browser  # the fixtures: one Chromium per module, a page per test
-open_viewer = test_browser.open_viewer
 
 DRAWS = 512  # dithered draws averaged per pixel: the mean's std is <= 0.09 codes of 1023
 
@@ -172,10 +169,10 @@ def test_afterimage_follows_the_pointer_between_frames(live_server, open_viewer)
     try:
         held = _hold_a_closed_eyes_frame(viewer, 16)
         canvas, shown = _canvas_next_refresh(viewer)
-        before, peak0, radius0 = _afterimage_centroid(canvas)
+        before, peak0, radius0 = afterimage_centroid(canvas)
         viewer.page.mouse.move(*(flash + shift))
         canvas, shown = _canvas_next_refresh(viewer)
-        after, peak1, radius1 = _afterimage_centroid(canvas)
+        after, peak1, radius1 = afterimage_centroid(canvas)
         assert shown["frame"] == held["frame"], "a new frame was shown: not the warp's doing"
 
         # The warp off: a plain frame, held; the pointer moves back, the afterimage stays.
@@ -183,10 +180,10 @@ def test_afterimage_follows_the_pointer_between_frames(live_server, open_viewer)
         viewer.js("() => document.getElementById('warp-toggle').click()")  # the panel's box
         plain = _hold_a_closed_eyes_frame(viewer, 1)
         canvas, _ = _canvas_next_refresh(viewer)
-        still0, _, _ = _afterimage_centroid(canvas)
+        still0, _, _ = afterimage_centroid(canvas)
         viewer.page.mouse.move(*flash)
         canvas, shown = _canvas_next_refresh(viewer)
-        still1, peak2, radius2 = _afterimage_centroid(canvas)
+        still1, peak2, radius2 = afterimage_centroid(canvas)
         assert shown["frame"] == plain["frame"]
     finally:
         viewer.page.keyboard.up("Space")
@@ -259,17 +256,17 @@ def test_afterimage_follows_a_tracker_between_frames(live_server, open_viewer) -
         held = _blink_after_a_flash(viewer, daemon, h["time"], flash, (W, H))
         viewer.wait(NOTE_AT_JS, [0.5, 0.42, False])
         canvas, _ = _canvas_next_refresh(viewer)
-        before, peak0, radius0 = _afterimage_centroid(canvas)
+        before, peak0, radius0 = afterimage_centroid(canvas)
         shift = np.array([40.0, 30.0])
         _fixate(daemon, 3, flash + shift, (W, H))
         viewer.wait(NOTE_AT_JS, [*((flash + shift) / [W, H]), True])
         canvas, shown = _canvas_next_refresh(viewer)
-        after, peak1, radius1 = _afterimage_centroid(canvas)
+        after, peak1, radius1 = afterimage_centroid(canvas)
         assert shown["frame"] == held["frame"], "a new frame was shown: not the warp's doing"
         _fixate(daemon, 4, None, (W, H))  # a blink: the tracker's place is held
         viewer.wait(NOTE_AT_JS, [*((flash + shift) / [W, H]), False])
         canvas, shown = _canvas_next_refresh(viewer)
-        blinked, _, _ = _afterimage_centroid(canvas)
+        blinked, _, _ = afterimage_centroid(canvas)
         assert shown["frame"] == held["frame"]
     seen = (peak0, peak1, radius0, radius1, h["time"], held["time"])
     assert peak0 > 0.1 and peak1 > 0.1, ("no afterimage", seen)

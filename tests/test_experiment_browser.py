@@ -1,5 +1,5 @@
 """The experiment's page in real headless Chromium against a real server (the fixtures of
-tests/test_browser.py): a simulated observer answers a short run by key presses, and the
+tests/browser.py): a simulated observer answers a short run by key presses, and the
 results, participants and session log hold what happened; the API refuses a caller without the
 credential."""
 
@@ -22,8 +22,8 @@ from gazehdr.experiment.design import parse_design
 from gazehdr.experiment.observer import SimulatedObserver
 from gazehdr.experiment.schedule import schedule
 from gazehdr.experiment.service import ExperimentConfig
+from tests.browser import WAIT_MS, browser  # noqa: F401 -- the browser fixture
 from tests.test_bids_dataset import validate
-from tests.test_browser import WAIT_MS, browser  # noqa: F401 -- the browser fixture
 from tests.test_experiment_design import PALETTE, TINY
 from tests.waiting import wait_until
 
