@@ -166,12 +166,17 @@ def _bleaching_peak(session: Session) -> float:
     return float(state[0].max())
 
 
-@pytest.mark.parametrize("before", [(0.9,), (0.5, 0.5)], ids=["across_it", "from_its_start"])
+@pytest.mark.parametrize(
+    "before",
+    [(0.9,), (0.5, 0.5), (0.5, 0.5, 0.0)],
+    ids=["across_it", "from_its_start", "from_its_start_after_dt_0"],
+)
 def test_a_flash_inside_a_long_frame_is_seen_for_its_duration(before: tuple[float, ...]) -> None:
     """The flash fires for [1, 1.125) s. A frame from 0.9 s to 1.5 s spans it, and one from
-    exactly 1 s (the frame before ended on the flash's edge, as 2 fps frames do) starts with
-    it: the step is split at the flash's edges, each part seeing the scene as it is at the
-    part's start, so the eye bleaches as much as with 10 ms frames."""
+    exactly 1 s (the frame before ended on the flash's edge, as 2 fps frames do; or a dt = 0
+    frame came there too) starts with it: the step is split at the flash's edges, each part
+    seeing the scene as it is at the part's start, so the eye bleaches as much as with 10 ms
+    frames."""
     coarse, fine = new_session(), new_session()
     for s in (coarse, fine):
         tick(s, 0.0, [(Gaze(0.5, 0.42, 1), 0.0)])
