@@ -1,7 +1,7 @@
 """The kernels' own transcendentals to display precision (kernels/common.cl: log2_shown8,
 exp2_shown8, log_shown8, exp_shown8, pow8_unit, tone8_shown), run on the OpenCL device against
 float64 NumPy, over every binade they take and past their ends: compose's gamma and tone curve
-and the afterimage maps rest on them."""
+and the afterimage maps rest on them. And floor8, which every lookup and exp rests on."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from gazehdr.sim.kernel_params import pack_params, plateau_m
 from gazehdr.sim.opencl import build_options, kernel_source, shared_context
 from gazehdr.sim.params import Params
 
-OUTPUTS = ("log2", "gamma", "tone_shown", "tone", "exp2", "log", "exp")
+OUTPUTS = ("log2", "gamma", "tone_shown", "tone", "exp2", "log", "exp", "floor")
 KERNEL = """
 __kernel void shown(__constant const params_t *P, __global const float *x,
                     __global const float *z, float lsn, __global float *out) {
@@ -29,6 +29,7 @@ __kernel void shown(__constant const params_t *P, __global const float *x,
     STORE8_G(out + i + 4 * n, exp2_shown8(w));
     STORE8_G(out + i + 5 * n, log_shown8(MAX(v, FLT_MIN)));
     STORE8_G(out + i + 6 * n, exp_shown8(w));
+    STORE8_G(out + i + 7 * n, floor8(w));
 }
 """
 
@@ -115,3 +116,15 @@ def test_display_tone_curve_follows_the_model_tone_curve(unit: np.ndarray) -> No
         exact = 1 / (1 + np.exp(lsn - p.n * np.log(lum[on].astype(np.float64))))
         assert (np.abs(shown[on] / exact - 1) < 2e-5).all()
         assert (np.abs(shown[on] / model[on] - 1) < 2e-5).all()
+
+
+def test_floor8_is_floor() -> None:
+    """floor8 (one vroundps under PoCL with AVX, else a truncation corrected below zero) at
+    integers, halves, -0, values just either side of them, and a sweep of the range the
+    kernels floor (pixel and cell coordinates, exp2's exponents)."""
+    edges = np.array([0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.5, -2.5, 1e-30, -1e-30, 8e6, -8e6])
+    near = np.concatenate([np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf)])
+    sweep = np.linspace(-5000.0, 5000.0, 40_000 - 3 * edges.size)
+    w = np.concatenate([edges, near, sweep]).astype(np.float32)
+    got = run(np.ones_like(w), w, 0.0, Params())["floor"]
+    np.testing.assert_array_equal(got, np.floor(w.astype(np.float64)))
