@@ -23,7 +23,7 @@ from gazehdr.drivers.cli_args import screen_size_arg
 from gazehdr.sim import opencl
 
 DEFAULT_KERNELS = (
-    "retina_update,retina_blur_maps,acuity_levels,acuity_bank,acuity_pick,compose_rgb10"
+    "retina_update,retina_blur,afterimage_maps,acuity_levels,acuity_bank,acuity_pick,compose_rgb10"
 )
 
 

@@ -68,7 +68,7 @@ def test_bytes_are_the_buffers_each_stage_reads_and_writes() -> None:
     assert costs["compose"].bytes == pytest.approx(expect)
     # retina: the state is read and its blurred copy written through grid_a, both whole
     assert costs["retina"].bytes > 2 * (buf["state"].size + buf["grid_a"].size)
-    assert costs["retina"].kernels == ["retina_update", "retina_blur_maps"]
+    assert costs["retina"].kernels == ["retina_update", "retina_blur", "afterimage_maps"]
     for c in costs.values():
         assert c.bytes > 0 and c.flops > 0
 
@@ -96,9 +96,9 @@ def test_flops_follow_the_launch_and_unknown_kernels_are_refused() -> None:
     every = roofline.launch_cost(bank.name, bank.gsize, bank.args, lay, p, None)
     assert none.flops == 0 < every.flops  # no level dropped: the bank only copies
     assert none.bytes == every.bytes
-    blur = next(ln for ln in launches if ln.name == "retina_blur_maps")
+    blur = next(ln for ln in launches if ln.name == "retina_blur")
     wide = list(blur.args)
-    wide[8] = np.int32(int(blur.args[8]) + 2)  # a wider map blur costs more arithmetic
+    wide[3] = np.int32(int(blur.args[3]) + 2)  # a wider map blur costs more arithmetic
     assert (
         roofline.launch_cost(blur.name, blur.gsize, tuple(wide), lay, p).flops
         > roofline.launch_cost(blur.name, blur.gsize, blur.args, lay, p).flops

@@ -395,27 +395,23 @@ class OpenCLBackend:
         sigma = map_blur_sigma(dt, lay, p)
         if reset and dt > 0 and sigma > 0:
             self._settle(gaze, dt)
-            self._maps(gaze, self._screen_window(gaze))
-            return
-        blurred = not reset and sigma > 0
-        target = b["grid_a"] if blurred else b["state"]
-        self.k["retina_update"](
-            self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["state"], target,
-            b["A"], *args, np.float32(dt), np.int32(reset), np.float32(math.exp(-p.c2 * dt)),
-        )  # fmt: skip
+        else:
+            blurred = not reset and sigma > 0
+            target = b["grid_a"] if blurred else b["state"]
+            self.k["retina_update"](
+                self.queue, (*self._grid8(), 3), None, self.P, b["down"], b["surround"],
+                b["state"], target, b["A"], *args, np.float32(dt), np.int32(reset),
+                np.float32(math.exp(-p.c2 * dt)),
+            )  # fmt: skip
+            if blurred:
+                tbuf, r = self.taps_for(sigma)
+                self.k["retina_blur"](
+                    self.queue, (*self._grid8(), 9), None, b["grid_a"], b["state"], tbuf,
+                    np.int32(r), np.int32(lay.grid_w), np.int32(lay.grid_h),
+                )  # fmt: skip
         # Maps only for the cells the screen shows at this gaze; the rest waits for get("maps")
         # or a compose at another gaze (_full_maps).
-        window = self._screen_window(gaze)
-        if blurred:
-            tbuf, r = self.taps_for(sigma)
-            self.k["retina_blur_maps"](
-                self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["grid_a"],
-                b["state"], b["maps"], b["A"], tbuf, np.int32(r), *args,
-                *(np.int32(v) for v in window),
-            )  # fmt: skip
-            self._maps_made = (tuple(gaze), window)
-        else:
-            self._maps(gaze, window)
+        self._maps(gaze, self._screen_window(gaze))
 
     def _grid8(self) -> tuple[int, int]:
         """Global size of the kernels that make 8 neighbouring cells of a grid row each."""
