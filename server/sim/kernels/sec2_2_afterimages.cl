@@ -245,20 +245,20 @@ __kernel void retina_blur(__global const float *src, __global float *dst,
                           __constant const float *taps, int radius, int grid_w, int grid_h) {
     int j = get_global_id(0) * VEC, i = get_global_id(1), c = get_global_id(2);
     if (j >= grid_w) return;
-    size_t at = (size_t)c * grid_w * grid_h + (size_t)i * grid_w;
-    __global const float *p = src + at;
+    size_t plane = (size_t)c * grid_w * grid_h, row = (size_t)i * grid_w;
+    __global const float *s = src + plane;  // this plane's first row
     int inner = j >= radius && j + VEC + radius <= grid_w;
     if (radius == 1 && inner && i >= 1 && i + 1 < grid_h) {  // the usual 3-tap blur, unrolled
         float t0 = taps[0], t1 = taps[1], t2 = taps[2];
+        __global const float *p = s + row + j;
 #define H3(q) (t0 * LOAD8_G((q) - 1) + t1 * LOAD8_G(q) + t2 * LOAD8_G((q) + 1))
-        STORE8_G(dst + at + j, t0 * H3(p + j - grid_w) + t1 * H3(p + j) + t2 * H3(p + j + grid_w));
+        STORE8_G(dst + plane + row + j, t0 * H3(p - grid_w) + t1 * H3(p) + t2 * H3(p + grid_w));
 #undef H3
         return;
     }
-    p -= (size_t)i * grid_w;  // the plane's first row
     float8 acc = 0.0f;
     for (int dy = -radius; dy <= radius; ++dy) {
-        __global const float *r = p + CLAMP(i + dy, 0, grid_h - 1) * grid_w;
+        __global const float *r = s + CLAMP(i + dy, 0, grid_h - 1) * grid_w;
         float8 h = 0.0f;
         if (inner) {
             for (int dx = -radius; dx <= radius; ++dx) h += taps[dx + radius] * LOAD8_G(r + j + dx);
@@ -268,7 +268,7 @@ __kernel void retina_blur(__global const float *src, __global float *dst,
         }
         acc += taps[dy + radius] * h;
     }
-    store_cell8(dst + at, acc, j, grid_w);
+    store_cell8(dst + plane + row, acc, j, grid_w);
 }
 
 // Settling (layout.settle_plan): the state that steps of dt leave as it is, s = G(R s + (1 - R)
