@@ -31,15 +31,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-#: Pixels (or cells) per work-item of the rows-of-8 kernels (opencl.VEC).
-VEC = 8
-
 # --- pure part: what one launch moves and computes ------------------------------------------
 
 #: Per-element flop counts from the kernels' source (see the module docstring), and
 #: transcendentals per element.
 RETINA_INPUT_FLOPS = 30  # bilinear LMS from down or the surround ring, with its coordinates
-MAPS_FLOPS, MAPS_TRANS = RETINA_INPUT_FLOPS + 160, 32  # maps8: gain and bleaching, per cell
+MAPS_FLOPS, MAPS_TRANS = RETINA_INPUT_FLOPS + 160, 32  # mapsv: gain and bleaching, per cell
 RETINA_UPDATE_FLOPS, RETINA_UPDATE_TRANS = RETINA_INPUT_FLOPS + 66, 9
 COMPOSE_FLOPS, COMPOSE_TRANS = 170, 5  # tone, ratio, maps bilinear, LMS gain, gamut, pow
 

@@ -1,7 +1,7 @@
-"""The kernels' own transcendentals to display precision (kernels/common.cl: log2_shown8,
-exp2_shown8, log_shown8, exp_shown8, pow8_unit, tone8_shown), run on the OpenCL device against
+"""The kernels' own transcendentals to display precision (kernels/common.cl: log2_shownv,
+exp2_shownv, log_shownv, exp_shownv, powv_unit, tonev_shown), run on the OpenCL device against
 float64 NumPy, over every binade they take and past their ends: compose's gamma and tone curve
-and the afterimage maps rest on them. And floor8, which every lookup and exp rests on."""
+and the afterimage maps rest on them. And floorv, which every lookup and exp rests on."""
 
 from __future__ import annotations
 
@@ -12,24 +12,24 @@ import pyopencl as cl
 import pytest
 
 from gazehdr.sim.kernel_params import pack_params, plateau_m
-from gazehdr.sim.opencl import build_options, kernel_source, shared_context
+from gazehdr.sim.opencl import build_options, kernel_source, shared_context, vector_width
 from gazehdr.sim.params import Params
 
 OUTPUTS = ("log2", "gamma", "tone_shown", "tone", "exp2", "log", "exp", "floor")
 KERNEL = """
 __kernel void shown(__constant const params_t *P, __global const float *x,
                     __global const float *z, float lsn, __global float *out) {
-    int i = get_global_id(0) * 8;
-    size_t n = get_global_size(0) * 8;
-    float8 v = LOAD8_G(x + i), w = LOAD8_G(z + i);
-    STORE8_G(out + i, log2_shown8(MAX(v, FLT_MIN)));
-    STORE8_G(out + i + n, pow8_unit(v, P->gamma));
-    STORE8_G(out + i + 2 * n, tone8_shown(P, lsn, v));
-    STORE8_G(out + i + 3 * n, tone8(P, lsn, v));
-    STORE8_G(out + i + 4 * n, exp2_shown8(w));
-    STORE8_G(out + i + 5 * n, log_shown8(MAX(v, FLT_MIN)));
-    STORE8_G(out + i + 6 * n, exp_shown8(w));
-    STORE8_G(out + i + 7 * n, floor8(w));
+    int i = get_global_id(0) * VEC;
+    size_t n = get_global_size(0) * VEC;
+    floatv v = LOADV_G(x + i), w = LOADV_G(z + i);
+    STOREV_G(out + i, log2_shownv(MAX(v, FLT_MIN)));
+    STOREV_G(out + i + n, powv_unit(v, P->gamma));
+    STOREV_G(out + i + 2 * n, tonev_shown(P, lsn, v));
+    STOREV_G(out + i + 3 * n, tonev(P, lsn, v));
+    STOREV_G(out + i + 4 * n, exp2_shownv(w));
+    STOREV_G(out + i + 5 * n, log_shownv(MAX(v, FLT_MIN)));
+    STOREV_G(out + i + 6 * n, exp_shownv(w));
+    STOREV_G(out + i + 7 * n, floorv(w));
 }
 """
 
@@ -43,6 +43,8 @@ def kernel() -> cl.Kernel:
 
 def run(x: np.ndarray, z: np.ndarray, lsn: float, p: Params) -> dict[str, np.ndarray]:
     """Each of OUTPUTS: the log2/log/gamma/tone functions at x, the exp2/exp ones at z."""
+    size, pad = x.size, -x.size % vector_width()  # whole work-items of VEC lanes
+    x, z = np.pad(x, (0, pad), constant_values=1), np.pad(z, (0, pad))
     ctx = shared_context()
     queue = cl.CommandQueue(ctx)
     mf = cl.mem_flags
@@ -51,9 +53,9 @@ def run(x: np.ndarray, z: np.ndarray, lsn: float, p: Params) -> dict[str, np.nda
     P = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(p))
     out = np.empty((len(OUTPUTS), x.size), np.float32)
     buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    kernel()(queue, (x.size // 8,), None, P, xs, zs, np.float32(lsn), buf)
+    kernel()(queue, (x.size // vector_width(),), None, P, xs, zs, np.float32(lsn), buf)
     cl.enqueue_copy(queue, out, buf)
-    return dict(zip(OUTPUTS, out.astype(np.float64), strict=True))
+    return dict(zip(OUTPUTS, out[:, :size].astype(np.float64), strict=True))
 
 
 def exp2_inputs(x: np.ndarray) -> np.ndarray:
@@ -82,8 +84,8 @@ def test_display_gamma_within_a_tenth_of_a_10_bit_step(unit: np.ndarray) -> None
 
 
 def test_ln_and_e_for_the_afterimage_maps(unit: np.ndarray) -> None:
-    """log_shown8 over (0, 1] (maps8 takes logs of R + eps and 1 - c + eps, both in it) and
-    exp_shown8 over [-87, 87], clamped there beyond: finite for any float. Both far inside the
+    """log_shownv over (0, 1] (mapsv takes logs of R + eps and 1 - c + eps, both in it) and
+    exp_shownv over [-87, 87], clamped there beyond: finite for any float. Both far inside the
     maps' oracle tolerance (5e-4)."""
     z = np.concatenate([np.linspace(-87, 87, unit.size - 6), [-1e30, -200, -87.5, 88, 200, 1e30]])
     z = z.astype(np.float32)
@@ -93,13 +95,13 @@ def test_ln_and_e_for_the_afterimage_maps(unit: np.ndarray) -> None:
     on = x > 0
     assert np.abs(got["log"][on] - np.log(x[on])).max() < 2.5e-5
     inside = np.abs(z) <= 87
-    # 2^(x log2 e): the product's rounding in float32 (5e-6 at |x| = 87) adds to exp2_shown8's
+    # 2^(x log2 e): the product's rounding in float32 (5e-6 at |x| = 87) adds to exp2_shownv's
     assert (np.abs(got["exp"][inside] / np.exp(z[inside]) - 1) < 1e-5).all()
     np.testing.assert_allclose(got["exp"][~inside], np.exp(np.clip(z[~inside], -87, 87)), 1e-5)
 
 
 def test_display_tone_curve_follows_the_model_tone_curve(unit: np.ndarray) -> None:
-    """tone8_shown (compose) against tone8 (the retina's) and the exact Naka-Rushton curve, from
+    """tonev_shown (compose) against tonev (the retina's) and the exact Naka-Rushton curve, from
     darkness through 1e8 cd/m^2 to the radiance cap and the largest float, at adaptation levels
     from the floor to a sunlit scene: 0 for no light, at most 1, never NaN."""
     p = Params()
@@ -119,7 +121,7 @@ def test_display_tone_curve_follows_the_model_tone_curve(unit: np.ndarray) -> No
 
 
 def test_floor8_is_floor() -> None:
-    """floor8 (one vroundps under PoCL with AVX, else a truncation corrected below zero) at
+    """floorv (one vroundps under PoCL with AVX, else a truncation corrected below zero) at
     integers, halves, -0, values just either side of them, and a sweep of the range the
     kernels floor (pixel and cell coordinates, exp2's exponents)."""
     edges = np.array([0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 2.5, -2.5, 1e-30, -1e-30, 8e6, -8e6])

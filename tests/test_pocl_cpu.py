@@ -6,10 +6,11 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
-from gazehdr.sim.pocl_cpu import cpu_flags, level_for_flags
+from gazehdr.sim.pocl_cpu import better_name, cpu_flags, level_for_flags
 
 V2 = {"cx16", "lahf_lm", "popcnt", "sse4_1", "sse4_2", "ssse3"}
 V3 = V2 | {"avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave"}
@@ -83,7 +84,7 @@ def test_without_override_pocl_never_builds_for_generic() -> None:
     assert done.returncode == 0, done.stderr
     given, hstr = done.stdout.split()
     assert not hstr.endswith("-generic")
-    # a name is given only where PoCL's own was "generic", and then it is an x86-64 level
+    # a name is given only where PoCL's own was "generic" or lacked AVX-512: an x86-64 level
     assert given == "None" or given.startswith("x86-64")
 
 
@@ -91,3 +92,37 @@ def test_a_malformed_name_is_refused_clearly() -> None:
     done = _probe({"GAZEHDR_POCL_CPU": "not a cpu!"})
     assert done.returncode != 0
     assert "GAZEHDR_POCL_CPU='not a cpu!' is not an LLVM CPU name" in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("llvm_name", "flags", "given"),
+    [
+        ("generic", V3, "x86-64-v3"),  # a CPU newer than LLVM 14 (pocl/pocl#1049)
+        ("generic", V4, "x86-64-v4"),
+        ("znver3", V4, "x86-64-v4"),  # Zen 4: AVX-512 that znver3 lacks
+        ("znver3", V3, None),  # a real Zen 3
+        ("znver2", V4 - {"avx512vl"}, None),  # short of x86-64-v4: left as LLVM names it
+        ("icelake-server", V4, None),  # knows its AVX-512
+        ("skylake", V3, None),
+    ],
+)
+def test_a_name_is_given_only_where_llvm_misses_what_the_cpu_has(
+    llvm_name: str, flags: set[str], given: str | None
+) -> None:
+    assert better_name(llvm_name, flags) == given
+
+
+def test_kernels_are_16_wide_where_pocl_builds_for_avx512() -> None:
+    """On this machine: where /proc/cpuinfo has x86-64-v4's flags, PoCL is told a CPU with
+    AVX-512 (Zen 4's "znver3" included) and the kernels take 16 pixels a work-item."""
+    code = "from gazehdr.sim.opencl import vector_width; print(vector_width())"
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**os.environ, "GAZEHDR_POCL_CPU": "", "GAZEHDR_VEC": "", "GAZEHDR_CL_DEVICE": "pthr"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    flags = cpu_flags(Path("/proc/cpuinfo").read_text())
+    assert int(done.stdout) == (16 if level_for_flags(flags) == "x86-64-v4" else 8)

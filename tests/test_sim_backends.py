@@ -16,7 +16,7 @@ import pytest
 
 from gazehdr.sim import Geometry, Params, Simulator
 from gazehdr.sim.layout import Layout, NoiseField
-from gazehdr.sim.opencl import OpenCLBackend
+from gazehdr.sim.opencl import VECTOR_WIDTHS, OpenCLBackend
 from gazehdr.sim.reference import ReferenceBackend
 
 W, H = 120, 68
@@ -66,6 +66,14 @@ def magnitude(name: str, ref: np.ndarray) -> np.ndarray:
     return np.concatenate([np.abs(ref[:3]), np.broadcast_to(add, ref[3:].shape)])
 
 
+@pytest.fixture(params=VECTOR_WIDTHS, ids=lambda v: f"vec{v}")
+def vec(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> int:
+    """Each width the kernels build for (pixels a work-item, opencl.vector_width), whatever
+    this machine's own: 16 where PoCL builds for AVX-512, 8 on GPUs and other CPUs."""
+    monkeypatch.setenv("GAZEHDR_VEC", str(request.param))
+    return request.param
+
+
 def compare_all(ref: ReferenceBackend, cl: OpenCLBackend) -> None:
     for name in ("down", "surround", "fill", "rho", "A", "maps"):
         assert_close(name, ref.get(name), cl.get(name))
@@ -79,9 +87,10 @@ def compare_all(ref: ReferenceBackend, cl: OpenCLBackend) -> None:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 7])
-def test_pipeline_matches_reference(seed: int) -> None:
+def test_pipeline_matches_reference(seed: int, vec: int) -> None:
     rng = np.random.default_rng(100 + seed)
     sims = [Simulator(W, H, backend=b, seed=seed) for b in ("reference", "opencl")]
+    assert sims[1]._backend.vec == vec
     scene = mixed_scene(seed)
     for s in sims:
         s.load_scene(scene)
@@ -112,7 +121,7 @@ def test_builtin_scenes_match_reference(name: str) -> None:
 
 
 @pytest.mark.parametrize("size", [(480, 270), (136, 77), (17, 16)])
-def test_any_frame_size_matches_reference(size: tuple[int, int]) -> None:
+def test_any_frame_size_matches_reference(size: tuple[int, int], vec: int) -> None:
     """Map planes whose byte offsets are not multiples of the device's alignment (480×270
     once crashed creating a sub-buffer), odd sizes, and the smallest frame."""
     w, h = size
@@ -234,13 +243,13 @@ def test_a_frame_seen_from_a_newer_gaze_matches_reference() -> None:
     ("size", "blind_spot"), [((W, H), False), ((137, 41), False), ((W, H), True)]
 )
 def test_acuity_from_the_level_stack_matches_reference(
-    size: tuple[int, int], blind_spot: bool
+    size: tuple[int, int], blind_spot: bool, vec: int
 ) -> None:
     """A scene blurs in the bank until it has stayed LEVEL_STACK_AFTER_FRAMES frames, then
     makes its level stack one level a frame, then picks each pixel's level from it
     (acuity_pick); a new scene (put or set_scene) starts over. The blind spot changes G after
     the pick. Every frame against the reference (G, and v composed from it), with many rows
-    of 8 pixels between two levels and some across more."""
+    of VEC pixels between two levels and some across more."""
     from gazehdr.sim.level_stack import LEVEL_STACK_AFTER_FRAMES
 
     w, h = size
@@ -272,10 +281,10 @@ def test_acuity_from_the_level_stack_matches_reference(
             flipped = ref.get("d") != d
             assert flipped.mean() <= 0.002
             assert_close("v", ref.compose(gaze, 1.0)[~flipped], cl.compose(gaze, 1.0)[~flipped])
-            mixed = np.lib.stride_tricks.sliding_window_view(d[:, : w // 8 * 8], 8, 1)[:, ::8]
-            span = mixed.max(-1) - mixed.min(-1)
-            assert (span > 0).mean() > 0.05, "rows of 8 between levels"
-            assert (span > 1).any(), "rows of 8 across three levels or more"
+            runs = np.lib.stride_tricks.sliding_window_view(d[:, : w // vec * vec], vec, 1)
+            span = runs[:, ::vec].max(-1) - runs[:, ::vec].min(-1)
+            assert (span > 0).mean() > 0.05, "runs of VEC pixels between levels"
+            assert (span > 1).any(), "runs of VEC pixels across three levels or more"
             assert_close("G", ref.get("G")[:, ~flipped], cl.get("G")[:, ~flipped])
         assert not cl.level_stack_pending, "the last frames should have picked from the stack"
 
@@ -298,7 +307,7 @@ def test_sec5_cues_match_reference() -> None:
 
 
 @pytest.mark.parametrize("output", ["float16", "rgb10a2"])
-def test_device_encoding_equals_host_encoding(output: str) -> None:
+def test_device_encoding_equals_host_encoding(output: str, vec: int) -> None:
     """The kernels that write f16 / RGB10_A2 for the wire give exactly what encoding the float32
     frame on the host gives (round to nearest even; round(1023 v))."""
     from gazehdr.sim.layout import encode_output

@@ -189,7 +189,7 @@ def test_the_protocols_declare_members_and_the_proxy_keeps_to_them() -> None:
     assert {"name", "lay", "p", "get", "put", "retina", "acuity", "a"} == declared(
         ReferenceStageBackend
     )
-    assert {"ctx", "queue", "P", "buf", "kernels", "taps_for", "blur", "rho_full", "rows8",
+    assert {"ctx", "queue", "P", "buf", "vec", "kernels", "taps_for", "blur", "rho_full", "rows_v",
             "grid_args"} == declared(OpenCLStageBackend) - declared(StageBackend)  # fmt: skip
     params = Params()
     backend = ReferenceBackend(Layout.for_frame(32, 32, params), params)

@@ -100,6 +100,7 @@ class OpenCLStageBackend(StageBackend, Protocol):
     #: plane set "grid_a" (STATE_PLANES planes of the retina grid). A stage that writes "maps"
     #: writes all of the grid (the backend completes only maps its own `retina` left partial).
     buf: dict[str, cl.Buffer]
+    vec: int  # pixels per work-item of the per-pixel kernels (VEC in common.cl, 8 or 16)
 
     def kernels(self, files: tuple[str, ...]) -> dict[str, cl.Kernel]:
         """Own kernel objects (arguments are state) of the program built from `files` in
@@ -121,8 +122,8 @@ class OpenCLStageBackend(StageBackend, Protocol):
         after a scene change."""
         ...
 
-    def rows8(self) -> tuple[int, int]:
-        """Global size of a per-pixel kernel that makes 8 neighbouring pixels of a row per
+    def rows_v(self) -> tuple[int, int]:
+        """Global size of a per-pixel kernel that makes `vec` neighbouring pixels of a row per
         work-item (VEC in common.cl)."""
         ...
 

@@ -4,7 +4,8 @@ A GPU is used when one exists, otherwise the CPU (PoCL from PyPI). Set GAZEHDR_C
 substring of a device name to pick one. Kernel files live in `kernels/`, one per paper section.
 
 Written for speed on PoCL (see kernels/common.cl):
-- the per-pixel kernels make 8 pixels per work-item;
+- the per-pixel kernels make VEC pixels of a row per work-item (16 where PoCL builds for
+  AVX-512, else 8: vector_width);
 - a scene that stays gets its acuity levels made once, and each frame picks every pixel's level
   from them; until then the acuity bank runs all its levels per screen tile in local memory
   (GPUs, or GAZEHDR_CL_ACUITY=levels, use the level-by-level bank instead);
@@ -44,7 +45,7 @@ from gazehdr.sim.layout import (
 )
 from gazehdr.sim.level_stack import LevelStack
 from gazehdr.sim.params import Params
-from gazehdr.sim.pocl_cpu import name_cpu_for_pocl
+from gazehdr.sim.pocl_cpu import builds_for_avx512, name_cpu_for_pocl
 
 KERNEL_FILES = (
     "common.cl",
@@ -57,9 +58,8 @@ KERNEL_FILES = (
 TAPS_CACHE = 32  # blur tap buffers kept per backend
 STATE_PLANES = 9  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
-VEC = 8  # pixels per work-item in the blurs and per-pixel kernels (VEC in kernels/common.cl)
 ADAPT_WG = 256
-ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: VEC multiple, <= 128)
+ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: 16 multiple, <= 128)
 
 # compose's outputs: kernel, buffer, shape
 COMPOSE_OUTPUTS = {
@@ -104,19 +104,20 @@ def _make_context() -> cl.Context:
     return cl.Context([pick_device()])
 
 
-def build_program(files: tuple[str, ...]) -> cl.Program:
-    """`kernels/` files built as one program, once per process: building takes seconds on
-    PoCL. A baseline model builds common.cl plus its own file, so the default pipeline does
-    not pay for models it does not run. The parameter block `params_t` comes first, generated
-    from `Params` (kernel_params.py)."""
+def build_program(files: tuple[str, ...], vec: int | None = None) -> cl.Program:
+    """`kernels/` files built as one program for `vec` pixels per work-item (vector_width()
+    when None), once per process: building takes seconds on PoCL. A baseline model builds
+    common.cl plus its own file, so the default pipeline does not pay for models it does not
+    run. The parameter block `params_t` comes first, generated from `Params`
+    (kernel_params.py)."""
     with _ONCE:
-        return _build_program(files)
+        return _build_program(files, vec or vector_width())
 
 
 @cache
-def _build_program(files: tuple[str, ...]) -> cl.Program:
+def _build_program(files: tuple[str, ...], vec: int) -> cl.Program:
     ctx = shared_context()
-    return cl.Program(ctx, kernel_source(files)).build(options=build_options(ctx))
+    return cl.Program(ctx, kernel_source(files)).build(options=build_options(ctx, vec))
 
 
 def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
@@ -130,12 +131,38 @@ def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
     return "\n".join([params_struct(), *texts])
 
 
-def build_options(ctx: cl.Context) -> list[str]:
-    """The compiler options of every program of the kernels."""
-    options = ["-cl-fast-relaxed-math"]
-    if "Portable Computing Language" in ctx.devices[0].platform.name:
+def build_options(ctx: cl.Context, vec: int | None = None) -> list[str]:
+    """The compiler options of every program of the kernels, for `vec` pixels per work-item
+    (vector_width() when None)."""
+    options = ["-cl-fast-relaxed-math", f"-DVEC={vec or vector_width()}"]
+    if _is_pocl(ctx):
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
     return options
+
+
+def _is_pocl(ctx: cl.Context) -> bool:
+    return "Portable Computing Language" in ctx.devices[0].platform.name
+
+
+VECTOR_WIDTHS = (8, 16)
+
+
+def vector_width() -> int:
+    """Pixels per work-item of the per-pixel kernels and blurs (VEC in kernels/common.cl):
+    GAZEHDR_VEC if set, else 16 where PoCL builds for AVX-512 (one float16 register; 0.6-0.7×
+    the time of float8 there), else 8. GPUs take 8 (a float8 per thread)."""
+    wanted = os.environ.get("GAZEHDR_VEC", "").strip()
+    if not wanted:
+        return _native_width()
+    if wanted not in {str(w) for w in VECTOR_WIDTHS}:
+        raise RuntimeError(f"GAZEHDR_VEC={wanted!r}: pixels per work-item are 8 or 16")
+    return int(wanted)
+
+
+@cache
+def _native_width() -> int:
+    ctx = shared_context()
+    return 16 if _is_pocl(ctx) and builds_for_avx512(ctx) else 8
 
 
 #: Retina cells (j0, i0, j1, i1), inclusive.
@@ -162,6 +189,7 @@ class OpenCLBackend:
         self.ctx = shared_context()
         self.queue = cl.CommandQueue(self.ctx)
         self.device_name = self.ctx.devices[0].name.strip()
+        self.vec = vector_width()  # pixels per work-item, fixed for this backend's programs
         self.k = self.kernels(KERNEL_FILES)
         lay = layout
         full, low, grid = lay.width * lay.height, lay.low_w * lay.low_h, lay.grid_w * lay.grid_h
@@ -251,7 +279,7 @@ class OpenCLBackend:
     def kernels(self, files: tuple[str, ...]) -> dict[str, cl.Kernel]:
         """Own kernel objects of the program of `files`: kernel arguments are state, so no two
         simulators (or stages) may share one."""
-        prg = build_program(files)
+        prg = build_program(files, self.vec)
         return {n: cl.Kernel(prg, n) for n in prg.kernel_names.split(";")}
 
     def taps_for(self, sigma: float) -> tuple[cl.Buffer, int]:
@@ -274,22 +302,22 @@ class OpenCLBackend:
     ) -> None:  # fmt: skip
         """Separable blur src -> dst through tmp; level >= 0 also fills G (acuity bank)."""
         tbuf, r = taps
-        size = (-(-w // VEC), h, channels)
+        size = (-(-w // self.vec), h, channels)
         dims = (np.int32(r), np.int32(w), np.int32(h))
         self.k["blur_h"](self.queue, size, None, src, tmp, tbuf, *dims)
         extra = (self.buf["d"], self.buf["G"], np.int32(level))
         self.k["blur_v"](self.queue, size, None, tmp, dst, tbuf, *dims, *extra)
 
-    def rows8(self) -> tuple[int, int]:
-        """Global size of the kernels that make 8 neighbouring pixels of a row per work-item."""
-        return (-(-self.lay.width // VEC), self.lay.height)
+    def rows_v(self) -> tuple[int, int]:
+        """Global size of the kernels that make VEC neighbouring pixels of a row per work-item."""
+        return (-(-self.lay.width // self.vec), self.lay.height)
 
     def rho_full(self) -> cl.Buffer:
         """rho at every screen pixel, remade from "rho" when that changed."""
         lay, b = self.lay, self.buf
         if self._rho_full_stale:
             self.k["rho_upsample"](
-                self.queue, self.rows8(), None, b["rho"], b["rho_full"],
+                self.queue, self.rows_v(), None, b["rho"], b["rho_full"],
                 np.int32(lay.low_w), np.int32(lay.low_h), np.int32(lay.cell),
                 np.int32(lay.width), np.int32(lay.height),
             )  # fmt: skip
@@ -324,7 +352,7 @@ class OpenCLBackend:
             levels[2 * i], levels[2 * i + 1] = len(t) // 2, offsets[i]
         halo = int(sum(len(t) // 2 for t in taps))
         tx, ty = ACUITY_TILE
-        pad_x = (-(-halo // VEC) + 1) * VEC
+        pad_x = (-(-halo // self.vec) + 1) * self.vec
         floats = 2 * (tx + 2 * pad_x) * (ty + 2 * halo) + tx * ty
         if 4 * floats > dev.local_mem_size:
             return None
@@ -399,23 +427,23 @@ class OpenCLBackend:
             blurred = not reset and sigma > 0
             target = b["grid_a"] if blurred else b["state"]
             self.k["retina_update"](
-                self.queue, (*self._grid8(), 3), None, self.P, b["down"], b["surround"],
+                self.queue, (*self._grid_v(), 3), None, self.P, b["down"], b["surround"],
                 b["state"], target, b["A"], *args, np.float32(dt), np.int32(reset),
                 np.float32(math.exp(-p.c2 * dt)),
             )  # fmt: skip
             if blurred:
                 tbuf, r = self.taps_for(sigma)
                 self.k["retina_blur"](
-                    self.queue, (*self._grid8(), 9), None, b["grid_a"], b["state"], tbuf,
+                    self.queue, (*self._grid_v(), 9), None, b["grid_a"], b["state"], tbuf,
                     np.int32(r), np.int32(lay.grid_w), np.int32(lay.grid_h),
                 )  # fmt: skip
         # Maps only for the cells the screen shows at this gaze; the rest waits for get("maps")
         # or a compose at another gaze (_full_maps).
         self._maps(gaze, self._screen_window(gaze))
 
-    def _grid8(self) -> tuple[int, int]:
-        """Global size of the kernels that make 8 neighbouring cells of a grid row each."""
-        return (-(-self.lay.grid_w // VEC), self.lay.grid_h)
+    def _grid_v(self) -> tuple[int, int]:
+        """Global size of the kernels that make VEC neighbouring cells of a grid row each."""
+        return (-(-self.lay.grid_w // self.vec), self.lay.grid_h)
 
     def _settle(self, gaze, dt: float) -> None:
         """The state that steps of dt leave as it is (layout.settle_plan): Jacobi iterations,
@@ -436,7 +464,7 @@ class OpenCLBackend:
         )
         decay_c = np.float32(math.exp(-p.c2 * dt))
         self.k["retina_settle_init"](
-            self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["A"],
+            self.queue, self._grid_v(), None, self.P, b["down"], b["surround"], b["A"],
             *self.grid_args(gaze), np.float32(dt), decay_c, b["state"], s["rate"], s["u"], s["b"],
         )  # fmt: skip
         taps = self.taps_for(plan.sigma)
@@ -444,7 +472,7 @@ class OpenCLBackend:
         for k in range(plan.iterations):
             self.blur(s["u"], s["w"], b["grid_a"], taps, lay.grid_w, lay.grid_h, 9)
             self.k["retina_settle_step"](
-                self.queue, self._grid8(), None, b["state"], s["u"], s["w"], s["b"], s["rate"],
+                self.queue, self._grid_v(), None, b["state"], s["u"], s["w"], s["b"], s["rate"],
                 decay_c, s["diag"], np.int32(lay.grid_w), np.int32(lay.grid_h),
                 np.int32(k == plan.iterations - 1),
             )  # fmt: skip
@@ -474,7 +502,7 @@ class OpenCLBackend:
         in runs of 8 cells (a run may reach past the window's sides; one inside `made` stays)."""
         b = self.buf
         self.k["afterimage_maps"](
-            self.queue, self._grid8(), None, self.P, b["down"], b["surround"], b["state"],
+            self.queue, self._grid_v(), None, self.P, b["down"], b["surround"], b["state"],
             b["maps"], b["A"], *self.grid_args(gaze), *(np.int32(v) for v in (*window, *made)),
         )  # fmt: skip
 
@@ -508,13 +536,13 @@ class OpenCLBackend:
         if by_levels:
             cl.enqueue_fill_buffer(self.queue, b["d_max"], np.int32(0), 0, 4)
         self.k["acuity_levels"](
-            self.queue, self.rows8(), None, self.P, rho_full, self._noise_buf,
+            self.queue, self.rows_v(), None, self.P, rho_full, self._noise_buf,
             np.float32(noise.spacing), np.int32(noise.key0.shape[1]),
             np.int32(lay.width), np.int32(lay.height), b["d"], b["d_max"], np.int32(by_levels),
         )  # fmt: skip
         if stack is not None:
             self.k["acuity_pick"](
-                self.queue, self.rows8(), None, b["scene"], stack, np.int32(self._stack.stride),
+                self.queue, self.rows_v(), None, b["scene"], stack, np.int32(self._stack.stride),
                 b["d"], b["G"], np.int32(lay.width), np.int32(lay.height),
             )  # fmt: skip
             return
@@ -562,7 +590,7 @@ class OpenCLBackend:
         w[: lay.width] *= blind_spot_strength(self.p)
         self._upload(b["blind_xy"], w)
         self.k["foveal_blind_spot"](
-            self.queue, self.rows8(), None, self.P, b["G"], self.rho_full(), b["fill"],
+            self.queue, self.rows_v(), None, self.P, b["G"], self.rho_full(), b["fill"],
             b["blind_xy"], np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
             np.int32(lay.low_w), np.int32(lay.low_h),
         )  # fmt: skip
@@ -602,7 +630,7 @@ class OpenCLBackend:
         fovea[: lay.width] *= visibility
         self._upload(b["fovea"], fovea)
         self.k[kernel](
-            self.queue, self.rows8(), None,
+            self.queue, self.rows_v(), None,
             self.P, b["G"], rho_full, b["maps"], b["A"],
             np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
             np.int32(lay.grid_w), np.int32(lay.grid_h),
@@ -620,7 +648,7 @@ class OpenCLBackend:
         buffer: call it after compose, never between."""
         lay, b = self.lay, self.buf
         self.k["compose_base"](
-            self.queue, self.rows8(), None, self.P, b["G"], self.rho_full(), b["A"],
+            self.queue, self.rows_v(), None, self.P, b["G"], self.rho_full(), b["A"],
             np.int32(lay.width), np.int32(lay.height), np.float32(eyes), b["v16"],
         )  # fmt: skip
         rgb = np.empty((lay.height, lay.width, 3), np.float16)

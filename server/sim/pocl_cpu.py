@@ -9,7 +9,10 @@ pyopencl's wheels bundle PoCL 3.0 built on LLVM 14, which cannot name CPUs newer
 So, before PoCL sets up its devices and only when it would say "generic", LLVM's
 `getHostCPUName` is made to answer the x86-64 micro-architecture level (x86-64-v2/-v3/-v4,
 known to LLVM since 12) that this CPU's flags satisfy: kernels are built for features the CPU
-has. `GAZEHDR_POCL_CPU` names an LLVM CPU to use instead, on any CPU (e.g. `znver3`).
+has. The same where LLVM 14 names an older CPU without AVX-512 than this one, which has it: AMD
+Zen 4 is "znver3" to it (it knows no znver4), and the kernels would miss AVX-512, which makes
+them 0.6-0.7× as long (16 pixels a work-item, opencl.vector_width). `GAZEHDR_POCL_CPU` names an
+LLVM CPU to use instead, on any CPU (e.g. `znver3`).
 The patch is the function's first 16 bytes: `movabs rax, name; mov edx, len; ret`, the
 StringRef it returns in rax:rdx. It is made only to the PoCL build it was written against
 (checked by its code bytes), and checked by asking PoCL again.
@@ -26,6 +29,9 @@ import struct
 from functools import cache
 from pathlib import Path
 
+import numpy as np
+import pyopencl as cl
+
 # x86-64 psABI levels, each adding to the one before, with flags as /proc/cpuinfo names them
 # (abm is LZCNT).
 LEVELS = (
@@ -35,6 +41,8 @@ LEVELS = (
 )
 # pocl_get_llvm_cpu_name in PoCL 3.0: push rbp; push rbx; sub rsp, 8; call getHostCPUName
 PROLOGUE = bytes.fromhex("5553 4883ec08 e8")
+# The CPUs LLVM 14 knows without AVX-512 that it takes newer ones with AVX-512 for.
+NAMES_WITHOUT_AVX512 = frozenset({"znver1", "znver2", "znver3"})
 _NAME_RE = re.compile(r"[a-z0-9][a-z0-9_.-]{0,63}")
 _keep: list[ctypes.Array] = []  # the name the patched function returns must outlive it
 
@@ -47,6 +55,17 @@ def level_for_flags(flags: set[str]) -> str:
             break
         level = name
     return level
+
+
+def better_name(llvm_name: str, flags: set[str]) -> str | None:
+    """The CPU name to give PoCL where LLVM's answer `llvm_name` misses what `flags` (this CPU's,
+    /proc/cpuinfo) can do; None where it is right."""
+    level = level_for_flags(flags)
+    if llvm_name == "generic":
+        return level
+    if level == "x86-64-v4" and llvm_name in NAMES_WITHOUT_AVX512:
+        return level
+    return None
 
 
 def cpu_flags(cpuinfo: str) -> set[str]:
@@ -119,12 +138,12 @@ def name_cpu_for_pocl() -> str | None:
     ask = pocl.pocl_get_llvm_cpu_name
     ask.restype = ctypes.c_void_p
     if not wanted:
-        if _ask(ask) != "generic":
+        wanted = better_name(_ask(ask), cpu_flags(Path("/proc/cpuinfo").read_text()))
+        if wanted is None:
             return None
-        wanted = level_for_flags(cpu_flags(Path("/proc/cpuinfo").read_text()))
     start = ctypes.cast(ask, ctypes.c_void_p).value
     code = ctypes.string_at(start, len(PROLOGUE) + 4)
-    why = "PoCL's LLVM does not know this CPU (pocl/pocl#1049)"
+    why = "PoCL's LLVM does not know this CPU (pocl/pocl#1049, or no AVX-512 on Zen 4)"
     if code[: len(PROLOGUE)] != PROLOGUE:
         raise RuntimeError(f"{why}, and {lib.name} is not the PoCL build gazehdr can name it for")
     (rel,) = struct.unpack("<i", code[len(PROLOGUE) :])
@@ -136,3 +155,25 @@ def name_cpu_for_pocl() -> str | None:
     if _ask(ask) != wanted:
         raise RuntimeError(f"{why}, and naming it {wanted!r} did not take")
     return wanted
+
+
+_AVX512_PROBE = """
+__kernel void avx512(__global int *out) {
+#if defined(__AVX512F__)
+    out[0] = 1;
+#else
+    out[0] = 0;
+#endif
+}
+"""
+
+
+def builds_for_avx512(ctx: cl.Context) -> bool:
+    """Whether PoCL's compiler builds the kernels of `ctx` for AVX-512: asked of the compiler
+    itself (a kernel reports its __AVX512F__), whatever the CPU name came from."""
+    queue = cl.CommandQueue(ctx)
+    out = np.zeros(1, np.int32)
+    buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    cl.Program(ctx, _AVX512_PROBE).build().avx512(queue, (1,), None, buf)
+    cl.enqueue_copy(queue, out, buf)
+    return bool(out[0])

@@ -278,7 +278,7 @@ def bleach_response(
     at the floor that is x itself; a background as bright as I_x masks it (Sec. 2.2.2), and so
     does a light-adapted eye. R(I + I_x) - R(I) is computed as (1 - R(I)) R(I + I_x)
     (1 - (I / (I + I_x))^n), the last factor as -expm1(-n log1p(I_x / I)): nothing cancels
-    when I_x << I (the kernel has its own log1p8 and one_minus_exp_neg8 for float32).
+    when I_x << I (the kernel has its own log1pv and one_minus_exp_negv for float32).
     """
     x = p.bleach_display_gain * p.j1 * c * np.maximum(B - B_inf, 0.0)
     x = np.minimum(x, 1.0 - p.alpha_eps)  # a response below 1 (guarded like Eq. 11)

@@ -112,7 +112,7 @@ class BilateralAcuityOpenCL(NoAcuityOpenCL):
         inv_r = np.float32(0.5 / p.bilateral_sigma_r**2)
         for src, dst, dx, dy in ((b.buf["scene"], half, 1, 0), (half, b.buf["G"], 0, 1)):
             self.k["bilateral_pass"](
-                b.queue, b.rows8(), None, src, dst, guide, sigma, *self._dims(),
+                b.queue, b.rows_v(), None, src, dst, guide, sigma, *self._dims(),
                 np.int32(radius), np.int32(dx), np.int32(dy), inv_r, np.float32(VAR_FLOOR_PX2),
             )  # fmt: skip
 

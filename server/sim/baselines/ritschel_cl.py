@@ -20,7 +20,6 @@ from gazehdr.sim.baselines.ritschel import (
     steps,
 )
 from gazehdr.sim.models import Gaze, OpenCLStageBackend
-from gazehdr.sim.opencl import VEC
 
 KERNEL_FILES = ("common.cl", "ritschel2012_afterimages.cl")
 
@@ -70,7 +69,7 @@ class RitschelOpenCL(RitschelStage[OpenCLStageBackend]):
                 b.blur(b.buf["grid_a"], state, tmp, taps, lay.grid_w, lay.grid_h, 3)
         flight = self.flight_angle(dt, reset)
         self.k["ritschel_maps"](
-            q, (-(-self.cells // VEC),), None, b.P, self.orgb, L, state, b.buf["maps"],
+            q, (-(-self.cells // b.vec),), None, b.P, self.orgb, L, state, b.buf["maps"],
             np.int32(self.cells), *rates, np.float32(p.ritschel_strength),
             np.float32(math.cos(flight)), np.float32(math.sin(flight)),
         )  # fmt: skip

@@ -1,7 +1,7 @@
 // Ritschel & Eisemann 2012, afterimages as a baseline (server/sim/baselines/ritschel.py is the
 // reference this mirrors). State r (L, M, S planes) on the retina grid, which is centred on the
 // gaze and spans twice the screen. The input and the kinetics are light, one work-item per
-// cell; the maps are the cost (about half of it the oRGB trigonometry), 8 cells per work-item.
+// cell; the maps are the cost (about half of it the oRGB trigonometry), VEC cells per work-item.
 
 // L of Eq. 3 before the micro-saccade blur: the low-res cone input at gaze + retinal offset
 // (bilinear, the surround off the screen) over L_ref. Global size (grid_w, grid_h).
@@ -40,47 +40,47 @@ __kernel void ritschel_kinetics(__global const float *L, __global const float *r
 }
 
 // The maps run on the whole grid every frame and need powers, atan2, cos and sin per cell: as
-// float8 with inline polynomials (PoCL's builtins are calls, see common.cl), 8 cells per
-// work-item. Global size (ceil(grid_w grid_h / 8)).
+// floatv with inline polynomials (PoCL's builtins are calls, see common.cl), VEC cells per
+// work-item. Global size (ceil(grid_w grid_h / VEC)).
 
-#define ABS8(x) MAX(x, -(x))
+#define ABSV(x) MAX(x, -(x))
 
 // sign(x) |x|^e.
-inline float8 signed_power8(float8 x, float e) {
-    float8 m = pow8_pos(ABS8(x), e);
+inline floatv signed_powerv(floatv x, float e) {
+    floatv m = powv_pos(ABSV(x), e);
     return x < 0.0f ? -m : m;
 }
 
 // atan2(y, x) in [-pi, pi], 0 at the origin: Cephes' atanf (S. L. Moshier) on min/max of
 // |x|, |y| in [0, 1], reduced by pi/4 above tan(pi/8); within a few ulp.
-inline float8 atan2_8(float8 y, float8 x) {
-    float8 ax = ABS8(x), ay = ABS8(y);
-    float8 a = MIN(ax, ay) / MAX(MAX(ax, ay), FLT_MIN);
-    int8 big = a > 0.4142135623730950f;
-    float8 z = big ? (a - 1.0f) / (a + 1.0f) : a;
-    float8 z2 = z * z;
-    float8 p = ((8.05374449538e-2f * z2 - 1.38776856032e-1f) * z2 + 1.99777106478e-1f) * z2;
+inline floatv atan2_v(floatv y, floatv x) {
+    floatv ax = ABSV(x), ay = ABSV(y);
+    floatv a = MIN(ax, ay) / MAX(MAX(ax, ay), FLT_MIN);
+    intv big = a > 0.4142135623730950f;
+    floatv z = big ? (a - 1.0f) / (a + 1.0f) : a;
+    floatv z2 = z * z;
+    floatv p = ((8.05374449538e-2f * z2 - 1.38776856032e-1f) * z2 + 1.99777106478e-1f) * z2;
     p = (p - 3.33329491539e-1f) * z2 * z + z;
-    float8 t = big ? p + M_PI_4_F : p;
+    floatv t = big ? p + M_PI_4_F : p;
     t = ay > ax ? M_PI_2_F - t : t;
     t = x < 0.0f ? M_PI_F - t : t;
     return y < 0.0f ? -t : t;
 }
 
 // cos and sin of t in [-2 pi, 2 pi]: Cephes' sinf/cosf, reduced to octants.
-inline void sincos8(float8 t, float8 *c, float8 *s) {
-    float8 x = ABS8(t);
-    int8 j = TO_INT8(x * 1.27323954473516f);  // 4 / pi
+inline void sincosv(floatv t, floatv *c, floatv *s) {
+    floatv x = ABSV(t);
+    intv j = TO_INTV(x * 1.27323954473516f);  // 4 / pi
     j = (j + 1) & ~1;
-    float8 fj = TO_FLOAT8(j);
+    floatv fj = TO_FLOATV(j);
     x = ((x - fj * 0.78515625f) - fj * 2.4187564849853515625e-4f) - fj * 3.77489497744594108e-8f;
-    float8 z = x * x;
-    float8 ps = ((-1.9515295891e-4f * z + 8.3321608736e-3f) * z - 1.6666654611e-1f) * z * x + x;
-    float8 pc = ((2.443315711809948e-5f * z - 1.388731625493765e-3f) * z +
+    floatv z = x * x;
+    floatv ps = ((-1.9515295891e-4f * z + 8.3321608736e-3f) * z - 1.6666654611e-1f) * z * x + x;
+    floatv pc = ((2.443315711809948e-5f * z - 1.388731625493765e-3f) * z +
                  4.166664568298827e-2f) * z * z - 0.5f * z + 1.0f;
-    int8 q = (j >> 1) & 3;  // quadrant
-    int8 swap = (q & 1) != 0;
-    float8 sv = swap ? pc : ps, cv = swap ? ps : pc;
+    intv q = (j >> 1) & 3;  // quadrant
+    intv swap = (q & 1) != 0;
+    floatv sv = swap ? pc : ps, cv = swap ? ps : pc;
     sv = (q & 2) != 0 ? -sv : sv;
     cv = (q == 1 || q == 2) ? -cv : cv;
     *s = t < 0.0f ? -sv : sv;
@@ -89,19 +89,19 @@ inline void sincos8(float8 t, float8 *c, float8 *s) {
 
 // The oRGB hue map (Bratkova et al. 2009): |t| < pi/3 -> 3t/2, else pi/2 + 3(|t| - pi/3)/4,
 // mirrored for negative angles (dir > 0); or its inverse.
-inline float8 hue_map8(float8 t, int dir) {
-    float8 a = ABS8(t), m;
+inline floatv hue_mapv(floatv t, int dir) {
+    floatv a = ABSV(t), m;
     if (dir > 0) m = a < M_PI_F / 3.0f ? 1.5f * a : M_PI_2_F + 0.75f * (a - M_PI_F / 3.0f);
     else m = a < M_PI_2_F ? a / 1.5f : M_PI_F / 3.0f + (a - M_PI_2_F) / 0.75f;
     return t < 0.0f ? -m : m;
 }
 
-// Chroma (c.g, c.b) turned so that its angle t becomes hue_map8(t, dir); radius and c.r kept.
-inline rgb8_t remap_hue8(rgb8_t c, int dir) {
-    float8 rho = sqrt(c.g * c.g + c.b * c.b);
-    float8 t = hue_map8(atan2_8(c.b, c.g), dir), ct, st;
-    sincos8(t, &ct, &st);
-    rgb8_t o = {c.r, rho * ct, rho * st};
+// Chroma (c.g, c.b) turned so that its angle t becomes hue_mapv(t, dir); radius and c.r kept.
+inline rgbv_t remap_huev(rgbv_t c, int dir) {
+    floatv rho = sqrt(c.g * c.g + c.b * c.b);
+    floatv t = hue_mapv(atan2_v(c.b, c.g), dir), ct, st;
+    sincosv(t, &ct, &st);
+    rgbv_t o = {c.r, rho * ct, rho * st};
     return o;
 }
 
@@ -115,23 +115,23 @@ __kernel void ritschel_maps(__constant const params_t *P, __constant const float
                             float cos_f, float sin_f) {
     int k = get_global_id(0) * VEC;
     if (k >= n) return;
-    float8 e[3];
+    floatv e[3];
     for (int c = 0; c < 3; ++c) {
-        float8 r_inf = R_INF(c_a * load8_row(L + c * n, k, n), c_d);
-        e[c] = MAX(load8_row(r + c * n, k, n) - r_inf, 0.0f);
+        floatv r_inf = R_INF(c_a * loadv_row(L + c * n, k, n), c_d);
+        e[c] = MAX(loadv_row(r + c * n, k, n) - r_inf, 0.0f);
     }
-    rgb8_t x = mat8_mul(P->lms2rgb, e[0], e[1], e[2]);
+    rgbv_t x = matv_mul(P->lms2rgb, e[0], e[1], e[2]);
     float g = P->gamma;
-    x = mat8_mul(orgb, signed_power8(x.r, g), signed_power8(x.g, g), signed_power8(x.b, g));
-    x = remap_hue8(x, 1);
-    rgb8_t o = {x.r, -(cos_f * x.g - sin_f * x.b), -(sin_f * x.g + cos_f * x.b)};
-    o = remap_hue8(o, -1);
-    x = mat8_mul(orgb + 9, o.r, o.g, o.b);
-    float8 add[3] = {x.r, x.g, x.b};
+    x = matv_mul(orgb, signed_powerv(x.r, g), signed_powerv(x.g, g), signed_powerv(x.b, g));
+    x = remap_huev(x, 1);
+    rgbv_t o = {x.r, -(cos_f * x.g - sin_f * x.b), -(sin_f * x.g + cos_f * x.b)};
+    o = remap_huev(o, -1);
+    x = matv_mul(orgb + 9, o.r, o.g, o.b);
+    floatv add[3] = {x.r, x.g, x.b};
     int m = MIN(VEC, n - k);
     for (int c = 0; c < 3; ++c) {
-        store8_part(maps + c * n + k, (float8)(1.0f), m);
-        add[c] = strength * MAX(signed_power8(add[c], 1.0f / g), 0.0f);
-        store8_part(maps + (3 + c) * n + k, add[c], m);
+        storev_part(maps + c * n + k, (floatv)(1.0f), m);
+        add[c] = strength * MAX(signed_powerv(add[c], 1.0f / g), 0.0f);
+        storev_part(maps + (3 + c) * n + k, add[c], m);
     }
 }

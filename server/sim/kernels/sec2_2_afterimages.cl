@@ -2,8 +2,8 @@
 // grid, which is centred on the gaze and spans twice the screen. Calcium is stored normalised,
 // c = C / C_max, so c_inf = 1 - R (Eq. 10 over C_max). The state's planes: B (3), c (3), x (3),
 // the light each cone is adapted to over sigma (ours: reference.adapted_light), relaxing in
-// linear units at the calcium's rate; it gives the calcium gain its direction. One work-item makes 8 neighbouring
-// cells of a grid row; global size (ceil(grid_w / 8), grid_h), times the cones (retina_update)
+// linear units at the calcium's rate; it gives the calcium gain its direction. One work-item makes VEC neighbouring
+// cells of a grid row; global size (ceil(grid_w / VEC), grid_h), times the cones (retina_update)
 // or the planes (retina_blur) it takes one at a time. Off the screen the retina reads the
 // `surround` map (L, M, S planes of the low-res grid, made by surround_map below) at the
 // nearest screen cell.
@@ -13,29 +13,29 @@
 // prefetchers follow (retina_update 0.84-0.89×, the map blur 0.45× so).
 
 typedef struct {
-    float8 l, m, s;
-} cone8_t;
+    floatv l, m, s;
+} conev_t;
 
 // Taps x0 .. x0 + 7 of row y of one plane of the low-res scene `down`; a tap off the screen
 // reads the `surround` map at the nearest screen cell.
-HOT float8 input_taps8(__global const float *down, __global const float *surround, int x0,
+HOT floatv input_tapsv(__global const float *down, __global const float *surround, int x0,
                           int y, int low_w, int low_h) {
     int row_in = y >= 0 && y < low_h, cols_in = x0 >= 0 && x0 + VEC <= low_w;
-    if (row_in && cols_in) return LOAD8_G(down + y * low_w + x0);
+    if (row_in && cols_in) return LOADV_G(down + y * low_w + x0);
     __global const float *m = surround + CLAMP(y, 0, low_h - 1) * low_w;
-    // Wholly left or right of the screen (most of the grid): one surround cell for all 8.
-    if (x0 + VEC <= 0) return (float8)(m[0]);
-    if (x0 >= low_w) return (float8)(m[low_w - 1]);
-    int8 x = x0 + LANE_I, xc = CLAMP(x, 0, low_w - 1);
-    float8 s = cols_in ? LOAD8_G(m + x0) : gather8(m, xc);
+    // Wholly left or right of the screen (most of the grid): one surround cell for all of them.
+    if (x0 + VEC <= 0) return (floatv)(m[0]);
+    if (x0 >= low_w) return (floatv)(m[low_w - 1]);
+    intv x = x0 + LANE_I, xc = CLAMP(x, 0, low_w - 1);
+    floatv s = cols_in ? LOADV_G(m + x0) : gatherv(m, xc);
     if (!row_in) return s;
-    return (x >= 0 && x < low_w) ? gather8(down + y * low_w, xc) : s;
+    return (x >= 0 && x < low_w) ? gatherv(down + y * low_w, xc) : s;
 }
 
-// Cone c's input at 8 retina cells: the low-res scene at gaze + offset (bilinear), the surround
+// Cone c's input at VEC retina cells: the low-res scene at gaze + offset (bilinear), the surround
 // off it. Neighbouring cells are whole low-res cells apart (same cell size), so the bilinear
 // weights are the same for all of them and the taps are consecutive.
-HOT float8 retina_input_cone8(__global const float *down, __global const float *surround,
+HOT floatv retina_input_conev(__global const float *down, __global const float *surround,
                               int low_w, int low_h, float gx, float gy, int cell, int grid_w,
                               int grid_h, int j, int i, int c) {
     float gxc = gx / cell, gyc = gy / cell;
@@ -44,20 +44,20 @@ HOT float8 retina_input_cone8(__global const float *down, __global const float *
     int x0 = (int)fxc + j - grid_w / 2, y0 = (int)fyc + i - grid_h / 2;
     int plane = low_w * low_h;
     __global const float *d = down + c * plane, *s = surround + c * plane;
-    float8 top = (1.0f - fx) * input_taps8(d, s, x0, y0, low_w, low_h) +
-                 fx * input_taps8(d, s, x0 + 1, y0, low_w, low_h);
-    float8 bot = (1.0f - fx) * input_taps8(d, s, x0, y0 + 1, low_w, low_h) +
-                 fx * input_taps8(d, s, x0 + 1, y0 + 1, low_w, low_h);
+    floatv top = (1.0f - fx) * input_tapsv(d, s, x0, y0, low_w, low_h) +
+                 fx * input_tapsv(d, s, x0 + 1, y0, low_w, low_h);
+    floatv bot = (1.0f - fx) * input_tapsv(d, s, x0, y0 + 1, low_w, low_h) +
+                 fx * input_tapsv(d, s, x0 + 1, y0 + 1, low_w, low_h);
     return (1.0f - fy) * top + fy * bot;
 }
 
-// All three cones' input at 8 retina cells.
-HOT cone8_t retina_input8(__global const float *down, __global const float *surround,
+// All three cones' input at VEC retina cells.
+HOT conev_t retina_inputv(__global const float *down, __global const float *surround,
                           int low_w, int low_h, float gx, float gy, int cell, int grid_w,
                           int grid_h, int j, int i) {
 #define CONE(c) \
-    retina_input_cone8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i, c)
-    cone8_t I = {CONE(0), CONE(1), CONE(2)};
+    retina_input_conev(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i, c)
+    conev_t I = {CONE(0), CONE(1), CONE(2)};
 #undef CONE
     return I;
 }
@@ -100,27 +100,27 @@ __kernel void surround_map(__constant const params_t *P, __global const float *d
     surround[2 * plane + i] = P->surround * acc.z;
 }
 
-HOT float8 bleach_inf8(__constant const params_t *P, int c, float8 I) {
-    float8 b1I = P->b1[c] * I;
+HOT floatv bleach_infv(__constant const params_t *P, int c, floatv I) {
+    floatv b1I = P->b1[c] * I;
     return b1I / (b1I + P->b2[c]);  // Eq. 6
 }
 
-HOT float8 load_cell8(__global const float *p, int j, int n) { return load8_row(p, j, n); }
+HOT floatv load_cellv(__global const float *p, int j, int n) { return loadv_row(p, j, n); }
 
-// 1 / sigma of Eq. 2 (reference.adapted_light: x_inf = I / sigma), from ln sigma^n (exp8 on
+// 1 / sigma of Eq. 2 (reference.adapted_light: x_inf = I / sigma), from ln sigma^n (expv on
 // a splat: the scalar exp is a library call under PoCL).
 HOT float inv_sigma(__constant const params_t *P, float lsn) {
-    return exp8((float8)(-lsn / P->n)).s0;
+    return expv((floatv)(-lsn / P->n)).s0;
 }
 
-HOT void store_cell8(__global float *p, float8 v, int j, int n) {
-    if (j + VEC <= n) STORE8_G(p + j, v);
-    else store8_part(p + j, v, n - j);
+HOT void store_cellv(__global float *p, floatv v, int j, int n) {
+    if (j + VEC <= n) STOREV_G(p + j, v);
+    else storev_part(p + j, v, n - j);
 }
 
 // One time step of cone c's three planes (B, c, x; c = get_global_id(2)); with reset, the
 // equilibrium for the current input (s_inf; retina_settle_* make the fixed point of steps of dt
-// from it). decay_c = exp(-c2 dt). Global size (ceil(grid_w / 8), grid_h, 3).
+// from it). decay_c = exp(-c2 dt). Global size (ceil(grid_w / VEC), grid_h, 3).
 __kernel void retina_update(__constant const params_t *P, __global const float *down,
                             __global const float *surround, __global const float *state,
                             __global float *out, __global const float *A, int low_w, int low_h,
@@ -130,96 +130,96 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
     if (j >= grid_w) return;
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
-    float8 In =
-        retina_input_cone8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i, c);
+    floatv In =
+        retina_input_conev(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i, c);
     float lsn = ln_sigma_n_of(P, A[0]), xs = inv_sigma(P, lsn);
-    float8 B_inf = bleach_inf8(P, c, In);
-    float8 c_inf = 1.0f - tone8(P, lsn, In);
-    float8 x_inf = In * xs;
-    float8 B = B_inf, ca = c_inf, x = x_inf;
+    floatv B_inf = bleach_infv(P, c, In);
+    floatv c_inf = 1.0f - tonev(P, lsn, In);
+    floatv x_inf = In * xs;
+    floatv B = B_inf, ca = c_inf, x = x_inf;
     if (!reset) {
-        float8 rate = P->b1[c] * In + P->b2[c];
-        B = (load_cell8(state + c * plane + row, j, grid_w) - B_inf) * exp8(-rate * dt) + B_inf;
-        ca = (load_cell8(state + (3 + c) * plane + row, j, grid_w) - c_inf) * decay_c + c_inf;
-        x = (load_cell8(state + (6 + c) * plane + row, j, grid_w) - x_inf) * decay_c + x_inf;
+        floatv rate = P->b1[c] * In + P->b2[c];
+        B = (load_cellv(state + c * plane + row, j, grid_w) - B_inf) * expv(-rate * dt) + B_inf;
+        ca = (load_cellv(state + (3 + c) * plane + row, j, grid_w) - c_inf) * decay_c + c_inf;
+        x = (load_cellv(state + (6 + c) * plane + row, j, grid_w) - x_inf) * decay_c + x_inf;
         B = CLAMP(B, 0.0f, 1.0f);
         ca = CLAMP(ca, 0.0f, 1.0f);
         x = MAX(x, 0.0f);
     }
-    store_cell8(out + c * plane + row, B, j, grid_w);
-    store_cell8(out + (3 + c) * plane + row, ca, j, grid_w);
-    store_cell8(out + (6 + c) * plane + row, x, j, grid_w);
+    store_cellv(out + c * plane + row, B, j, grid_w);
+    store_cellv(out + (3 + c) * plane + row, ca, j, grid_w);
+    store_cellv(out + (6 + c) * plane + row, x, j, grid_w);
 }
 
 // The cosine between the calcium's gain and -u below which the gain fades (reference.AGREE_COS).
 #define AGREE_COS 0.5f
 
-// The maps of 8 cells (reference.afterimage_maps). Gain: Eq. 11's alpha^j2 per cone (guarded by
+// The maps of VEC cells (reference.afterimage_maps). Gain: Eq. 11's alpha^j2 per cone (guarded by
 // alpha_eps so darkness gives 1, not 0/0), its length kept but pointed along -u, u the linear
 // cone contrast of the light the eye adapted to (the state's x) against the light now, on the
 // side of Eq. 11's vector and fading where the two are near right angles (ours:
 // reference.opponent_gain, linear_contrast). Add: Eq. 12's bleaching term times the display gain, as the cone's
 // response to its equivalent light (ours: reference.bleach_response), to linear RGB through H.
 // The maps are only shown (compose, the warp), never fed back: the gain's logs and exps are
-// the display-precision ones (log_shown8, exp_shown8), within the maps' oracle tolerance.
-inline void maps8(__constant const params_t *P, __global const float *down,
-                  __global const float *surround, float8 *st, __global float *maps, float lsn,
+// the display-precision ones (log_shownv, exp_shownv), within the maps' oracle tolerance.
+inline void mapsv(__constant const params_t *P, __global const float *down,
+                  __global const float *surround, floatv *st, __global float *maps, float lsn,
                   int low_w, int low_h, int cell, int grid_w, int grid_h, float gx, float gy,
                   int j, int i) {
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
-    cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
-    float8 In[3] = {I.l, I.m, I.s};
-    float8 u[3], ln_gain[3], bleach[3];
-    float8 len_g = 0.0f, u_max = 0.0f;
+    conev_t I = retina_inputv(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    floatv In[3] = {I.l, I.m, I.s};
+    floatv u[3], ln_gain[3], bleach[3];
+    floatv len_g = 0.0f, u_max = 0.0f;
     float eps = P->alpha_eps, lsn_floor = ln_sigma_n_of(P, P->A_min), xs = inv_sigma(P, lsn);
     float floor_x = P->contrast_floor;
     for (int c = 0; c < 3; ++c) {
-        float8 ca = st[3 + c], R_now = tone8_shown(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
-        float8 ln_now = log_shown8(R_now + eps), ln_then = log_shown8(1.0f - ca + eps);
+        floatv ca = st[3 + c], R_now = tonev_shown(P, lsn, In[c]);  // c_inf = 1 - R_now, Eq. 10
+        floatv ln_now = log_shownv(R_now + eps), ln_then = log_shownv(1.0f - ca + eps);
         ln_gain[c] = P->j2 * (ln_now - ln_then);  // ln alpha^j2, Eq. 11
-        float8 x_inf = In[c] * xs;
+        floatv x_inf = In[c] * xs;
         u[c] = (st[6 + c] - x_inf) / MAX(x_inf, floor_x);  // reference.linear_contrast
         len_g += ln_gain[c] * ln_gain[c];
-        u_max = MAX(u_max, ABS8(u[c]));
+        u_max = MAX(u_max, ABSV(u[c]));
         // Bleaching (Eq. 12) as a response x; its light R^-1(x) at A_min adds to the input.
-        float8 x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_inf8(P, c, In[c]), 0.0f);
+        floatv x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_infv(P, c, In[c]), 0.0f);
         x = MIN(x, 1.0f - eps);
         bleach[c] = 0.0f;
-        if (!any8(x > 0.0f)) continue;  // no bleaching above equilibrium: the usual case
-        float8 ln_odds = log8(MAX(x, FLT_MIN)) - log8(1.0f - x);
-        float8 I_x = exp8((lsn_floor + ln_odds) / P->n);
+        if (!anyv(x > 0.0f)) continue;  // no bleaching above equilibrium: the usual case
+        floatv ln_odds = logv(MAX(x, FLT_MIN)) - logv(1.0f - x);
+        floatv I_x = expv((lsn_floor + ln_odds) / P->n);
         // 1 - (I / (I + I_x))^n without cancelling where I_x << I (reference.bleach_response)
-        float8 ratio = MIN(I_x / MAX(In[c], FLT_MIN), 1e30f);
-        float8 unmasked = one_minus_exp_neg8(P->n * log1p8(ratio));
-        bleach[c] = x > 0.0f ? (1.0f - R_now) * tone8(P, lsn, In[c] + I_x) * unmasked : 0.0f;
+        floatv ratio = MIN(I_x / MAX(In[c], FLT_MIN), 1e30f);
+        floatv unmasked = one_minus_exp_negv(P->n * log1pv(ratio));
+        bleach[c] = x > 0.0f ? (1.0f - R_now) * tonev(P, lsn, In[c] + I_x) * unmasked : 0.0f;
     }
     // u / max |u| in [-1, 1], then its unit vector; the side (cosine / AGREE_COS, clamped)
-    float8 len_u = 0.0f, dot = 0.0f;
+    floatv len_u = 0.0f, dot = 0.0f;
     u_max = MAX(u_max, FLT_MIN);
     for (int c = 0; c < 3; ++c) {
         u[c] = u[c] / u_max;
         len_u += u[c] * u[c];
     }
-    len_u = MAX(SQRT8(len_u), FLT_MIN);
+    len_u = MAX(sqrtv(len_u), FLT_MIN);
     for (int c = 0; c < 3; ++c) {
         u[c] = u[c] / len_u;
         dot -= ln_gain[c] * u[c];
     }
-    len_g = SQRT8(len_g);
-    float8 side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
-    float8 scale = -len_g * side;
+    len_g = sqrtv(len_g);
+    floatv side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
+    floatv scale = -len_g * side;
     for (int c = 0; c < 3; ++c)
-        store_cell8(maps + c * plane + row, exp_shown8(scale * u[c]), j, grid_w);
-    rgb8_t add = mat8_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
-    store_cell8(maps + 3 * plane + row, add.r, j, grid_w);
-    store_cell8(maps + 4 * plane + row, add.g, j, grid_w);
-    store_cell8(maps + 5 * plane + row, add.b, j, grid_w);
+        store_cellv(maps + c * plane + row, exp_shownv(scale * u[c]), j, grid_w);
+    rgbv_t add = matv_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
+    store_cellv(maps + 3 * plane + row, add.r, j, grid_w);
+    store_cellv(maps + 4 * plane + row, add.g, j, grid_w);
+    store_cellv(maps + 5 * plane + row, add.b, j, grid_w);
 }
 
-// The maps of the cells in [j0, j1] x [i0, i1], from the current state, in runs of 8 cells
+// The maps of the cells in [j0, j1] x [i0, i1], from the current state, in runs of VEC cells
 // from the row's start; runs wholly inside the window [mj0, mj1] x [mi0, mi1] are left as they
-// are (made already). Global size: the whole grid, (ceil(grid_w / 8), grid_h), whatever the
+// are (made already). Global size: the whole grid, (ceil(grid_w / VEC), grid_h), whatever the
 // windows: PoCL compiles a kernel anew for each global size it meets (about 0.2 s).
 __kernel void afterimage_maps(__constant const params_t *P, __global const float *down,
                               __global const float *surround, __global const float *state,
@@ -232,14 +232,14 @@ __kernel void afterimage_maps(__constant const params_t *P, __global const float
     if (i >= mi0 && i <= mi1 && j >= mj0 && j + VEC - 1 <= mj1) return;
     int plane = grid_w * grid_h;
     size_t row = (size_t)i * grid_w;
-    float8 st[9];
-    for (int c = 0; c < 9; ++c) st[c] = load_cell8(state + c * plane + row, j, grid_w);
-    maps8(P, down, surround, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h,
+    floatv st[9];
+    for (int c = 0; c < 9; ++c) st[c] = load_cellv(state + c * plane + row, j, grid_w);
+    mapsv(P, down, surround, st, maps, ln_sigma_n_of(P, A[0]), low_w, low_h, cell, grid_w, grid_h,
           gx, gy, j, i);
 }
 
 // The map blur of Sec. 2.4 (separable Gaussian, edges clamped, as blur_h then blur_v) in one
-// pass, src -> dst, plane get_global_id(2) of the state's nine. Global size (ceil(grid_w / 8),
+// pass, src -> dst, plane get_global_id(2) of the state's nine. Global size (ceil(grid_w / VEC),
 // grid_h, 9). In one pass, not blur_h then blur_v: 0.46× as long for the usual 3 taps.
 __kernel void retina_blur(__global const float *src, __global float *dst,
                           __constant const float *taps, int radius, int grid_w, int grid_h) {
@@ -251,24 +251,24 @@ __kernel void retina_blur(__global const float *src, __global float *dst,
     if (radius == 1 && inner && i >= 1 && i + 1 < grid_h) {  // the usual 3-tap blur, unrolled
         float t0 = taps[0], t1 = taps[1], t2 = taps[2];
         __global const float *p = s + row + j;
-#define H3(q) (t0 * LOAD8_G((q) - 1) + t1 * LOAD8_G(q) + t2 * LOAD8_G((q) + 1))
-        STORE8_G(dst + plane + row + j, t0 * H3(p - grid_w) + t1 * H3(p) + t2 * H3(p + grid_w));
+#define H3(q) (t0 * LOADV_G((q) - 1) + t1 * LOADV_G(q) + t2 * LOADV_G((q) + 1))
+        STOREV_G(dst + plane + row + j, t0 * H3(p - grid_w) + t1 * H3(p) + t2 * H3(p + grid_w));
 #undef H3
         return;
     }
-    float8 acc = 0.0f;
+    floatv acc = 0.0f;
     for (int dy = -radius; dy <= radius; ++dy) {
         __global const float *r = s + CLAMP(i + dy, 0, grid_h - 1) * grid_w;
-        float8 h = 0.0f;
+        floatv h = 0.0f;
         if (inner) {
-            for (int dx = -radius; dx <= radius; ++dx) h += taps[dx + radius] * LOAD8_G(r + j + dx);
+            for (int dx = -radius; dx <= radius; ++dx) h += taps[dx + radius] * LOADV_G(r + j + dx);
         } else {
             for (int dx = -radius; dx <= radius; ++dx)
-                h += taps[dx + radius] * gather8(r, CLAMP(j + dx + LANE_I, 0, grid_w - 1));
+                h += taps[dx + radius] * gatherv(r, CLAMP(j + dx + LANE_I, 0, grid_w - 1));
         }
         acc += taps[dy + radius] * h;
     }
-    store_cell8(dst + plane + row, acc, j, grid_w);
+    store_cellv(dst + plane + row, acc, j, grid_w);
 }
 
 // Settling (layout.settle_plan): the state that steps of dt leave as it is, s = G(R s + (1 - R)
@@ -285,23 +285,23 @@ __kernel void retina_settle_init(__constant const params_t *P, __global const fl
     int j = get_global_id(0) * VEC, i = get_global_id(1);
     if (j >= grid_w) return;
     size_t plane = (size_t)grid_w * grid_h, row = (size_t)i * grid_w;
-    cone8_t I = retina_input8(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
-    float8 In[3] = {I.l, I.m, I.s};
+    conev_t I = retina_inputv(down, surround, low_w, low_h, gx, gy, cell, grid_w, grid_h, j, i);
+    floatv In[3] = {I.l, I.m, I.s};
     float lsn = ln_sigma_n_of(P, A[0]), xs = inv_sigma(P, lsn);
     for (int c = 0; c < 3; ++c) {
-        float8 B_inf = bleach_inf8(P, c, In[c]), y_inf = tone8(P, lsn, In[c]);
-        float8 x_inf = In[c] * xs;
-        float8 R = exp8(-(P->b1[c] * In[c] + P->b2[c]) * dt);  // Eq. 5
-        store_cell8(state + c * plane + row, B_inf, j, grid_w);
-        store_cell8(state + (3 + c) * plane + row, y_inf, j, grid_w);
-        store_cell8(rate + c * plane + row, R, j, grid_w);
-        store_cell8(u + c * plane + row, R * B_inf, j, grid_w);
-        store_cell8(u + (3 + c) * plane + row, decay_c * y_inf, j, grid_w);
-        store_cell8(b + c * plane + row, (1.0f - R) * B_inf, j, grid_w);
-        store_cell8(b + (3 + c) * plane + row, (1.0f - decay_c) * y_inf, j, grid_w);
-        store_cell8(state + (6 + c) * plane + row, x_inf, j, grid_w);
-        store_cell8(u + (6 + c) * plane + row, decay_c * x_inf, j, grid_w);
-        store_cell8(b + (6 + c) * plane + row, (1.0f - decay_c) * x_inf, j, grid_w);
+        floatv B_inf = bleach_infv(P, c, In[c]), y_inf = tonev(P, lsn, In[c]);
+        floatv x_inf = In[c] * xs;
+        floatv R = expv(-(P->b1[c] * In[c] + P->b2[c]) * dt);  // Eq. 5
+        store_cellv(state + c * plane + row, B_inf, j, grid_w);
+        store_cellv(state + (3 + c) * plane + row, y_inf, j, grid_w);
+        store_cellv(rate + c * plane + row, R, j, grid_w);
+        store_cellv(u + c * plane + row, R * B_inf, j, grid_w);
+        store_cellv(u + (3 + c) * plane + row, decay_c * y_inf, j, grid_w);
+        store_cellv(b + c * plane + row, (1.0f - R) * B_inf, j, grid_w);
+        store_cellv(b + (3 + c) * plane + row, (1.0f - decay_c) * y_inf, j, grid_w);
+        store_cellv(state + (6 + c) * plane + row, x_inf, j, grid_w);
+        store_cellv(u + (6 + c) * plane + row, decay_c * x_inf, j, grid_w);
+        store_cellv(b + (6 + c) * plane + row, (1.0f - decay_c) * x_inf, j, grid_w);
     }
 }
 
@@ -315,14 +315,14 @@ __kernel void retina_settle_step(__global float *state, __global float *u,
     int j = get_global_id(0) * VEC, i = get_global_id(1);
     if (j >= grid_w) return;
     size_t plane = (size_t)grid_w * grid_h, row = (size_t)i * grid_w;
-    float8 d = load_cell8(diag, j, grid_w) * diag[grid_w + i];
+    floatv d = load_cellv(diag, j, grid_w) * diag[grid_w + i];
     for (int c = 0; c < 9; ++c) {
         size_t at = c * plane + row;
-        float8 R = c < 3 ? load_cell8(rate + at, j, grid_w) : (float8)(decay_c);
-        float8 dR = d * R;
-        float8 z = load_cell8(b + at, j, grid_w) + load_cell8(w + at, j, grid_w);
-        z = (z - dR * load_cell8(state + at, j, grid_w)) / (1.0f - dR);
-        store_cell8(state + at, last && c >= 3 && c < 6 ? 1.0f - z : z, j, grid_w);
-        store_cell8(u + at, R * z, j, grid_w);
+        floatv R = c < 3 ? load_cellv(rate + at, j, grid_w) : (floatv)(decay_c);
+        floatv dR = d * R;
+        floatv z = load_cellv(b + at, j, grid_w) + load_cellv(w + at, j, grid_w);
+        z = (z - dR * load_cellv(state + at, j, grid_w)) / (1.0f - dR);
+        store_cellv(state + at, last && c >= 3 && c < 6 ? 1.0f - z : z, j, grid_w);
+        store_cellv(u + at, R * z, j, grid_w);
     }
 }

@@ -24,39 +24,39 @@ __kernel void bilateral_prep(__constant const params_t *P, __global const float 
 // One 1-D pass (dx, dy) = (1, 0) or (0, 1) of the separable bilateral: spatial Gaussian of the
 // output pixel's sigma, range Gaussian on the guide; taps off the frame are left out.
 // var_floor keeps 1/sigma^2 finite where sigma = 0 (the pass is then the identity). The inner
-// loop is the cost (an exp per tap), so it makes 8 pixels of a row per work-item with exp8
-// (see common.cl). Global size (ceil(W / 8), H).
+// loop is the cost (an exp per tap), so it makes VEC pixels of a row per work-item with expv
+// (see common.cl). Global size (ceil(W / VEC), H).
 __kernel void bilateral_pass(__global const float *src, __global float *dst,
                              __global const float *guide, __global const float *sigma, int W,
                              int H, int radius, int dx, int dy, float inv_r, float var_floor) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
     size_t plane = (size_t)W * H, row = (size_t)y * W;
-    float8 s = load8_row(sigma + row, x, W);
-    float8 inv_s = 0.5f / MAX(s * s, var_floor);
-    float8 g0 = load8_row(guide + row, x, W);
-    float8 r = load8_row(src + row, x, W);
-    float8 g = load8_row(src + plane + row, x, W);
-    float8 b = load8_row(src + 2 * plane + row, x, W);
-    float8 wsum = 1.0f;
+    floatv s = loadv_row(sigma + row, x, W);
+    floatv inv_s = 0.5f / MAX(s * s, var_floor);
+    floatv g0 = loadv_row(guide + row, x, W);
+    floatv r = loadv_row(src + row, x, W);
+    floatv g = loadv_row(src + plane + row, x, W);
+    floatv b = loadv_row(src + 2 * plane + row, x, W);
+    floatv wsum = 1.0f;
     for (int k = -radius; k <= radius; ++k) {
         int yq = y + k * dy;
         if (k == 0 || yq < 0 || yq >= H) continue;
         int x0 = x + k * dx;
-        int8 xq = x0 + LANE_I;
+        intv xq = x0 + LANE_I;
         size_t rq = (size_t)yq * W;
-        float8 dl = row_taps8(guide + rq, x0, W) - g0;
-        float8 w = exp8(-(float)(k * k) * inv_s - dl * dl * inv_r);
+        floatv dl = row_tapsv(guide + rq, x0, W) - g0;
+        floatv w = expv(-(float)(k * k) * inv_s - dl * dl * inv_r);
         w = (xq >= 0 && xq < W) ? w : 0.0f;
-        r += w * row_taps8(src + rq, x0, W);
-        g += w * row_taps8(src + plane + rq, x0, W);
-        b += w * row_taps8(src + 2 * plane + rq, x0, W);
+        r += w * row_tapsv(src + rq, x0, W);
+        g += w * row_tapsv(src + plane + rq, x0, W);
+        b += w * row_tapsv(src + 2 * plane + rq, x0, W);
         wsum += w;
     }
     int n = MIN(VEC, W - x);
-    store8_part(dst + row + x, r / wsum, n);
-    store8_part(dst + plane + row + x, g / wsum, n);
-    store8_part(dst + 2 * plane + row + x, b / wsum, n);
+    storev_part(dst + row + x, r / wsum, n);
+    storev_part(dst + plane + row + x, g / wsum, n);
+    storev_part(dst + 2 * plane + row + x, b / wsum, n);
 }
 
 // Photopic luminance plane (Thompson's edge band is taken on luminance).

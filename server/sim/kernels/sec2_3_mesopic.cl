@@ -29,24 +29,24 @@ __kernel void rho_map(__constant const params_t *P, __global const float *yp_blu
 }
 
 // rho at every screen pixel (bilinear, edges clamped): it changes only with the scene, and the
-// acuity and compose stages both read it. Global size (ceil(W / 8), H).
+// acuity and compose stages both read it. Global size (ceil(W / VEC), H).
 __kernel void rho_upsample(__global const float *rho, __global float *rho_full, int low_w,
                            int low_h, int cell, int W, int H) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    lerp8_t tx = lerp8_at(low_w, ((float)x + 0.5f + LANE_F) / cell, 1);
+    lerpv_t tx = lerpv_at(low_w, ((float)x + 0.5f + LANE_F) / cell, 1);
     lerp1_t ty = lerp1_at(low_h, (y + 0.5f) / cell, 1);
-    float8 r = bilinear8_get(rho, low_w, tx, ty, 0.0f);
+    floatv r = bilinearv_get(rho, low_w, tx, ty, 0.0f);
     __global float *o = rho_full + (size_t)y * W + x;
-    if (x + VEC <= W) STORE8_G(o, r);
-    else store8_part(o, r, W - x);
+    if (x + VEC <= W) STOREV_G(o, r);
+    else storev_part(o, r, W - x);
 }
 
 // Eq. 15 with one noise field for all bands: d = number of finest bands dropped. The kept bands
 // telescope (Eq. 14), so the result is Gaussian level d - 1 (level -1 is the scene itself).
 // X is interpolated in space and time and renormalised so that it stays N(0, 1): `key` is the
 // two key frames already mixed in time (and divided by their time norm) on the host, so here
-// it is bilinear in space. Global size (ceil(W / 8), H); with want_max, d_max gets the
+// it is bilinear in space. Global size (ceil(W / VEC), H); with want_max, d_max gets the
 // largest d (for the level-by-level bank).
 __kernel void acuity_levels(__constant const params_t *P, __global const float *rho_full,
                             __global const float *key, float spacing, int nx, int W, int H,
@@ -54,47 +54,48 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
                             int want_max) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    float8 r = load8_row(rho_full + (size_t)y * W, x, W);
-    float8 u = ((float)x + 0.5f + LANE_F) / spacing;
+    floatv r = loadv_row(rho_full + (size_t)y * W, x, W);
+    floatv u = ((float)x + 0.5f + LANE_F) / spacing;
     float v = (y + 0.5f) / spacing;
-    float8 fu = floor8(u);
+    floatv fu = floorv(u);
     float fv = floor1(v);
-    lerp8_t tx;
-    tx.x0 = tx.a = TO_INT8(fu);
+    lerpv_t tx;
+    tx.x0 = tx.a = TO_INTV(fu);
     tx.b = tx.a + 1;
     tx.wb = u - fu;
     tx.wa = 1.0f - tx.wb;
     int j0 = (int)fv;
     float fy = v - fv;
     __global const float *ra = key + j0 * nx, *rb = ra + nx;
-    float8 s;
-    float8 xm[8];
-    int K = xmix8(tx, xm);
+    floatv s;
+    floatv xm[XMIX_MAX];
+    int K = xmixv(tx, xm);
     if (K > 0) {
         s = 0.0f;
         for (int k = 0; k < K; ++k) {
             int col = tx.x0.s0 + k;
             s += ((1 - fy) * ra[col] + fy * rb[col]) * xm[k];
         }
-    } else {  // noise nodes closer than 8 pixels (tiny frames)
-        s = (1 - fy) * (tx.wa * gather8(ra, tx.a) + tx.wb * gather8(ra, tx.b))
-            + fy * (tx.wa * gather8(rb, tx.a) + tx.wb * gather8(rb, tx.b));
+    } else {  // noise nodes closer than VEC / 6 pixels (tiny frames)
+        s = (1 - fy) * (tx.wa * gatherv(ra, tx.a) + tx.wb * gatherv(ra, tx.b))
+            + fy * (tx.wa * gatherv(rb, tx.a) + tx.wb * gatherv(rb, tx.b));
     }
-    float8 norm = SQRT8((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
-    float8 q = r + P->g * s / norm;
-    int8 d = (int8)(0);
+    floatv norm = sqrtv((tx.wa * tx.wa + tx.wb * tx.wb) * ((1 - fy) * (1 - fy) + fy * fy));
+    floatv q = r + P->g * s / norm;
+    intv d = (intv)(0);
     for (int b = 0; b < P->bands; ++b) d -= (q <= P->rho_i[b]);  // a true comparison is -1
     __global uchar *o = d_map + (size_t)y * W + x;
-    uchar8 du = TO_UCHAR8(d);
+    ucharv du = TO_UCHARV(d);
     if (x + VEC <= W) {
-        STORE8_D(o, du);
+        STOREV_D(o, du);
     } else {
-        uchar tmp[8] = {du.s0, du.s1, du.s2, du.s3, du.s4, du.s5, du.s6, du.s7};
+        uchar tmp[VEC];
+        STOREV_PRIVATE(du, tmp);
         for (int i = 0; i < W - x; ++i) o[i] = tmp[i];
         d = (x + LANE_I >= W) ? 0 : d;
     }
     if (!want_max) return;
-    int m = MAX(MAX(MAX(d.s0, d.s1), MAX(d.s2, d.s3)), MAX(MAX(d.s4, d.s5), MAX(d.s6, d.s7)));
+    int m = max_lane(d);
     if (m > *d_max) atomic_max(d_max, m);  // rarely contended: most reads see it done
 }
 
@@ -102,10 +103,10 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
 //
 // Level l - 1 of each pixel that drops l bands, from `stack`: the scene's Gaussian levels
 // 0 .. bands - 1, made once per scene by blur_h/blur_v (level l at stack + l * stride, three
-// planes each). Eight pixels mostly drop the same number of bands (rho and the noise are
+// planes each). A run of VEC pixels mostly drops the same number of bands (rho and the noise are
 // smooth), so they read one level with vector loads; else the lanes that drop the most read
 // theirs, and each level between (6 % of the runs of 8 on the lamp scene at 1280×720) is
-// selected. Written without the bounds checks of load8_row, the row's last pixels apart:
+// selected. Written without the bounds checks of loadv_row, the row's last pixels apart:
 // with them the pick took 1.6× as long on PoCL.
 HOT __global const float *acuity_level(__global const float *scene,
                                        __global const float *stack, int stride, int dropped) {
@@ -124,20 +125,18 @@ __kernel void acuity_pick(__global const float *scene, __global const float *sta
         }
         return;
     }
-    int8 d = TO_INT8(LOAD8_D(d_map + at));
-    int4 lo4 = MIN(d.lo, d.hi), hi4 = MAX(d.lo, d.hi);
-    int2 lo2 = MIN(lo4.lo, lo4.hi), hi2 = MAX(hi4.lo, hi4.hi);
-    int lo = MIN(lo2.x, lo2.y), hi = MAX(hi2.x, hi2.y);
+    intv d = TO_INTV(LOADV_D(d_map + at));
+    int lo = min_lane(d), hi = max_lane(d);
     __global const float *first = acuity_level(scene, stack, stride, lo);
     for (int c = 0; c < 3; ++c) {
         size_t o = c * plane + at;  // this pixel's channel c, in every level, the scene and G
-        float8 g = LOAD8_G(first + o);
+        floatv g = LOADV_G(first + o);
         if (hi > lo) {  // lanes that drop more than lo bands
-            g = d == hi ? LOAD8_G(acuity_level(scene, stack, stride, hi) + o) : g;
+            g = d == hi ? LOADV_G(acuity_level(scene, stack, stride, hi) + o) : g;
             for (int l = lo + 1; l < hi; ++l)
-                g = d == l ? LOAD8_G(acuity_level(scene, stack, stride, l) + o) : g;
+                g = d == l ? LOADV_G(acuity_level(scene, stack, stride, l) + o) : g;
         }
-        STORE8_G(G + o, g);
+        STOREV_G(G + o, g);
     }
 }
 
@@ -153,7 +152,7 @@ __kernel void acuity_pick(__global const float *scene, __global const float *sta
 // one core.
 //
 // Buffer layout: buffer (bx, by) is screen (tx0 - PX + bx, ty0 - PY + by); PX is the halo
-// rounded up to whole float8 plus one float8 of margin, so that rows are computed in float8
+// rounded up to whole floatv plus one floatv of margin, so that rows are computed in floatv
 // steps without reading outside the buffer. Columns and rows outside the screen hold copies of
 // the edge (as the reference's clamped reads), refreshed after each pass.
 
@@ -173,9 +172,9 @@ inline void fill_cols(__local float *buf, int BW, int by0, int by1, int left, in
 }
 
 // Taps t[0 .. 2r] along s, s + d, ...: the general case of the unrolled CONV3/5/7 below.
-inline float8 conv8_l(__local const float *s, int d, __constant const float *t, int r) {
-    float8 a = (float8)(0.0f);
-    for (int k = 0; k <= 2 * r; ++k) a += t[k] * LOAD8_L(s + k * d);
+inline floatv convv_l(__local const float *s, int d, __constant const float *t, int r) {
+    floatv a = (floatv)(0.0f);
+    for (int k = 0; k <= 2 * r; ++k) a += t[k] * LOADV_L(s + k * d);
     return a;
 }
 
@@ -191,39 +190,35 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
     size_t plane = (size_t)W * H;
 
     // The tile's d: its maximum, and per level l the box of the pixels that drop more than l
-    // bands (rows; columns in whole float8 chunks), so that each level is made only there and
+    // bands (rows; columns in whole floatv chunks), so that each level is made only there and
     // around it (work in proportion to the pixels that need each level).
     int ylo[8], yhi[8], xlo[8], xhi[8];
     for (int l = 0; l < 8; ++l) ylo[l] = xlo[l] = 1 << 20, yhi[l] = xhi[l] = -1;
-    uchar8 cm[BANK_TX_MAX / VEC];  // per float8 chunk of columns, the largest d down the tile
+    ucharv cm[BANK_TX_MAX / VEC];  // per floatv chunk of columns, the largest d down the tile
     int chunks = (xe - tx0 + VEC - 1) / VEC;
-    for (int k = 0; k < chunks; ++k) cm[k] = (uchar8)(0);
+    for (int k = 0; k < chunks; ++k) cm[k] = (ucharv)(0);
     int dmax = 0;
     for (int y = ty0; y < ye; ++y) {
         __global const uchar *drow = d_map + (size_t)y * W + tx0;
-        uchar8 rm = (uchar8)(0);
+        ucharv rm = (ucharv)(0);
         for (int k = 0; k < chunks; ++k) {
-            uchar8 v;
+            ucharv v;
             if (tx0 + VEC * (k + 1) <= xe) {
-                v = LOAD8_D(drow + VEC * k);
+                v = LOADV_D(drow + VEC * k);
             } else {  // the screen's last columns
-                uchar t[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+                uchar t[VEC] = {0};
                 for (int i = 0; i < xe - tx0 - VEC * k; ++i) t[i] = drow[VEC * k + i];
-                v = (uchar8)(t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]);
+                v = LOADV_PRIVATE(t);
             }
             cm[k] = MAX(cm[k], v);
             rm = MAX(rm, v);
         }
-        uchar4 r4 = MAX(rm.lo, rm.hi);
-        uchar2 r2 = MAX(r4.lo, r4.hi);
-        int m = MIN((int)MAX(r2.x, r2.y), 8);
+        int m = MIN(max_lane(TO_INTV(rm)), 8);
         for (int l = 0; l < m; ++l) ylo[l] = MIN(ylo[l], y - ty0), yhi[l] = y - ty0;
         dmax = MAX(dmax, m);
     }
     for (int k = 0; k < chunks; ++k) {
-        uchar4 c4 = MAX(cm[k].lo, cm[k].hi);
-        uchar2 c2 = MAX(c4.lo, c4.hi);
-        int m = MIN((int)MAX(c2.x, c2.y), 8);
+        int m = MIN(max_lane(TO_INTV(cm[k])), 8);
         for (int l = 0; l < m; ++l) xlo[l] = MIN(xlo[l], k), xhi[l] = k;
     }
     // The three channels in turn, on the one scan of d above (the boxes are the same).
@@ -234,7 +229,7 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             for (int y = ty0; y < ye; ++y) {
                 size_t k = (size_t)y * W;
                 int x = tx0;
-                for (; x + VEC <= xe; x += VEC) STORE8_G(dst_g + k + x, LOAD8_G(src_g + k + x));
+                for (; x + VEC <= xe; x += VEC) STOREV_G(dst_g + k + x, LOADV_G(src_g + k + x));
                 for (; x < xe; ++x) dst_g[k + x] = src_g[k + x];
             }
             continue;
@@ -277,10 +272,10 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             __local float *brow = buf_a + by * BW;
             for (int bx = lx0; bx < lx1; bx += VEC) {
                 int x = tx0 - PX + bx;
-                float8 val;
-                if (x >= 0 && x + VEC <= W) val = LOAD8_G(row + x);
-                else val = gather8(row, CLAMP(x + LANE_I, 0, W - 1));
-                STORE8_L(brow + bx, val);
+                floatv val;
+                if (x >= 0 && x + VEC <= W) val = LOADV_G(row + x);
+                else val = gatherv(row, CLAMP(x + LANE_I, 0, W - 1));
+                STOREV_L(brow + bx, val);
             }
         }
         // The output starts as the scene (d = 0).
@@ -288,7 +283,7 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             __global const float *grow = src_g + (size_t)(ty0 + y) * W + tx0;
             __local float *arow = acc + y * TX;
             int x = 0;
-            for (; x + VEC <= ow; x += VEC) STORE8_L(arow + x, LOAD8_G(grow + x));
+            for (; x + VEC <= ow; x += VEC) STOREV_L(arow + x, LOADV_G(grow + x));
             for (; x < ow; ++x) arow[x] = grow[x];
         }
 
@@ -296,7 +291,7 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
         for (int l = 0; l < dmax; ++l) {
             int r = levels[2 * l];
             __constant const float *t = taps + levels[2 * l + 1];
-            int cx0 = nx0[l] / VEC * VEC, cx1 = (nx1[l] + VEC - 1) / VEC * VEC;  // float8 steps
+            int cx0 = nx0[l] / VEC * VEC, cx1 = (nx1[l] + VEC - 1) / VEC * VEC;  // floatv steps
             // Horizontal pass on the rows the vertical pass reads, inside the screen.
             int vy0 = MAX(ny0[l], top), vy1 = MIN(ny1[l], bottom + 1);
             int ry0 = MAX(vy0 - r, top), ry1 = MIN(vy1 + r, bottom + 1);
@@ -306,18 +301,18 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
         for (int by = ry0; by < ry1; ++by) {                                  \
             __local const float *s = src + by * BW - r;                       \
             __local float *o = tmp + by * BW;                                 \
-            for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, 1)); \
+            for (int bx = cx0; bx < cx1; bx += VEC) STOREV_L(o + bx, CONV(s + bx, 1)); \
         }
     #define V_PASS(CONV)                                                      \
         for (int by = vy0; by < vy1; ++by) {                                  \
             __local const float *s = tmp + (by - r) * BW;                     \
             __local float *o = dst + by * BW;                                 \
-            for (int bx = cx0; bx < cx1; bx += VEC) STORE8_L(o + bx, CONV(s + bx, BW)); \
+            for (int bx = cx0; bx < cx1; bx += VEC) STOREV_L(o + bx, CONV(s + bx, BW)); \
         }
-    #define CONV3(s, d) (t0 * LOAD8_L(s) + t1 * LOAD8_L((s) + (d)) + t2 * LOAD8_L((s) + 2 * (d)))
-    #define CONV5(s, d) (CONV3(s, d) + t3 * LOAD8_L((s) + 3 * (d)) + t4 * LOAD8_L((s) + 4 * (d)))
-    #define CONV7(s, d) (CONV5(s, d) + t5 * LOAD8_L((s) + 5 * (d)) + t6 * LOAD8_L((s) + 6 * (d)))
-    #define CONVN(s, d) conv8_l(s, d, t, r)
+    #define CONV3(s, d) (t0 * LOADV_L(s) + t1 * LOADV_L((s) + (d)) + t2 * LOADV_L((s) + 2 * (d)))
+    #define CONV5(s, d) (CONV3(s, d) + t3 * LOADV_L((s) + 3 * (d)) + t4 * LOADV_L((s) + 4 * (d)))
+    #define CONV7(s, d) (CONV5(s, d) + t5 * LOADV_L((s) + 5 * (d)) + t6 * LOADV_L((s) + 6 * (d)))
+    #define CONVN(s, d) convv_l(s, d, t, r)
             if (r == 1) {
                 H_PASS(CONV3)
             } else if (r == 2) {
@@ -330,10 +325,10 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             // Rows above and below the screen repeat its edge rows.
             for (int by = vy0 - r; by < ry0; ++by)
                 for (int bx = cx0; bx < cx1; bx += VEC)
-                    STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + top * BW + bx));
+                    STOREV_L(tmp + by * BW + bx, LOADV_L(tmp + top * BW + bx));
             for (int by = ry1; by < vy1 + r; ++by)
                 for (int bx = cx0; bx < cx1; bx += VEC)
-                    STORE8_L(tmp + by * BW + bx, LOAD8_L(tmp + bottom * BW + bx));
+                    STOREV_L(tmp + by * BW + bx, LOADV_L(tmp + bottom * BW + bx));
             // Vertical pass where this level is still needed, inside the screen.
             if (r == 1) {
                 V_PASS(CONV3)
@@ -353,8 +348,8 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
                 __local const float *lrow = dst + (PY + y) * BW + PX;
                 int x = 0;
                 for (; x + VEC <= ow; x += VEC) {
-                    int8 hit = TO_INT8(LOAD8_D(drow + x) == (uchar8)(want));
-                    STORE8_L(arow + x, hit ? LOAD8_L(lrow + x) : LOAD8_L(arow + x));
+                    intv hit = TO_INTV(LOADV_D(drow + x) == (ucharv)(want));
+                    STOREV_L(arow + x, hit ? LOADV_L(lrow + x) : LOADV_L(arow + x));
                 }
                 for (; x < ow; ++x)
                     if (drow[x] == want) arow[x] = lrow[x];
@@ -364,7 +359,7 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             __global float *grow = dst_g + (size_t)(ty0 + y) * W + tx0;
             __local const float *arow = acc + y * TX;
             int x = 0;
-            for (; x + VEC <= ow; x += VEC) STORE8_G(grow + x, LOAD8_L(arow + x));
+            for (; x + VEC <= ow; x += VEC) STOREV_G(grow + x, LOADV_L(arow + x));
             for (; x < ow; ++x) grow[x] = arow[x];
         }
     }

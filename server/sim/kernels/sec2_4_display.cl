@@ -1,114 +1,144 @@
 // Sec. 2.4 and Eq. 12: assemble the displayed value per screen pixel. Tone curve on the
 // Purkinje-shifted luminance (Eq. 1, 13), mesopic hue shift, afterimage gain and bleaching
 // term read at the retinal position x - gaze with the foveal fall-off, gamut, gamma.
-// One work-item makes 8 neighbouring pixels of a row; global size (ceil(W / 8), H).
+// One work-item makes VEC neighbouring pixels of a row; global size (ceil(W / VEC), H).
 
 // Largest t in [0,1] keeping a + t (rgb - a) inside the cube, for a grey a: never flip hue.
-HOT float8 gamut_t(float8 a, float8 e, float8 t) {
-    float8 lim = (e > 0.0f ? 1.0f - a : -a) / e;  // inf or NaN where e = 0: not taken
+HOT floatv gamut_t(floatv a, floatv e, floatv t) {
+    floatv lim = (e > 0.0f ? 1.0f - a : -a) / e;  // inf or NaN where e = 0: not taken
     return (e != 0.0f && lim < t) ? lim : t;
 }
 
-// The first half of compose8: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
+// The first half of composev: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
 // What a late gaze warp sends (compose_base): none of it depends on the gaze.
-HOT rgb8_t base8(__constant const params_t *P, __global const float *G,
+HOT rgbv_t basev(__constant const params_t *P, __global const float *G,
                     __global const float *rho_full, __global const float *A, int W, int H,
                     float eyes, int x, int y) {
     size_t row = (size_t)y * W, plane = (size_t)W * H;
-    float8 r = eyes * load8_row(G + row, x, W);
-    float8 g = eyes * load8_row(G + plane + row, x, W);
-    float8 b = eyes * load8_row(G + 2 * plane + row, x, W);
-    float8 rc = CLAMP(load8_row(rho_full + row, x, W), 0.0f, 1.0f);
-    float8 yp = dot8(P->w_P, r, g, b), ys = dot8(P->w_S, r, g, b);
-    float8 I = rc * yp + (1.0f - rc) * ys;                              // Purkinje (Eq. 13)
-    float8 R = tone8_shown(P, ln_sigma_n_of(P, A[0]), I);               // Eq. 1
-    float8 ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);  // hue shift
-    rgb8_t J = {ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
+    floatv r = eyes * loadv_row(G + row, x, W);
+    floatv g = eyes * loadv_row(G + plane + row, x, W);
+    floatv b = eyes * loadv_row(G + 2 * plane + row, x, W);
+    floatv rc = CLAMP(loadv_row(rho_full + row, x, W), 0.0f, 1.0f);
+    floatv yp = dotv(P->w_P, r, g, b), ys = dotv(P->w_S, r, g, b);
+    floatv I = rc * yp + (1.0f - rc) * ys;                              // Purkinje (Eq. 13)
+    floatv R = tonev_shown(P, ln_sigma_n_of(P, A[0]), I);               // Eq. 1
+    floatv ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);  // hue shift
+    rgbv_t J = {ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
                 ratio * b + grey * P->k_s[2]};
     return J;
 }
 
-// Columns c0 .. c0 + 3 of rows ra and rb of a map, mixed by ty's weights: a float4 a row.
-HOT float4 rows_mix4(__global const float *ra, __global const float *rb, lerp1_t ty, int c0) {
-    return ty.wa * LOAD4_G(ra + c0) + ty.wb * LOAD4_G(rb + c0);
+// The map columns a run of VEC pixels reads when they are less than a column apart: MAP_COLS
+// from its first (cell >= 4 at VEC 8, >= 3 at 16; 1280x720 has cell 4).
+#if VEC == 16
+#define MAP_COLS 8
+typedef float8 map_cols_t;
+#define LOAD_MAP_COLS(p) LOAD8_G(p)
+#else
+#define MAP_COLS 4
+typedef float4 map_cols_t;
+#define LOAD_MAP_COLS(p) LOAD4_G(p)
+#endif
+
+// Columns c0 .. c0 + MAP_COLS - 1 of rows ra and rb of a map, mixed by ty's weights.
+HOT map_cols_t rows_mix(__global const float *ra, __global const float *rb, lerp1_t ty,
+                        int c0) {
+    return ty.wa * LOAD_MAP_COLS(ra + c0) + ty.wb * LOAD_MAP_COLS(rb + c0);
 }
 
-// The 8 lanes' horizontal mix of 4 consecutive columns v, lane weights w0 .. w3.
-HOT float8 cols_mix8(float4 v, float8 w0, float8 w1, float8 w2, float8 w3) {
-    return w0 * v.s0 + w1 * v.s1 + w2 * v.s2 + w3 * v.s3;
+// The lanes' horizontal mix of those columns: lane weights w[k] for column c0 + k.
+HOT floatv cols_mixv(map_cols_t v, const floatv *w) {
+    floatv m = w[0] * v.s0 + w[1] * v.s1 + w[2] * v.s2 + w[3] * v.s3;
+#if MAP_COLS == 8
+    m += w[4] * v.s4 + w[5] * v.s5 + w[6] * v.s6 + w[7] * v.s7;
+#endif
+    return m;
 }
 
-inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
+inline rgbv_t composev(__constant const params_t *P, __global const float *G,
                        __global const float *rho_full, __global const float *maps,
                        __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
                        float gx, float gy, float eyes, __global const float *fovea, int x,
                        int y) {
-    rgb8_t J0 = base8(P, G, rho_full, A, W, H, eyes, x, y);
-    rgb8_t lms = mat8_mul(P->rgb2lms, J0.r, J0.g, J0.b);
+    rgbv_t J0 = basev(P, G, rho_full, A, W, H, eyes, x, y);
+    rgbv_t lms = matv_mul(P->rgb2lms, J0.r, J0.g, J0.b);
     // Afterimage maps at the retinal position of this pixel; off the grid: equilibrium.
-    float8 px = (float)x + 0.5f + LANE_F;
+    floatv px = (float)x + 0.5f + LANE_F;
     float py = y + 0.5f;
-    lerp8_t tx = lerp8_at(grid_w, (px - gx) / cell + 0.5f * grid_w, 0);
+    lerpv_t tx = lerpv_at(grid_w, (px - gx) / cell + 0.5f * grid_w, 0);
     lerp1_t ty = lerp1_at(grid_h, (py - gy) / cell + 0.5f * grid_h, 0);
     int gp = grid_w * grid_h;
-    float8 m0, m1, m2, m3, m4, m5;
-    int8 o = tx.x0 - tx.x0.s0;
+    floatv m0, m1, m2, m3, m4, m5;
+    intv o = tx.x0 - tx.x0.s0;
     int c0 = tx.x0.s0;
-    if (o.s7 <= 2 && c0 >= 0 && c0 + 3 < grid_w) {
-        // The 8 positions are less than a column apart (cell >= 4, or the fine end of it): at
-        // most 4 columns c0 .. c0 + 3 serve them. Their vertical mix is one float4 per map
-        // (ty's weights are the row's), then 4 broadcast FMAs; no arrays, no spills.
-        float8 w0 = o == 0 ? tx.wa : 0.0f;
-        float8 w1 = (o == 1 ? tx.wa : 0.0f) + (o == 0 ? tx.wb : 0.0f);
-        float8 w2 = (o == 2 ? tx.wa : 0.0f) + (o == 1 ? tx.wb : 0.0f);
-        float8 w3 = o == 2 ? tx.wb : 0.0f;
+    if (LAST(o) <= MAP_COLS - 2 && c0 >= 0 && c0 + MAP_COLS - 1 < grid_w) {
+        // The VEC positions are less than a column apart: columns c0 .. c0 + MAP_COLS - 1 serve
+        // them. Their vertical mix is one vector per map (ty's weights are the row's), then
+        // MAP_COLS broadcast FMAs.
+        floatv w[MAP_COLS];
+        for (int k = 0; k < MAP_COLS; ++k)
+            w[k] = (o == k ? tx.wa : 0.0f) + (o == k - 1 ? tx.wb : 0.0f);
         __global const float *ra = maps + ty.a * grid_w, *rb = maps + ty.b * grid_w;
-        float8 w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
-#define MIX4(c) cols_mix8(rows_mix4(ra + (c) * gp, rb + (c) * gp, ty, c0), w0, w1, w2, w3)
-        m0 = MIX4(0) + w_out;
-        m1 = MIX4(1) + w_out;
-        m2 = MIX4(2) + w_out;
-        m3 = MIX4(3);
-        m4 = MIX4(4);
-        m5 = MIX4(5);
-#undef MIX4
+        floatv w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
+#define MIX(c) cols_mixv(rows_mix(ra + (c) * gp, rb + (c) * gp, ty, c0), w)
+        m0 = MIX(0) + w_out;
+        m1 = MIX(1) + w_out;
+        m2 = MIX(2) + w_out;
+        m3 = MIX(3);
+        m4 = MIX(4);
+        m5 = MIX(5);
+#undef MIX
     } else {
-        m0 = bilinear8_get(maps, grid_w, tx, ty, 1.0f);
-        m1 = bilinear8_get(maps + gp, grid_w, tx, ty, 1.0f);
-        m2 = bilinear8_get(maps + 2 * gp, grid_w, tx, ty, 1.0f);
-        m3 = bilinear8_get(maps + 3 * gp, grid_w, tx, ty, 0.0f);
-        m4 = bilinear8_get(maps + 4 * gp, grid_w, tx, ty, 0.0f);
-        m5 = bilinear8_get(maps + 5 * gp, grid_w, tx, ty, 0.0f);
+        m0 = bilinearv_get(maps, grid_w, tx, ty, 1.0f);
+        m1 = bilinearv_get(maps + gp, grid_w, tx, ty, 1.0f);
+        m2 = bilinearv_get(maps + 2 * gp, grid_w, tx, ty, 1.0f);
+        m3 = bilinearv_get(maps + 3 * gp, grid_w, tx, ty, 0.0f);
+        m4 = bilinearv_get(maps + 4 * gp, grid_w, tx, ty, 0.0f);
+        m5 = bilinearv_get(maps + 5 * gp, grid_w, tx, ty, 0.0f);
     }
-    float8 f = load8_row(fovea, x, W) * fovea[W + y];  // foveal fall-off, separable
+    floatv f = loadv_row(fovea, x, W) * fovea[W + y];  // foveal fall-off, separable
     lms.r *= 1.0f + f * (m0 - 1.0f);  // Eq. 12, alpha^j2 R
     lms.g *= 1.0f + f * (m1 - 1.0f);
     lms.b *= 1.0f + f * (m2 - 1.0f);
-    rgb8_t J = mat8_mul(P->lms2rgb, lms.r, lms.g, lms.b);
+    rgbv_t J = matv_mul(P->lms2rgb, lms.r, lms.g, lms.b);
     J.r += f * m3;  // additive afterimage, linear RGB (Eq. 12: H times the bleaching term)
     J.g += f * m4;
     J.b += f * m5;
     // Gamut (reference.gamut_map): toward the grey of luminance min(Y, Y_c), Y_c that of the
     // hue's cusp, just far enough to fit; bright colours trade luminance for saturation. Where
-    // all 8 pixels are inside the cube already (t = 1: the usual case), nothing moves.
-    int8 inside = J.r >= 0.0f && J.r <= 1.0f && J.g >= 0.0f && J.g <= 1.0f && J.b >= 0.0f &&
+    // all VEC pixels are inside the cube already (t = 1: the usual case), nothing moves.
+    intv inside = J.r >= 0.0f && J.r <= 1.0f && J.g >= 0.0f && J.g <= 1.0f && J.b >= 0.0f &&
                   J.b <= 1.0f;
-    if (any8(~inside)) {
-        float8 Y = dot8(P->w_P, J.r, J.g, J.b);
-        float8 dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
-        float8 d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
-        float8 a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
-        float8 er = J.r - a, eg = J.g - a, eb = J.b - a;
-        float8 t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (float8)(1.0f)))), 0.0f);
+    if (anyv(~inside)) {
+        floatv Y = dotv(P->w_P, J.r, J.g, J.b);
+        floatv dr = J.r - Y, dg = J.g - Y, db = J.b - Y;
+        floatv d_min = MIN(MIN(dr, dg), db), spread = MAX(MAX(dr, dg), db) - d_min;
+        floatv a = MIN(CLAMP(Y, 0.0f, 1.0f), CLAMP(-d_min / MAX(spread, FLT_MIN), 0.0f, 1.0f));
+        floatv er = J.r - a, eg = J.g - a, eb = J.b - a;
+        floatv t = MAX(gamut_t(a, eb, gamut_t(a, eg, gamut_t(a, er, (floatv)(1.0f)))), 0.0f);
         J.r = inside ? J.r : CLAMP(a + t * er, 0.0f, 1.0f);
         J.g = inside ? J.g : CLAMP(a + t * eg, 0.0f, 1.0f);
         J.b = inside ? J.b : CLAMP(a + t * eb, 0.0f, 1.0f);
     }
-    rgb8_t out;
-    out.r = pow8_unit(J.r, P->gamma);
-    out.g = pow8_unit(J.g, P->gamma);
-    out.b = pow8_unit(J.b, P->gamma);
+    rgbv_t out;
+    out.r = powv_unit(J.r, P->gamma);
+    out.g = powv_unit(J.g, P->gamma);
+    out.b = powv_unit(J.b, P->gamma);
     return out;
+}
+
+// 8 pixels of planar r, g, b: a half of an rgbv_t at VEC 16, all of it at VEC 8.
+typedef struct {
+    float8 r, g, b;
+} rgb8_t;
+
+HOT rgb8_t rgb_half(rgbv_t c, int h) {
+#if VEC == 16
+    rgb8_t o = {h ? c.r.hi : c.r.lo, h ? c.g.hi : c.g.lo, h ? c.b.hi : c.b.lo};
+#else
+    rgb8_t o = {c.r, c.g, c.b};
+#endif
+    return o;
 }
 
 // Interleave 8 pixels of planar r, g, b into rgbrgb... as three float8.
@@ -116,6 +146,37 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
     float8 o##0 = (float8)(c.r.s0, c.g.s0, c.b.s0, c.r.s1, c.g.s1, c.b.s1, c.r.s2, c.g.s2); \
     float8 o##1 = (float8)(c.b.s2, c.r.s3, c.g.s3, c.b.s3, c.r.s4, c.g.s4, c.b.s4, c.r.s5); \
     float8 o##2 = (float8)(c.g.s5, c.b.s5, c.r.s6, c.g.s6, c.b.s6, c.r.s7, c.g.s7, c.b.s7);
+
+// The first n (<= 8) of 8 pixels, interleaved, at o.
+HOT void store_rgb8(__global float *o, rgb8_t c, int n) {
+    INTERLEAVE(q, c)
+    if (n >= 8) {
+        STORE8_G(o, q0);
+        STORE8_G(o + 8, q1);
+        STORE8_G(o + 16, q2);
+        return;
+    }
+    n *= 3;
+    store8_part(o, q0, MIN(n, 8));
+    if (n > 8) store8_part(o + 8, q1, MIN(n - 8, 8));
+    if (n > 16) store8_part(o + 16, q2, n - 16);
+}
+
+// The same as IEEE half floats (round to nearest even).
+HOT void store_half_rgb8(__global half *o, rgb8_t c, int n) {
+    INTERLEAVE(q, c)
+    if (n >= 8) {
+        vstore_half8_rte(q0, 0, o);
+        vstore_half8_rte(q1, 0, o + 8);
+        vstore_half8_rte(q2, 0, o + 16);
+        return;
+    }
+    float tmp[24];
+    vstore8(q0, 0, tmp);
+    vstore8(q1, 0, tmp + 8);
+    vstore8(q2, 0, tmp + 16);
+    for (int i = 0; i < 3 * n; ++i) vstore_half_rte(tmp[i], i, o);
+}
 
 #define COMPOSE_ARGS                                                                             \
     __constant const params_t *P, __global const float *G, __global const float *rho_full,      \
@@ -128,61 +189,40 @@ inline rgb8_t compose8(__constant const params_t *P, __global const float *G,
 __kernel void compose(COMPOSE_ARGS, __global float *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    rgb8_t c = compose8(COMPOSE_CALL, x, y);
+    rgbv_t c = composev(COMPOSE_CALL, x, y);
     __global float *o = v + 3 * ((size_t)y * W + x);
-    if (x + VEC <= W) {
-        INTERLEAVE(q, c)
-        STORE8_G(o, q0);
-        STORE8_G(o + 8, q1);
-        STORE8_G(o + 16, q2);
-        return;
-    }
-    INTERLEAVE(q, c)
-    int n = 3 * (W - x);
-    store8_part(o, q0, MIN(n, 8));
-    if (n > 8) store8_part(o + 8, q1, MIN(n - 8, 8));
-    if (n > 16) store8_part(o + 16, q2, n - 16);
+    for (int h = 0; h < VEC / 8 && x + 8 * h < W; ++h)
+        store_rgb8(o + 24 * h, rgb_half(c, h), W - x - 8 * h);
 }
 
-// 8 pixels' RGB interleaved as IEEE half floats (round to nearest even) at pixel (x, y).
-HOT void store_half_rgb8(__global half *v, rgb8_t c, int W, int x, int y) {
+// VEC pixels' RGB interleaved as half floats at pixel (x, y).
+HOT void store_half_rgbv(__global half *v, rgbv_t c, int W, int x, int y) {
     __global half *o = v + 3 * ((size_t)y * W + x);
-    if (x + VEC <= W) {
-        INTERLEAVE(q, c)
-        vstore_half8_rte(q0, 0, o);
-        vstore_half8_rte(q1, 0, o + 8);
-        vstore_half8_rte(q2, 0, o + 16);
-        return;
-    }
-    INTERLEAVE(q, c)
-    float tmp[24];
-    vstore8(q0, 0, tmp);
-    vstore8(q1, 0, tmp + 8);
-    vstore8(q2, 0, tmp + 16);
-    for (int i = 0; i < 3 * (W - x); ++i) vstore_half_rte(tmp[i], i, o);
+    for (int h = 0; h < VEC / 8 && x + 8 * h < W; ++h)
+        store_half_rgb8(o + 24 * h, rgb_half(c, h), W - x - 8 * h);
 }
 
 // compose as half floats, for frames sent as float16.
 __kernel void compose_half(COMPOSE_ARGS, __global half *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    store_half_rgb8(v, compose8(COMPOSE_CALL, x, y), W, x, y);
+    store_half_rgbv(v, composev(COMPOSE_CALL, x, y), W, x, y);
 }
 
 #define HALF_MAX 65504.0f  // the largest finite half float
 
-// The late gaze warp's base layer: base8's linear RGB as H×W×3 interleaved half floats. The viewer
+// The late gaze warp's base layer: basev's linear RGB as H×W×3 interleaved half floats. The viewer
 // applies Eq. 12, gamut and gamma at the newest gaze (web/warp.js; reference.apply_afterimages).
 __kernel void compose_base(__constant const params_t *P, __global const float *G,
                            __global const float *rho_full, __global const float *A, int W,
                            int H, float eyes, __global half *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    rgb8_t J = base8(P, G, rho_full, A, W, H, eyes, x, y);
+    rgbv_t J = basev(P, G, rho_full, A, W, H, eyes, x, y);
     J.r = MIN(J.r, HALF_MAX);  // J >= 0; a half float never Inf
     J.g = MIN(J.g, HALF_MAX);
     J.b = MIN(J.b, HALF_MAX);
-    store_half_rgb8(v, J, W, x, y);
+    store_half_rgbv(v, J, W, x, y);
 }
 
 // The same packed as WebGL2's RGB10_A2 takes it: round(1023 v) per channel (to nearest even),
@@ -190,16 +230,17 @@ __kernel void compose_base(__constant const params_t *P, __global const float *G
 __kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    rgb8_t c = compose8(COMPOSE_CALL, x, y);
-    uint8 q = convert_uint8_rte(c.r * 1023.0f) | (convert_uint8_rte(c.g * 1023.0f) << 10)
-              | (convert_uint8_rte(c.b * 1023.0f) << 20);
+    rgbv_t c = composev(COMPOSE_CALL, x, y);
+#define TO_10BIT(v) CAT(CAT(convert_uint, VEC), _rte)((v) * 1023.0f)
+    uintv q = TO_10BIT(c.r) | (TO_10BIT(c.g) << 10) | (TO_10BIT(c.b) << 20);
+#undef TO_10BIT
     __global uint *o = v + (size_t)y * W + x;
     if (x + VEC <= W) {
-        STORE8_UI(o, q);
+        STOREV_UI(o, q);
         return;
     }
-    uint tmp[8];
-    vstore8(q, 0, tmp);
+    uint tmp[VEC];
+    STOREV_PRIVATE(q, tmp);
     for (int i = 0; i < W - x; ++i) o[i] = tmp[i];
 }
 

@@ -5,7 +5,7 @@
 // The rod-free fovea in scotopic light: G filled in with `fill` (reference.fill_map: L, M, S,
 // here to RGB) by w = w_xy[x] w_xy[W + y] (1 - rho_c), a separable Gaussian around the gaze
 // that the host scales by the strength the tracker allows (layout.blind_spot_strength).
-// Global size (ceil(W / 8), H).
+// Global size (ceil(W / VEC), H).
 __kernel void foveal_blind_spot(__constant const params_t *P, __global float *G,
                                 __global const float *rho_full, __global const float *fill,
                                 __global const float *w_xy, int W, int H, int cell, int low_w,
@@ -13,20 +13,20 @@ __kernel void foveal_blind_spot(__constant const params_t *P, __global float *G,
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
     size_t row = (size_t)y * W, plane = (size_t)W * H;
-    float8 rc = CLAMP(load8_row(rho_full + row, x, W), 0.0f, 1.0f);
-    float8 w = load8_row(w_xy, x, W) * w_xy[W + y] * (1.0f - rc);
-    lerp8_t tx = lerp8_at(low_w, ((float)x + 0.5f + LANE_F) / cell, 1);
+    floatv rc = CLAMP(loadv_row(rho_full + row, x, W), 0.0f, 1.0f);
+    floatv w = loadv_row(w_xy, x, W) * w_xy[W + y] * (1.0f - rc);
+    lerpv_t tx = lerpv_at(low_w, ((float)x + 0.5f + LANE_F) / cell, 1);
     lerp1_t ty = lerp1_at(low_h, (y + 0.5f) / cell, 1);
     int lp = low_w * low_h;
-    rgb8_t rgb = mat8_mul(P->lms2rgb, bilinear8_get(fill, low_w, tx, ty, 0.0f),
-                          bilinear8_get(fill + lp, low_w, tx, ty, 0.0f),
-                          bilinear8_get(fill + 2 * lp, low_w, tx, ty, 0.0f));
-    float8 f[3] = {rgb.r, rgb.g, rgb.b};
+    rgbv_t rgb = matv_mul(P->lms2rgb, bilinearv_get(fill, low_w, tx, ty, 0.0f),
+                          bilinearv_get(fill + lp, low_w, tx, ty, 0.0f),
+                          bilinearv_get(fill + 2 * lp, low_w, tx, ty, 0.0f));
+    floatv f[3] = {rgb.r, rgb.g, rgb.b};
     for (int c = 0; c < 3; ++c) {
         __global float *g = G + c * plane + row + x;
-        float8 v = load8_row(G + c * plane + row, x, W);
+        floatv v = loadv_row(G + c * plane + row, x, W);
         v += w * (f[c] - v);
-        if (x + VEC <= W) STORE8_G(g, v);
-        else store8_part(g, v, W - x);
+        if (x + VEC <= W) STOREV_G(g, v);
+        else storev_part(g, v, W - x);
     }
 }
