@@ -66,12 +66,18 @@ def magnitude(name: str, ref: np.ndarray) -> np.ndarray:
     return np.concatenate([np.abs(ref[:3]), np.broadcast_to(add, ref[3:].shape)])
 
 
-@pytest.fixture(params=VECTOR_WIDTHS, ids=lambda v: f"vec{v}")
+BUILDS = [(vec, False) for vec in VECTOR_WIDTHS] + [(8, True)]
+
+
+@pytest.fixture(params=BUILDS, ids=lambda b: f"vec{b[0]}" + ("-portable" if b[1] else ""))
 def vec(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> int:
     """Each width the kernels build for (pixels a work-item, opencl.vector_width), whatever
-    this machine's own: 16 where PoCL builds for AVX-512, 8 on GPUs and other CPUs."""
-    monkeypatch.setenv("GAZEHDR_VEC", str(request.param))
-    return request.param
+    this machine's own: 16 where PoCL builds for AVX-512, 8 on GPUs and other CPUs; and 8 as
+    GPUs build them (GAZEHDR_CL_PORTABLE: the builtins in place of PoCL's x86 ones)."""
+    width, portable = request.param
+    monkeypatch.setenv("GAZEHDR_VEC", str(width))
+    monkeypatch.setenv("GAZEHDR_CL_PORTABLE", "1" if portable else "")
+    return width
 
 
 def compare_all(ref: ReferenceBackend, cl: OpenCLBackend) -> None:

@@ -111,13 +111,12 @@ def build_program(files: tuple[str, ...], vec: int | None = None) -> cl.Program:
     run. The parameter block `params_t` comes first, generated from `Params`
     (kernel_params.py)."""
     with _ONCE:
-        return _build_program(files, vec or vector_width())
+        return _build_program(files, tuple(build_options(shared_context(), vec)))
 
 
 @cache
-def _build_program(files: tuple[str, ...], vec: int) -> cl.Program:
-    ctx = shared_context()
-    return cl.Program(ctx, kernel_source(files)).build(options=build_options(ctx, vec))
+def _build_program(files: tuple[str, ...], options: tuple[str, ...]) -> cl.Program:
+    return cl.Program(shared_context(), kernel_source(files)).build(options=list(options))
 
 
 def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
@@ -133,9 +132,11 @@ def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
 
 def build_options(ctx: cl.Context, vec: int | None = None) -> list[str]:
     """The compiler options of every program of the kernels, for `vec` pixels per work-item
-    (vector_width() when None)."""
+    (vector_width() when None). GAZEHDR_CL_PORTABLE=1 builds them on PoCL as other OpenCL
+    implementations (GPUs) do, with the builtins in place of PoCL's clang and x86 ones: slow,
+    for the tests of that code."""
     options = ["-cl-fast-relaxed-math", f"-DVEC={vec or vector_width()}"]
-    if _is_pocl(ctx):
+    if _is_pocl(ctx) and not os.environ.get("GAZEHDR_CL_PORTABLE"):
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
     return options
 

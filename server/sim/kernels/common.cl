@@ -85,9 +85,14 @@ typedef float4 float4_u __attribute__((aligned(4)));
 #if defined(GAZEHDR_POCL) && defined(__AVX__)
 #define X86_AVX 1
 typedef float __v8sf_t __attribute__((__vector_size__(32)));
+typedef int __v8si_t __attribute__((__vector_size__(32)));
+#if defined(__AVX2__)
+#define X86_AVX2 1
+#endif
 #if defined(__AVX512F__)
 #define X86_AVX512 1
 typedef float __v16sf_t __attribute__((__vector_size__(64)));
+typedef int __v16si_t __attribute__((__vector_size__(64)));
 #endif
 #endif
 #define MIN(a, b) ((a) < (b) ? (a) : (b))
@@ -174,6 +179,22 @@ HOT void storev_part(__global float *p, floatv v, int n) {
 #else
     store8_part(p, v.lo, MIN(n, 8));
     if (n > 8) store8_part(p + 8, v.hi, n - 8);
+#endif
+}
+
+// Lane i: v's lane idx_i (each in [0, VEC)). One vpermps where PoCL builds for AVX2 or AVX-512
+// (shuffle() is a library call under PoCL), shuffle() elsewhere.
+HOT floatv lanes_at(floatv v, intv idx) {
+#if VEC == 16 && defined(X86_AVX512)
+    return __builtin_astype(__builtin_ia32_permvarsf512(__builtin_astype(v, __v16sf_t),
+                                                        __builtin_astype(idx, __v16si_t)),
+                            floatv);
+#elif VEC == 8 && defined(X86_AVX2)
+    return __builtin_astype(__builtin_ia32_permvarsf256(__builtin_astype(v, __v8sf_t),
+                                                        __builtin_astype(idx, __v8si_t)),
+                            floatv);
+#else
+    return shuffle(v, CAT(as_uint, VEC)(idx));
 #endif
 }
 

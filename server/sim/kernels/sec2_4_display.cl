@@ -28,31 +28,13 @@ HOT rgbv_t basev(__constant const params_t *P, __global const float *G,
     return J;
 }
 
-// The map columns a run of VEC pixels reads when they are less than a column apart: MAP_COLS
-// from its first (cell >= 4 at VEC 8, >= 3 at 16; 1280x720 has cell 4).
-#if VEC == 16
-#define MAP_COLS 8
-typedef float8 map_cols_t;
-#define LOAD_MAP_COLS(p) LOAD8_G(p)
-#else
-#define MAP_COLS 4
-typedef float4 map_cols_t;
-#define LOAD_MAP_COLS(p) LOAD4_G(p)
-#endif
-
-// Columns c0 .. c0 + MAP_COLS - 1 of rows ra and rb of a map, mixed by ty's weights.
-HOT map_cols_t rows_mix(__global const float *ra, __global const float *rb, lerp1_t ty,
-                        int c0) {
-    return ty.wa * LOAD_MAP_COLS(ra + c0) + ty.wb * LOAD_MAP_COLS(rb + c0);
-}
-
-// The lanes' horizontal mix of those columns: lane weights w[k] for column c0 + k.
-HOT floatv cols_mixv(map_cols_t v, const floatv *w) {
-    floatv m = w[0] * v.s0 + w[1] * v.s1 + w[2] * v.s2 + w[3] * v.s3;
-#if MAP_COLS == 8
-    m += w[4] * v.s4 + w[5] * v.s5 + w[6] * v.s6 + w[7] * v.s7;
-#endif
-    return m;
+// A map's value at the VEC lanes' positions from columns c0 .. c0 + VEC - 1 of rows ra and rb,
+// when the lanes are less than a column apart (o: each lane's first column, from c0): the two
+// rows mixed by ty's weights as one vector, then each lane takes its two columns of it.
+HOT floatv map_at(__global const float *ra, __global const float *rb, int c0, lerp1_t ty,
+                  intv o, lerpv_t tx) {
+    floatv cols = ty.wa * LOADV_G(ra + c0) + ty.wb * LOADV_G(rb + c0);
+    return tx.wa * lanes_at(cols, o) + tx.wb * lanes_at(cols, o + 1);
 }
 
 inline rgbv_t composev(__constant const params_t *P, __global const float *G,
@@ -71,16 +53,13 @@ inline rgbv_t composev(__constant const params_t *P, __global const float *G,
     floatv m0, m1, m2, m3, m4, m5;
     intv o = tx.x0 - tx.x0.s0;
     int c0 = tx.x0.s0;
-    if (LAST(o) <= MAP_COLS - 2 && c0 >= 0 && c0 + MAP_COLS - 1 < grid_w) {
-        // The VEC positions are less than a column apart: columns c0 .. c0 + MAP_COLS - 1 serve
-        // them. Their vertical mix is one vector per map (ty's weights are the row's), then
-        // MAP_COLS broadcast FMAs.
-        floatv w[MAP_COLS];
-        for (int k = 0; k < MAP_COLS; ++k)
-            w[k] = (o == k ? tx.wa : 0.0f) + (o == k - 1 ? tx.wb : 0.0f);
+    if (LAST(o) <= VEC - 2 && c0 >= 0 && c0 + VEC - 1 < grid_w) {
+        // The VEC positions are less than a column apart (cell >= 2 at VEC 16; 1280x720 has
+        // cell 4): columns c0 .. c0 + VEC - 1 serve them. 0.8× the time of compose_rgb10 with
+        // a broadcast FMA per column at VEC 16 (docs/cli.md, seventh pass).
         __global const float *ra = maps + ty.a * grid_w, *rb = maps + ty.b * grid_w;
         floatv w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
-#define MIX(c) cols_mixv(rows_mix(ra + (c) * gp, rb + (c) * gp, ty, c0), w)
+#define MIX(c) map_at(ra + (c) * gp, rb + (c) * gp, c0, ty, o, tx)
         m0 = MIX(0) + w_out;
         m1 = MIX(1) + w_out;
         m2 = MIX(2) + w_out;
