@@ -3,10 +3,12 @@ start, checked by events and orderings, never by the clock."""
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 from sessions import new_session
 
-from gazehdr.live import MAX_PENDING_CONTROLS, WINDOW, LiveSession, Viewer
+from gazehdr.live import MAX_PENDING_CONTROLS, WINDOW, LiveSession, Viewer, next_due
 from gazehdr.metrics import Metrics
 from gazehdr.protocol import Gaze, ProtocolError, Reset
 from gazehdr.session import SessionSettings
@@ -76,3 +78,38 @@ def test_the_next_step_may_start_while_a_waiting_viewer_takes_the_last_frame() -
     viewer.taking = False
     viewer.sent, viewer.acks = WINDOW, 0
     assert not viewer.wants_frame()  # out of credit, whatever its task does
+
+
+def _paced_starts(step_seconds: list[float], interval: float) -> list[float]:
+    """When steps of these durations start under the loop's pacing (LiveSession._run)."""
+    now = due = 0.0
+    starts = []
+    for took in step_seconds:
+        now = max(now, due)  # sleeps until due, or starts at once when late
+        starts.append(now)
+        now += took
+        due = next_due(due, interval, now)
+    return starts
+
+
+def test_pacing_makes_up_a_late_step_so_the_rate_holds_its_setting() -> None:
+    """Steps alternately slower and faster than the interval (21 and 12 ms at 60 fps, as on
+    the 2-core machines): on a fixed cadence the average interval is the setting's (paced from
+    each step's own start, it was (21 + 16.7) / 2 ms); a step never starts before the last
+    one ended."""
+    interval, took = 1 / 60, [0.021, 0.012] * 50
+    starts = _paced_starts(took, interval)
+    late = max(took) - interval  # the last start may be late by a slow step's overrun
+    mean = (starts[-1] - starts[0]) / (len(starts) - 1)
+    assert interval <= mean <= interval + late / (len(starts) - 1)
+    assert all(b >= a + t for (a, b), t in zip(itertools.pairwise(starts), took, strict=False))
+
+
+def test_pacing_never_runs_faster_than_the_setting_or_bursts_after_a_stall() -> None:
+    interval = 1 / 60
+    starts = _paced_starts([0.001] * 20, interval)  # fast steps: one per interval, no faster
+    assert min(b - a for a, b in itertools.pairwise(starts)) == pytest.approx(interval)
+    # a 0.5 s stall, then fast steps: at most one step made up at once, then the cadence
+    gaps = [b - a for a, b in itertools.pairwise(_paced_starts([0.5] + [0.001] * 10, interval))]
+    assert sum(g < interval / 2 for g in gaps) <= 1
+    assert gaps[-1] == pytest.approx(interval)
