@@ -102,6 +102,7 @@ class Encoder:
         params = f"lp={threads}:pred-struct=1:rtc=1"
         c.options = {"preset": str(preset), "crf": str(crf), "svtav1-params": params}
         self._codec = c
+        self._threads_checked = False
         self._pts = 0
         self._av = av
         self._convert: tuple[np.dtype, Any] | None = None
@@ -132,6 +133,9 @@ class Encoder:
         if key:
             f.pict_type = self._av.video.frame.PictureType.I
         packets = self._codec.encode(f)
+        if not self._threads_checked:  # SVT-AV1 makes its threads on the first frame
+            no_realtime_threads()
+            self._threads_checked = True
         if len(packets) != 1:  # low delay gives exactly one; anything else breaks the stream
             raise RuntimeError(f"the AV1 encoder gave {len(packets)} packets for one frame")
         return Packet(bytes(packets[0]), packets[0].is_keyframe)
@@ -142,6 +146,24 @@ class Encoder:
             with contextlib.suppress(self._av.FFmpegError):
                 self._codec.encode(None)
             self._codec = None
+
+
+def no_realtime_threads() -> int:
+    """Put this process's realtime threads back to normal scheduling; how many there were.
+
+    Run as root (a container, CI), SVT-AV1 makes the thread that starts an encoder, and every
+    thread it makes, SCHED_FIFO at priority 99; what that thread starts later inherits it. On
+    a 2-core machine two such threads that spin (a Chromium renderer waiting on its GPU
+    process, started from there) shut every other process out, the kernel threads apart: the
+    whole machine hangs. Nothing here wants realtime scheduling."""
+    changed = 0
+    for task in os.listdir("/proc/self/task"):
+        tid = int(task)
+        with contextlib.suppress(OSError):  # a thread that ended meanwhile
+            if os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR):
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                changed += 1
+    return changed
 
 
 class Decoder:

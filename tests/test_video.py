@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import time
 
 import numpy as np
@@ -146,6 +147,27 @@ def test_the_round_trip_error_on_simulated_frames_is_bounded() -> None:
         assert rgb.mean() <= 4, (k, rgb.mean())
     # Far below the raw frame's 4 bytes per pixel, the deltas far below the keyframe.
     assert sizes[0] < W * H * 4 / 20 and max(sizes[1:]) < sizes[0], sizes
+
+
+def _realtime_threads() -> list[int]:
+    policies = {int(t): os.sched_getscheduler(int(t)) for t in os.listdir("/proc/self/task")}
+    return [t for t, p in policies.items() if p in (os.SCHED_FIFO, os.SCHED_RR)]
+
+
+def test_no_thread_is_left_realtime_by_the_encoder() -> None:
+    """SVT-AV1, run as root (CI, containers), makes the calling thread and its own SCHED_FIFO
+    99; a Chromium started from that thread then inherited it and, spinning, hung the 2-core
+    machine. Encoding here, on the test's own thread, leaves no thread realtime."""
+    assert _realtime_threads() == []
+    encoder = Encoder((W, H), 30)
+    try:
+        for k in range(3):
+            encoder.encode(dark_ramp(), key=k == 0)
+            assert _realtime_threads() == []
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER
+    finally:
+        encoder.close()
+    assert _realtime_threads() == []
 
 
 def test_a_corrupt_packet_is_refused_and_a_keyframe_recovers() -> None:
