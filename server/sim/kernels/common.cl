@@ -198,40 +198,25 @@ HOT floatv lanes_at(floatv v, intv idx) {
 #endif
 }
 
-// Whether any lane of a comparison is true (any() is a library call under PoCL, see above).
-HOT int anyv(intv m) {
+// A vector's lanes folded by OP: the smallest, the largest, whether any is set (min(), max()
+// and any() of a vector are library calls under PoCL, see above).
 #if VEC == 8
-    int8 a = m;
+#define HALVES_FOLDED(OP, v) (v)
 #else
-    int8 a = m.lo | m.hi;
+#define HALVES_FOLDED(OP, v) OP((v).lo, (v).hi)
 #endif
-    int4 b = a.lo | a.hi;
-    int2 c = b.lo | b.hi;
-    return (c.x | c.y) != 0;
-}
-
-// The smallest and the largest lane (min() and max() of a vector are library calls too).
-HOT int min_lane(intv v) {
-#if VEC == 8
-    int8 a = v;
-#else
-    int8 a = MIN(v.lo, v.hi);
-#endif
-    int4 b = MIN(a.lo, a.hi);
-    int2 c = MIN(b.lo, b.hi);
-    return MIN(c.x, c.y);
-}
-
-HOT int max_lane(intv v) {
-#if VEC == 8
-    int8 a = v;
-#else
-    int8 a = MAX(v.lo, v.hi);
-#endif
-    int4 b = MAX(a.lo, a.hi);
-    int2 c = MAX(b.lo, b.hi);
-    return MAX(c.x, c.y);
-}
+#define OR(a, b) ((a) | (b))
+#define LANES_FOLDED(name, OP)             \
+    HOT int name(intv v) {                 \
+        int8 a = HALVES_FOLDED(OP, v);     \
+        int4 b = OP(a.lo, a.hi);           \
+        int2 c = OP(b.lo, b.hi);           \
+        return OP(c.x, c.y);               \
+    }
+LANES_FOLDED(min_lane, MIN)
+LANES_FOLDED(max_lane, MAX)
+LANES_FOLDED(or_lanes, OR)
+HOT int anyv(intv m) { return or_lanes(m) != 0; }  // any lane of a comparison true
 
 // Lanes 0 .. n-1 of v to private memory and back, at the end of a row (tails only: vload and
 // vstore are library calls under PoCL).
