@@ -156,8 +156,11 @@ def no_realtime_threads() -> int:
     a 2-core machine two such threads that spin (a Chromium renderer waiting on its GPU
     process, started from there) shut every other process out, the kernel threads apart: the
     whole machine hangs. Nothing here wants realtime scheduling."""
+    tasks = "/proc/self/task"
+    if not hasattr(os, "sched_setscheduler") or not os.path.isdir(tasks):
+        return 0  # not Linux: nothing to undo
     changed = 0
-    for task in os.listdir("/proc/self/task"):
+    for task in os.listdir(tasks):
         tid = int(task)
         with contextlib.suppress(OSError):  # a thread that ended meanwhile
             if os.sched_getscheduler(tid) in (os.SCHED_FIFO, os.SCHED_RR):
