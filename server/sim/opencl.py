@@ -14,7 +14,9 @@ Written for speed on PoCL (see kernels/common.cl):
 - rho at every pixel is kept from the last scene load.
 
 Past 600 lines because every stage's launches share the backend's buffers and their
-bookkeeping (which maps are made, which uploads are in flight); the parts that stand alone
+bookkeeping (which maps are made, which uploads are in flight), and the program's build (its
+options, the width it is built for) is kept beside them because the program cache keys on
+it and every launch's global size follows the width; the parts that stand alone
 live apart: the parameter block (kernel_params.py), the acuity levels (level_stack.py), PoCL's
 CPU name (pocl_cpu.py).
 """
@@ -150,8 +152,8 @@ VECTOR_WIDTHS = (8, 16)
 
 def vector_width() -> int:
     """Pixels per work-item of the per-pixel kernels and blurs (VEC in kernels/common.cl):
-    GAZEHDR_VEC if set, else 16 where PoCL builds for AVX-512 (one float16 register; 0.6-0.7×
-    the time of float8 there), else 8. GPUs take 8 (a float8 per thread)."""
+    GAZEHDR_VEC if set, else 16 where PoCL builds for AVX-512 (one float16 register: the live
+    step 0.78× as long as with 8 at 1280x720), else 8. GPUs take 8 (a float8 per thread)."""
     wanted = os.environ.get("GAZEHDR_VEC", "").strip()
     if not wanted:
         return _native_width()
@@ -500,7 +502,7 @@ class OpenCLBackend:
 
     def _map_cells(self, gaze, window: Window, made: Window = NO_CELLS) -> None:
         """The maps of the cells of `window` (j0, i0, j1, i1), inclusive, except those of `made`,
-        in runs of 8 cells (a run may reach past the window's sides; one inside `made` stays)."""
+        in runs of VEC cells (a run may reach past the window's sides; one inside `made` stays)."""
         b = self.buf
         self.k["afterimage_maps"](
             self.queue, self._grid_v(), None, self.P, b["down"], b["surround"], b["state"],

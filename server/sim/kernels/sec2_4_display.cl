@@ -166,28 +166,27 @@ HOT void store_half_rgb8(__global half *o, rgb8_t c, int n) {
 
 #define COMPOSE_CALL P, G, rho_full, maps, A, W, H, cell, grid_w, grid_h, gx, gy, eyes, fovea
 
+// The VEC pixels of c at pixel (x, y) of an H×W×3 interleaved image v, 8 at a time by STORE8
+// (store_rgb8 or store_half_rgb8), the row's end cut off.
+#define STORE_RGBV(STORE8, v, c, W, x, y)                                       \
+    for (int h = 0; h < VEC / 8 && (x) + 8 * h < (W); ++h)                      \
+        STORE8((v) + 3 * ((size_t)(y) * (W) + (x)) + 24 * h, rgb_half(c, h), \
+               (W) - (x) - 8 * h)
+
 // v: H×W×3 float32, interleaved.
 __kernel void compose(COMPOSE_ARGS, __global float *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
     rgbv_t c = composev(COMPOSE_CALL, x, y);
-    __global float *o = v + 3 * ((size_t)y * W + x);
-    for (int h = 0; h < VEC / 8 && x + 8 * h < W; ++h)
-        store_rgb8(o + 24 * h, rgb_half(c, h), W - x - 8 * h);
-}
-
-// VEC pixels' RGB interleaved as half floats at pixel (x, y).
-HOT void store_half_rgbv(__global half *v, rgbv_t c, int W, int x, int y) {
-    __global half *o = v + 3 * ((size_t)y * W + x);
-    for (int h = 0; h < VEC / 8 && x + 8 * h < W; ++h)
-        store_half_rgb8(o + 24 * h, rgb_half(c, h), W - x - 8 * h);
+    STORE_RGBV(store_rgb8, v, c, W, x, y);
 }
 
 // compose as half floats, for frames sent as float16.
 __kernel void compose_half(COMPOSE_ARGS, __global half *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
-    store_half_rgbv(v, composev(COMPOSE_CALL, x, y), W, x, y);
+    rgbv_t c = composev(COMPOSE_CALL, x, y);
+    STORE_RGBV(store_half_rgb8, v, c, W, x, y);
 }
 
 #define HALF_MAX 65504.0f  // the largest finite half float
@@ -203,7 +202,7 @@ __kernel void compose_base(__constant const params_t *P, __global const float *G
     J.r = MIN(J.r, HALF_MAX);  // J >= 0; a half float never Inf
     J.g = MIN(J.g, HALF_MAX);
     J.b = MIN(J.b, HALF_MAX);
-    store_half_rgbv(v, J, W, x, y);
+    STORE_RGBV(store_half_rgb8, v, J, W, x, y);
 }
 
 // The same packed as WebGL2's RGB10_A2 takes it: round(1023 v) per channel (to nearest even),
