@@ -370,3 +370,30 @@ print(len({id(c) for c, _ in got}), len({id(p) for _, p in got}))
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True
     ).stdout
     assert out.split() == ["1", "1"]
+
+
+def test_a_launch_starts_its_queue_at_once() -> None:
+    """A kernel launched through the backend is flushed to the device as it is enqueued (PoCL
+    otherwise lets a step's kernels wait until the host has enqueued all of them): a real
+    kernel on a real queue that counts its flushes."""
+    import pyopencl as cl
+
+    from gazehdr.sim.opencl import Launch, shared_context
+
+    class CountingQueue(cl.CommandQueue):
+        flushes = 0
+
+        def flush(self) -> None:
+            type(self).flushes += 1
+            super().flush()
+
+    ctx = shared_context()
+    queue = CountingQueue(ctx)
+    program = cl.Program(ctx, "__kernel void one(__global int *o) { o[get_global_id(0)] = 1; }")
+    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * 64)
+    event = Launch(cl.Kernel(program.build(), "one"))(queue, (64,), None, out)
+    assert CountingQueue.flushes == 1
+    event.wait()
+    got = np.zeros(64, np.int32)
+    cl.enqueue_copy(queue, got, out)
+    assert (got == 1).all()

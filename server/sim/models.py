@@ -35,6 +35,8 @@ from gazehdr.sim.params import Params
 if TYPE_CHECKING:  # annotations only: a reference simulator never loads pyopencl
     import pyopencl as cl
 
+    from gazehdr.sim.opencl import Launch
+
     Taps = tuple[cl.Buffer, int]  # normalised Gaussian taps on the device, and their radius
 
 Gaze = tuple[float, float]
@@ -102,9 +104,9 @@ class OpenCLStageBackend(StageBackend, Protocol):
     buf: dict[str, cl.Buffer]
     vec: int  # pixels per work-item of the per-pixel kernels (VEC in common.cl, 8 or 16)
 
-    def kernels(self, files: tuple[str, ...]) -> dict[str, cl.Kernel]:
-        """Own kernel objects (arguments are state) of the program built from `files` in
-        kernels/, once per process; common.cl first."""
+    def kernels(self, files: tuple[str, ...]) -> dict[str, Launch]:
+        """Own kernels (arguments are state) of the program built from `files` in kernels/,
+        once per process, common.cl first; each starts on the device as it is enqueued."""
         ...
 
     def taps_for(self, sigma: float) -> Taps:

@@ -29,6 +29,7 @@ import threading
 from functools import cache
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyopencl as cl
@@ -181,6 +182,24 @@ def _done(event: cl.Event) -> bool:
     return event.command_execution_status == cl.command_execution_status.COMPLETE
 
 
+class Launch:
+    """A kernel that the device starts on as soon as it is enqueued. PoCL runs nothing queued
+    before a flush or a blocking call, so a step's kernels used to wait until the host had
+    enqueued all of them (about 1 ms of Python at 1280x720, while the device idled); flushed
+    at each launch, bench-live at 1280x720 made 1.02-1.10x the frames (docs/cli.md, eighth
+    pass). Called as a `cl.Kernel`: `launch(queue, global_size, local_size, *args)`."""
+
+    __slots__ = ("kernel",)
+
+    def __init__(self, kernel: cl.Kernel) -> None:
+        self.kernel = kernel
+
+    def __call__(self, queue: cl.CommandQueue, *args: Any) -> cl.Event:
+        event = self.kernel(queue, *args)
+        queue.flush()
+        return event
+
+
 class OpenCLBackend:
     """Device buffers for every map of `Layout`; stage methods match ReferenceBackend's. What a
     baseline stage may use is declared by `models.OpenCLStageBackend`."""
@@ -279,11 +298,11 @@ class OpenCLBackend:
 
     # --- for stages (models.OpenCLStageBackend) -----------------------------------------------
 
-    def kernels(self, files: tuple[str, ...]) -> dict[str, cl.Kernel]:
+    def kernels(self, files: tuple[str, ...]) -> dict[str, Launch]:
         """Own kernel objects of the program of `files`: kernel arguments are state, so no two
         simulators (or stages) may share one."""
         prg = build_program(files, self.vec)
-        return {n: cl.Kernel(prg, n) for n in prg.kernel_names.split(";")}
+        return {n: Launch(cl.Kernel(prg, n)) for n in prg.kernel_names.split(";")}
 
     def taps_for(self, sigma: float) -> tuple[cl.Buffer, int]:
         """Taps on the device, cached by sigma. A live session's dt, and so its per-frame blur
