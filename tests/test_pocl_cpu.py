@@ -126,3 +126,35 @@ def test_kernels_are_16_wide_where_pocl_builds_for_avx512() -> None:
     assert done.returncode == 0, done.stderr
     flags = cpu_flags(Path("/proc/cpuinfo").read_text())
     assert int(done.stdout) == (16 if level_for_flags(flags) == "x86-64-v4" else 8)
+
+
+PINNED = textwrap.dedent(
+    """
+    import os
+    from gazehdr.sim import Simulator
+    Simulator(64, 36, backend="opencl", seed=0).step(1 / 60)
+    mine = os.sched_getaffinity(0)
+    cores = [os.sched_getaffinity(int(t)) for t in os.listdir("/proc/self/task")]
+    print(sorted(mine), sorted(min(c) for c in cores if len(c) == 1 and c < mine), sep="|")
+    """
+)
+
+
+@pytest.mark.parametrize(("setting", "pinned"), [(None, True), ("0", False)])
+def test_pocl_workers_are_pinned_one_to_a_core_unless_told(
+    setting: str | None, pinned: bool
+) -> None:
+    """The simulator's PoCL worker threads each keep a core of their own (pocl_cpu.
+    pin_pocl_workers); POCL_AFFINITY=0 from the user leaves them free. In a fresh process: PoCL
+    reads the setting once, when it sets up its devices."""
+    env = {k: v for k, v in os.environ.items() if k != "POCL_AFFINITY"}
+    if setting is not None:
+        env["POCL_AFFINITY"] = setting
+    env["GAZEHDR_CL_DEVICE"] = "pthr"
+    done = subprocess.run(
+        [sys.executable, "-c", PINNED], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    mine, workers = done.stdout.strip().split("|")
+    assert mine.count(",") >= 1, "pinning shows only where the process may use two cores or more"
+    assert workers == (mine if pinned else "[]")

@@ -48,7 +48,7 @@ from gazehdr.sim.layout import (
 )
 from gazehdr.sim.level_stack import LevelStack
 from gazehdr.sim.params import Params
-from gazehdr.sim.pocl_cpu import builds_for_avx512, name_cpu_for_pocl
+from gazehdr.sim.pocl_cpu import builds_for_avx512, name_cpu_for_pocl, pin_pocl_workers
 
 KERNEL_FILES = (
     "common.cl",
@@ -75,6 +75,7 @@ COMPOSE_OUTPUTS = {
 def pick_device() -> cl.Device:
     """GAZEHDR_CL_DEVICE if set, else the first GPU, else the first device of any kind."""
     name_cpu_for_pocl()  # before PoCL sets up its devices
+    pin_pocl_workers()
     devices = [d for platform in cl.get_platforms() for d in platform.get_devices()]
     if not devices:
         raise RuntimeError("no OpenCL device found; install pyopencl[pocl] for the CPU")

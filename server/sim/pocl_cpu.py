@@ -117,6 +117,16 @@ def _patch(target: int, name: str) -> None:
 
 
 @cache
+def pin_pocl_workers() -> None:
+    """Before PoCL sets up its devices: each of its worker threads on a core of its own
+    (POCL_AFFINITY=1), unless POCL_AFFINITY is set already. The live server's own threads
+    (sockets, the step's host side) preempt the workers; unpinned, the scheduler then moves
+    them between cores and they lose their caches. Measured with bench-live at 1280x720
+    (uncapped, socket client, runs in turn): 1.02-1.10x the frames pinned (docs/cli.md,
+    eighth pass). POCL_AFFINITY=0 leaves them unpinned."""
+    os.environ.setdefault("POCL_AFFINITY", "1")
+
+
 def name_cpu_for_pocl() -> str | None:
     """Before the first `cl.get_platforms()`: give PoCL a CPU name if it needs one.
 
