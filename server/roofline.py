@@ -116,9 +116,10 @@ def _io(name: str, a: tuple, gsize: tuple, lay, params, d_map) -> tuple[list, fl
         acc = [(0, "r", 1), (1, "r", 3 / 5), (2, "r", edge / low), (3, "r", 1), (4, "w", 1)]
         acc.append((5, "r", 1))
         return acc, grid * RETINA_UPDATE_FLOPS, grid * RETINA_UPDATE_TRANS
-    if name == "retina_blur":  # src, dst, taps, r, grid_w, grid_h: per cell, taps rows of taps
-        taps = 2 * int(a[3]) + 1
-        return [(0, "r", 1), (1, "w", 1), (2, "r", 1)], grid * 9 * 2 * (taps * taps + taps), 0
+    if name == "retina_blur":  # src, dst, taps, r, grid_w, grid_h, rows
+        taps = 2 * int(a[3]) + 1  # per cell: 3 taps along its row once, then 3 down; else taps
+        macs = 2 * taps if taps == 3 else taps * taps + taps  # rows of taps, then taps down
+        return [(0, "r", 1), (1, "w", 1), (2, "r", 1)], grid * 9 * 2 * macs, 0
     if name == "afterimage_maps":  # P, down, surround, state, maps, A, ..., window, made
         window, made = [int(v) for v in a[-8:-4]], [int(v) for v in a[-4:]]
         both = (*map(max, window[:2], made[:2]), *map(min, window[2:], made[2:]))

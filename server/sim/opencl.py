@@ -62,6 +62,11 @@ TAPS_CACHE = 32  # blur tap buffers kept per backend
 STATE_PLANES = 9  # retinal state planes allocated; an afterimage model uses up to this many
 ROW_GROUP = 64  # global sizes of per-pixel kernels are rounded up to this
 ADAPT_WG = 256
+#: Rows of the map blur a work-item makes (kernel retina_blur), each row's horizontal pass made
+#: once: the kernel 0.85-0.89x as long as with one row (three passes per row) within live steps
+#: at 1280x720 and 1920x1080, 0.44-0.70x run alone with its input in cache; 4 and 8 rows did
+#: best there, 12 and more less well balanced over the cores (2026-11-27, the 640x360 grid).
+BLUR_ROWS = 8
 ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: 16 multiple, <= 128)
 
 # compose's outputs: kernel, buffer, shape
@@ -456,9 +461,11 @@ class OpenCLBackend:
             )  # fmt: skip
             if blurred:
                 tbuf, r = self.taps_for(sigma)
+                gw, gh = self._grid_v()
                 self.k["retina_blur"](
-                    self.queue, (*self._grid_v(), 9), None, b["grid_a"], b["state"], tbuf,
-                    np.int32(r), np.int32(lay.grid_w), np.int32(lay.grid_h),
+                    self.queue, (gw, -(-gh // BLUR_ROWS), 9), None, b["grid_a"], b["state"],
+                    tbuf, np.int32(r), np.int32(lay.grid_w), np.int32(lay.grid_h),
+                    np.int32(BLUR_ROWS),
                 )  # fmt: skip
         # Maps only for the cells the screen shows at this gaze; the rest waits for get("maps")
         # or a compose at another gaze (_full_maps).
