@@ -189,11 +189,12 @@ def _done(event: cl.Event) -> bool:
 
 
 class Launch:
-    """A kernel that the device starts on as soon as it is enqueued. PoCL runs nothing queued
-    before a flush or a blocking call, so a step's kernels used to wait until the host had
-    enqueued all of them (about 1 ms of Python at 1280x720, while the device idled); flushed
-    at each launch, bench-live at 1280x720 made 1.02-1.10x the frames (docs/cli.md, eighth
-    pass). Called as a `cl.Kernel`: `launch(queue, global_size, local_size, *args)`."""
+    """A kernel that the device starts on as soon as it is enqueued. PoCL starts queued work at
+    a flush or a blocking call, else only a while later (0.6 ms for a lone kernel here): a
+    step's first kernels waited until the host had enqueued them all (about 1 ms of Python at
+    1280x720). Flushed at each launch, bench-live made 1.02-1.14x the frames at 1280x720 and
+    1.03-1.04x at 1920x1080 (docs/cli.md, eighth pass). Called as a `cl.Kernel` is:
+    `launch(queue, global_size, local_size, *args)`."""
 
     __slots__ = ("kernel",)
 

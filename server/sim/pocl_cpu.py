@@ -122,8 +122,8 @@ def pin_pocl_workers() -> None:
     (POCL_AFFINITY=1), unless POCL_AFFINITY is set already. The live server's own threads
     (sockets, the step's host side) preempt the workers; unpinned, the scheduler then moves
     them between cores and they lose their caches. Measured with bench-live at 1280x720
-    (uncapped, socket client, runs in turn): 1.02-1.10x the frames pinned (docs/cli.md,
-    eighth pass). POCL_AFFINITY=0 leaves them unpinned."""
+    (uncapped, socket client, nine pairs of runs in turn): 1.02-1.19x the frames pinned, 1.10
+    at the median (docs/cli.md, eighth pass). POCL_AFFINITY=0 leaves them unpinned."""
     os.environ.setdefault("POCL_AFFINITY", "1")
 
 
