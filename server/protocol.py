@@ -149,7 +149,17 @@ def payload(encoded: np.ndarray) -> bytes:
     """Bytes of an array `Simulator.step(output=...)` returned, little-endian as on the wire.
     A copy, not a view of the array: measured, a view that keeps each step's array alive until
     its frame is sent cost more (fresh pages for every step's array) than the copy saves."""
-    return encoded.astype(encoded.dtype.newbyteorder("<"), copy=False).tobytes()
+    return _little_endian(encoded).tobytes()
+
+
+def frame_message(header: FrameHeader, encoded: np.ndarray) -> bytes:
+    """The frame message of `header` and the pixels `encoded` (as `payload` has them), in one
+    copy of the pixels: `header.pack() + payload(encoded)` copies them twice."""
+    return b"".join((header.pack(), memoryview(_little_endian(encoded)).cast("B")))
+
+
+def _little_endian(encoded: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(encoded.astype(encoded.dtype.newbyteorder("<"), copy=False))
 
 
 def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:

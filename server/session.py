@@ -55,6 +55,7 @@ from gazehdr.gaze import (
     is_tracker_source,
 )
 from gazehdr.protocol import (
+    HEADER_BYTES,
     SIM_OUTPUT,
     Choose,
     Control,
@@ -68,7 +69,7 @@ from gazehdr.protocol import (
     SceneMap,
     SceneSettings,
     Viewport,
-    payload,
+    frame_message,
 )
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.estimate import KINDS, kind_luminance
@@ -134,7 +135,10 @@ class SessionSettings:
 @dataclass(frozen=True)
 class Frame:
     header: FrameHeader
-    payload: bytes
+    #: The frame's message as `header` has it (no frames dropped before it), made on the step's
+    #: thread: most viewers are sent it as it is, and the event loop copies no pixels under the
+    #: GIL while the next step needs it. b"" when no viewer wanted the plain frame.
+    plain: bytes
     sim_seconds: float
     encode_seconds: float
     #: When the gaze this frame is the first to use reached the server (None: no new gaze).
@@ -142,14 +146,24 @@ class Frame:
     #: The same frame as late-warp layers (`gazehdr.warp`), made when a viewer asked for them.
     warp: bytearray | None = None
 
+    @property
+    def payload(self) -> memoryview:
+        """The frame's pixels as its encoding has them (empty when no plain frame was made)."""
+        return memoryview(self.plain)[HEADER_BYTES:]
+
     def message(self, dropped: int, warp: bool = False) -> bytes | None:
         """The frame's message, as late-warp layers if `warp`; None when the step did not make
         that form (the viewer switched between the step and the send: it takes the next)."""
-        body = self.warp if warp else self.payload or None
-        if body is None:
+        if warp:
+            if self.warp is None:
+                return None
+            header = dataclasses.replace(self.header, dropped=dropped, encoding=Encoding.warp)
+            return header.pack() + self.warp
+        if not self.plain:
             return None
-        encoding = Encoding.warp if warp else self.header.encoding
-        return dataclasses.replace(self.header, dropped=dropped, encoding=encoding).pack() + body
+        if dropped == 0:
+            return self.plain
+        return dataclasses.replace(self.header, dropped=dropped).pack() + self.payload
 
 
 def fit_size(budget: tuple[int, int], viewport: tuple[int, int]) -> tuple[int, int]:
@@ -577,7 +591,7 @@ class Session:
         layers = self.eye.warp_layers() if warp else None
         stepped = self.clock()
         w, h = self.size
-        data = payload(side_by_side(outs, w)) if plain else b""  # each pane encoded already
+        pixels = side_by_side(outs, w) if plain else None  # each pane encoded already
         warp_data = None if layers is None else pack_warp(layers, w, self.params)
         encoded = self.clock()
         sim = self.sim
@@ -598,8 +612,12 @@ class Session:
             server_ms=(encoded - started) * 1e3,
             split=len(self.eye.sims) == 2,
         )
+        plain_message = b"" if pixels is None else frame_message(header, pixels)
         self.frame += 1
-        return Frame(header, data, stepped - started, encoded - stepped, new_gaze_at, warp_data)
+        done = self.clock()  # the message's copy of the pixels is not in the header's server_ms
+        return Frame(
+            header, plain_message, stepped - started, done - stepped, new_gaze_at, warp_data
+        )
 
 
 def _check_split_width(size: tuple[int, int]) -> None:

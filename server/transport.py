@@ -132,7 +132,7 @@ class Streams:
                 server_ms=frame.header.server_ms + seconds * 1e3,
             )
             frames[encoding] = dataclasses.replace(
-                frame, header=header, payload=packet.data, encode_seconds=seconds
+                frame, header=header, plain=header.pack() + packet.data, encode_seconds=seconds
             )
         return frames
 

@@ -29,7 +29,9 @@ from gazehdr.protocol import (
     Viewport,
     decode_frame,
     encode_pixels,
+    frame_message,
     parse_control,
+    payload,
 )
 from gazehdr.session import fit_size
 
@@ -57,6 +59,18 @@ def test_frame_round_trip(encoding: Encoding) -> None:
     # f16 keeps 11 significant bits (relative 2^-11); rgb10a2 rounds to the nearest 1/1023.
     tol = 2.0**-11 * v + 1e-7 if encoding is Encoding.f16 else np.full_like(v, 0.5 / 1023 + 1e-7)
     assert np.all(np.abs(back - v) <= tol)
+
+
+def test_a_frame_message_is_its_header_then_its_payload() -> None:
+    """`frame_message` (one copy of the pixels) gives the bytes `header.pack() + payload` does,
+    for what a step returns: H×W×3 half floats, H×W RGB10_A2 words, and arrays of the other
+    byte order or not contiguous (put in order and little-endian on the wire)."""
+    rng = np.random.default_rng(1)
+    halves = rng.random((5, 7, 3)).astype(np.float16)
+    words = rng.integers(0, 2**30, (5, 7), dtype=np.uint32)
+    for encoded in (halves, words, words.astype(">u4"), words[:, ::2], halves.transpose(1, 0, 2)):
+        header = _header(encoded.shape[1], encoded.shape[0], Encoding.rgb10a2)
+        assert frame_message(header, encoded) == header.pack() + payload(encoded)
 
 
 @pytest.mark.parametrize("encoding", RAW)  # av1: tests/test_video.py; warp: tests/test_warp.py

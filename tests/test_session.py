@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import sessions
@@ -10,6 +12,7 @@ from sessions import tick
 from gazehdr.drivers.registry import open_track
 from gazehdr.eye import pane_params
 from gazehdr.protocol import (
+    HEADER_BYTES,
     Choose,
     Eyes,
     Gaze,
@@ -67,6 +70,20 @@ def test_header_reports_what_the_frame_used() -> None:
     assert v.shape == (54, 96, 3) and header.width == 96
     frame, _ = tick(session, 0.1, [])
     assert frame.gaze_received_at is None and frame.header.frame == 1  # no new gaze this time
+
+
+def test_a_frame_is_sent_as_made_unless_frames_were_dropped_before_it() -> None:
+    """A viewer that dropped no frame is sent the step's message itself (the event loop copies
+    no pixels); one that dropped some gets the same pixels under a header that says so."""
+    frame, _ = tick(new_session(), 0.0, [])
+    assert frame.message(0) is frame.plain
+    header, v = decode_frame(frame.plain)  # the header packs some fields as float32
+    assert header.pack() == frame.header.pack() and v.shape == (54, 96, 3)
+    again = frame.message(3)
+    assert again[HEADER_BYTES:] == frame.plain[HEADER_BYTES:]
+    assert again[:HEADER_BYTES] == dataclasses.replace(frame.header, dropped=3).pack()
+    assert decode_frame(again)[0].dropped == 3
+    assert frame.message(0, warp=True) is None  # no warp layers made for this step
 
 
 @pytest.mark.parametrize("late", [True, False])
