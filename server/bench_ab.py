@@ -20,7 +20,7 @@ from pathlib import Path
 import pyopencl as cl
 
 from gazehdr.drivers.cli_args import screen_size_arg
-from gazehdr.sim import opencl
+from gazehdr.sim import cl_program, opencl
 
 DEFAULT_KERNELS = (
     "retina_update,retina_blur,afterimage_maps,acuity_levels,acuity_bank,acuity_pick,compose_rgb10"
@@ -29,8 +29,8 @@ DEFAULT_KERNELS = (
 
 def build(ctx: cl.Context, kernel_dir: Path | None) -> cl.Program:
     """The default pipeline's program, with DIR's files where it has them."""
-    source = opencl.kernel_source(opencl.KERNEL_FILES, kernel_dir)
-    return cl.Program(ctx, source).build(opencl.build_options(ctx))
+    source = cl_program.kernel_source(opencl.KERNEL_FILES, kernel_dir)
+    return cl.Program(ctx, source).build(cl_program.build_options(ctx))
 
 
 def record_launches(size: tuple[int, int], scene_name: str) -> tuple[cl.Context, dict]:

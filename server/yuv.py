@@ -129,7 +129,7 @@ def _program() -> tuple[Any, Any]:
     `build_program`: the integer arithmetic and the one float rounding must be exact)."""
     import pyopencl as cl
 
-    from gazehdr.sim.opencl import shared_context
+    from gazehdr.sim.cl_program import shared_context
 
     ctx = shared_context()
     return ctx, cl.Program(ctx, KERNEL).build()

@@ -11,8 +11,8 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
+from gazehdr.sim.cl_program import build_options, kernel_source, shared_context, vector_width
 from gazehdr.sim.kernel_params import pack_params, plateau_m
-from gazehdr.sim.opencl import build_options, kernel_source, shared_context, vector_width
 from gazehdr.sim.params import Params
 
 OUTPUTS = ("log2", "gamma", "tone_shown", "tone", "exp2", "log", "exp", "floor")

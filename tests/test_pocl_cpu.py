@@ -115,7 +115,7 @@ def test_a_name_is_given_only_where_llvm_misses_what_the_cpu_has(
 def test_kernels_are_16_wide_where_pocl_builds_for_avx512() -> None:
     """On this machine: where /proc/cpuinfo has x86-64-v4's flags, PoCL is told a CPU with
     AVX-512 (Zen 4's "znver3" included) and the kernels take 16 pixels a work-item."""
-    code = "from gazehdr.sim.opencl import vector_width; print(vector_width())"
+    code = "from gazehdr.sim.cl_program import vector_width; print(vector_width())"
     done = subprocess.run(
         [sys.executable, "-c", code],
         env={**os.environ, "GAZEHDR_POCL_CPU": "", "GAZEHDR_VEC": "", "GAZEHDR_CL_DEVICE": "pthr"},

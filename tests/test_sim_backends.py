@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from gazehdr.sim import Geometry, Params, Simulator
+from gazehdr.sim.cl_program import VECTOR_WIDTHS
 from gazehdr.sim.layout import Layout, NoiseField
-from gazehdr.sim.opencl import VECTOR_WIDTHS, OpenCLBackend
+from gazehdr.sim.opencl import OpenCLBackend
 from gazehdr.sim.reference import ReferenceBackend
 
 W, H = 120, 68
@@ -71,7 +72,7 @@ BUILDS = [(vec, False) for vec in VECTOR_WIDTHS] + [(8, True)]
 
 @pytest.fixture(params=BUILDS, ids=lambda b: f"vec{b[0]}" + ("-portable" if b[1] else ""))
 def vec(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> int:
-    """Each width the kernels build for (pixels a work-item, opencl.vector_width), whatever
+    """Each width the kernels build for (pixels a work-item, cl_program.vector_width), whatever
     this machine's own: 16 where PoCL builds for AVX-512, 8 on GPUs and other CPUs; and 8 as
     GPUs build them (GAZEHDR_CL_PORTABLE: the builtins in place of PoCL's x86 ones)."""
     width, portable = request.param
@@ -356,11 +357,12 @@ def test_sessions_starting_at_once_share_one_context_and_program() -> None:
 
     code = """
 import threading
-import gazehdr.sim.opencl as o
+import gazehdr.sim.cl_program as o
+import gazehdr.sim.opencl as backend
 got, start = [], threading.Barrier(6)
 def first_use():
     start.wait()
-    got.append((o.shared_context(), o.build_program(o.KERNEL_FILES)))
+    got.append((o.shared_context(), o.build_program(backend.KERNEL_FILES)))
 threads = [threading.Thread(target=first_use) for _ in range(6)]
 for t in threads: t.start()
 for t in threads: t.join()
@@ -378,7 +380,7 @@ def test_a_launch_starts_its_queue_at_once() -> None:
     kernel on a real queue that counts its flushes."""
     import pyopencl as cl
 
-    from gazehdr.sim.opencl import Launch, shared_context
+    from gazehdr.sim.cl_program import Launch, shared_context
 
     class CountingQueue(cl.CommandQueue):
         flushes = 0

@@ -107,7 +107,7 @@ def test_the_compiler_lays_out_params_t_as_the_numpy_record() -> None:
     match. Word i of the record holds i + 1, so any shift shows."""
     import pyopencl as cl
 
-    from gazehdr.sim.opencl import pick_device
+    from gazehdr.sim.cl_program import pick_device
 
     reads = [
         f"out[k++] = as_uint(P->{f.name}{f'[{i}]' if f.count > 1 else ''});"

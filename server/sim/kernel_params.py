@@ -5,7 +5,7 @@ length from that field's annotation (float, int, Vec3, Mat3), so the kernels see
 it is; the few derived fields (the plateau's logs, the contrast floor, the colour matrices,
 the band thresholds) say how they are computed. From the table come the NumPy record
 (`PARAMS_DTYPE`, `pack_params`) and the C struct (`params_struct`), which
-`opencl.build_program` puts in front of every program: the two cannot disagree, and the kernel
+`cl_program.build_program` puts in front of every program: the two cannot disagree, and the kernel
 files keep only a comment saying so.
 Print the struct with `python -m gazehdr.sim.kernel_params`.
 """

@@ -35,7 +35,7 @@ from gazehdr.sim.params import Params
 if TYPE_CHECKING:  # annotations only: a reference simulator never loads pyopencl
     import pyopencl as cl
 
-    from gazehdr.sim.opencl import Launch
+    from gazehdr.sim.cl_program import Launch
 
     Taps = tuple[cl.Buffer, int]  # normalised Gaussian taps on the device, and their radius
 

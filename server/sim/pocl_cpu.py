@@ -1,4 +1,5 @@
-"""Name the CPU for PoCL when its LLVM cannot, so that kernels build on new CPUs.
+"""PoCL on the CPU: its CPU named where its LLVM cannot, so that kernels build on new CPUs
+(and use the AVX-512 they have), and its worker threads pinned (`pin_pocl_workers`).
 
 pyopencl's wheels bundle PoCL 3.0 built on LLVM 14, which cannot name CPUs newer than itself
 (AMD family 1Ah, Zen 5, among them): `llvm::sys::getHostCPUName()` answers "generic", PoCL passes
@@ -11,7 +12,7 @@ So, before PoCL sets up its devices and only when it would say "generic", LLVM's
 known to LLVM since 12) that this CPU's flags satisfy: kernels are built for features the CPU
 has. The same where LLVM 14 names an older CPU without AVX-512 than this one, which has it: AMD
 Zen 4 is "znver3" to it (it knows no znver4), and the kernels would miss AVX-512, with which
-the live step is 0.78× as long at 1280x720 (16 pixels a work-item, opencl.vector_width).
+the live step is 0.78× as long at 1280x720 (16 pixels a work-item, cl_program.vector_width).
 `GAZEHDR_POCL_CPU` names an LLVM CPU to use instead, on any CPU (e.g. `znver3`).
 The patch is the function's first 16 bytes: `movabs rax, name; mov edx, len; ret`, the
 StringRef it returns in rax:rdx. It is made only to the PoCL build it was written against

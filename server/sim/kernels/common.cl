@@ -6,7 +6,7 @@
 //   model's per-pixel kernels qualifies (calls, branches, float3). So the per-pixel kernels
 //   make VEC neighbouring pixels of a row per work-item as one floatv: VEC is 16 (float16, one
 //   AVX-512 register) where PoCL builds for AVX-512, else 8 (float8, one AVX register); the
-//   host passes it as -DVEC (opencl.vector_width). On a GPU the same code runs with 8 pixels
+//   host passes it as -DVEC (cl_program.vector_width). On a GPU the same code runs with 8 pixels
 //   per thread, which costs little.
 // - PoCL's builtin library (vload8, min, clamp, select, floor, convert_*, exp, ...) is compiled
 //   for a generic CPU (target "haswell" in the PyPI build), and LLVM will not inline it into

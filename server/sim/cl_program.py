@@ -1,0 +1,135 @@
+"""The process's one OpenCL context and the kernels' programs: which device, the build
+options and the width the kernels are built for, and how a kernel is launched. Apart from the
+backend (opencl.py) because its stages, the baseline models' stages (models.py) and the av1
+streams' converters (gazehdr.yuv) all build and launch on it."""
+
+from __future__ import annotations
+
+import os
+import threading
+from functools import cache
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import pyopencl as cl
+
+from gazehdr.sim.kernel_params import params_struct
+from gazehdr.sim.pocl_cpu import builds_for_avx512, name_cpu_for_pocl, pin_pocl_workers
+
+
+def pick_device() -> cl.Device:
+    """GAZEHDR_CL_DEVICE if set, else the first GPU, else the first device of any kind."""
+    name_cpu_for_pocl()  # before PoCL sets up its devices
+    pin_pocl_workers()
+    devices = [d for platform in cl.get_platforms() for d in platform.get_devices()]
+    if not devices:
+        raise RuntimeError("no OpenCL device found; install pyopencl[pocl] for the CPU")
+    wanted = os.environ.get("GAZEHDR_CL_DEVICE")
+    if wanted:
+        for d in devices:
+            if wanted.lower() in d.name.lower():
+                return d
+        names = ", ".join(d.name for d in devices)
+        raise RuntimeError(f"GAZEHDR_CL_DEVICE={wanted!r} matches none of: {names}")
+    gpus = [d for d in devices if d.type & cl.device_type.GPU]
+    return (gpus or devices)[0]
+
+
+#: Sessions (and the av1 streams' converters, gazehdr.yuv) start on threads of their own,
+#: several at once: without it, each first caller of `shared_context` would make a context of
+#: its own (functools.cache does not hold others back), and a program built on one would meet
+#: buffers of another (INVALID_CONTEXT).
+_ONCE = threading.RLock()
+
+
+def shared_context() -> cl.Context:
+    """The one OpenCL context of this process."""
+    with _ONCE:
+        return _make_context()
+
+
+@cache
+def _make_context() -> cl.Context:
+    return cl.Context([pick_device()])
+
+
+def build_program(files: tuple[str, ...], vec: int | None = None) -> cl.Program:
+    """`kernels/` files built as one program for `vec` pixels per work-item (vector_width()
+    when None), once per process: building takes seconds on PoCL. A baseline model builds
+    common.cl plus its own file, so the default pipeline does not pay for models it does not
+    run. The parameter block `params_t` comes first, generated from `Params`
+    (kernel_params.py)."""
+    with _ONCE:
+        return _build_program(files, tuple(build_options(shared_context(), vec)))
+
+
+@cache
+def _build_program(files: tuple[str, ...], options: tuple[str, ...]) -> cl.Program:
+    return cl.Program(shared_context(), kernel_source(files)).build(options=list(options))
+
+
+def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
+    """The program text of `kernels/` files: `params_t` first, then the files in order; a file
+    that the folder `changed` holds is read from there instead (gazehdr.bench_ab)."""
+    pkg = resources.files("gazehdr.sim") / "kernels"
+    texts = [
+        (changed / n if changed is not None and (changed / n).is_file() else pkg / n).read_text()
+        for n in files
+    ]
+    return "\n".join([params_struct(), *texts])
+
+
+def build_options(ctx: cl.Context, vec: int | None = None) -> list[str]:
+    """The compiler options of every program of the kernels, for `vec` pixels per work-item
+    (vector_width() when None). GAZEHDR_CL_PORTABLE=1 builds them on PoCL as other OpenCL
+    implementations (GPUs) do, with the builtins in place of PoCL's clang and x86 ones: slow,
+    for the tests of that code."""
+    options = ["-cl-fast-relaxed-math", f"-DVEC={vec or vector_width()}"]
+    if _is_pocl(ctx) and not os.environ.get("GAZEHDR_CL_PORTABLE"):
+        options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
+    return options
+
+
+def _is_pocl(ctx: cl.Context) -> bool:
+    return "Portable Computing Language" in ctx.devices[0].platform.name
+
+
+VECTOR_WIDTHS = (8, 16)
+
+
+def vector_width() -> int:
+    """Pixels per work-item of the per-pixel kernels and blurs (VEC in kernels/common.cl):
+    GAZEHDR_VEC if set, else 16 where PoCL builds for AVX-512 (one float16 register: the live
+    step 0.78× as long as with 8 at 1280x720), else 8. GPUs take 8 (a float8 per thread)."""
+    wanted = os.environ.get("GAZEHDR_VEC", "").strip()
+    if not wanted:
+        return _native_width()
+    if wanted not in {str(w) for w in VECTOR_WIDTHS}:
+        raise RuntimeError(f"GAZEHDR_VEC={wanted!r}: pixels per work-item are 8 or 16")
+    return int(wanted)
+
+
+@cache
+def _native_width() -> int:
+    ctx = shared_context()
+    return 16 if _is_pocl(ctx) and builds_for_avx512(ctx) else 8
+
+
+class Launch:
+    """A kernel that the device starts on as soon as it is enqueued. PoCL starts queued work at
+    a flush or a blocking call, else only a while later (0.6 ms for a lone kernel here): a
+    step's first kernels waited until the host had enqueued them all (about 1 ms of Python at
+    1280x720). Flushed at each launch, bench-live made 1.02-1.14x the frames at 1280x720 and
+    1.03-1.04x at 1920x1080 (docs/cli.md, eighth pass). Called as a `cl.Kernel` is:
+    `launch(queue, global_size, local_size, *args)`."""
+
+    __slots__ = ("kernel",)
+
+    def __init__(self, kernel: cl.Kernel) -> None:
+        self.kernel = kernel
+
+    def __call__(self, queue: cl.CommandQueue, *args: Any) -> cl.Event:
+        event = self.kernel(queue, *args)
+        queue.flush()
+        return event
