@@ -140,6 +140,8 @@ class Frame:
     #: GIL while the next step needs it. b"" when no viewer wanted the plain frame.
     plain: bytes
     sim_seconds: float
+    #: From the step's simulation to its message (the header's server_ms ends before the
+    #: message's copy of the pixels, which it is packed into).
     encode_seconds: float
     #: When the gaze this frame is the first to use reached the server (None: no new gaze).
     gaze_received_at: float | None
