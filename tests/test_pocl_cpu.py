@@ -131,30 +131,39 @@ def test_kernels_are_16_wide_where_pocl_builds_for_avx512() -> None:
 PINNED = textwrap.dedent(
     """
     import os
+    if os.environ.get("HOLD_TO"):  # as taskset starts a process
+        os.sched_setaffinity(0, {int(os.environ["HOLD_TO"])})
     from gazehdr.sim import Simulator
     Simulator(64, 36, backend="opencl", seed=0).step(1 / 60)
     mine = os.sched_getaffinity(0)
     cores = [os.sched_getaffinity(int(t)) for t in os.listdir("/proc/self/task")]
-    print(sorted(mine), sorted(min(c) for c in cores if len(c) == 1 and c < mine), sep="|")
+    pinned = sorted(min(c) for c in cores if len(c) == 1 and c != mine)
+    print(sorted(mine), pinned, all(c <= mine for c in cores), sep="|")
     """
 )
 
 
-@pytest.mark.parametrize(("setting", "pinned"), [(None, True), ("0", False)])
+@pytest.mark.parametrize(
+    ("setting", "held", "pinned"), [(None, False, True), ("0", False, False), (None, True, False)]
+)
 def test_pocl_workers_are_pinned_one_to_a_core_unless_told(
-    setting: str | None, pinned: bool
+    setting: str | None, held: bool, pinned: bool
 ) -> None:
     """The simulator's PoCL worker threads each keep a core of their own (pocl_cpu.
-    pin_pocl_workers); POCL_AFFINITY=0 from the user leaves them free. In a fresh process: PoCL
-    reads the setting once, when it sets up its devices."""
+    pin_pocl_workers); POCL_AFFINITY=0 from the user leaves them free, and so does a process
+    held to some of the cores (`held`: to the last one, as taskset does), whose threads all
+    stay on it. In a fresh process: PoCL reads the setting once, when it sets up its devices."""
     env = {k: v for k, v in os.environ.items() if k != "POCL_AFFINITY"}
     if setting is not None:
         env["POCL_AFFINITY"] = setting
     env["GAZEHDR_CL_DEVICE"] = "pthr"
+    mine = sorted(os.sched_getaffinity(0))
+    assert len(mine) >= 2, "pinning shows only where the process may use two cores or more"
+    env["HOLD_TO"] = str(mine[-1]) if held else ""
     done = subprocess.run(
         [sys.executable, "-c", PINNED], env=env, capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 0, done.stderr
-    mine, workers = done.stdout.strip().split("|")
-    assert mine.count(",") >= 1, "pinning shows only where the process may use two cores or more"
-    assert workers == (mine if pinned else "[]")
+    allowed, workers, kept_in = done.stdout.strip().split("|")
+    assert workers == (allowed if pinned else "[]")
+    assert kept_in == "True", "a thread runs on a core the process was kept off"
