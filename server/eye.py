@@ -124,11 +124,13 @@ class Eye:
         eyes_open: bool,
         output: str | None = "float32",
         late_gaze: Callable[[], tuple[float, float] | None] | None = None,
+        out: np.ndarray | None = None,
     ) -> list[np.ndarray]:
         """Advance every pane by `dt` s looking at `gaze`; each pane's frame, in `output`
         (`Simulator.step`'s encodings; None: no frame, for a late gaze warp only, see
         `warp_layers`). The step is split where the scene changes, and each part sees the
-        scene as it is at the part's start.
+        scene as it is at the part's start. With `out` (the whole frame, in `output`'s dtype)
+        the panes are made into it side by side, from the left; what they leave stays as it is.
 
         `late_gaze`, when given, is asked once the panes have advanced (their device work
         done) for a gaze newer than `gaze`, or None: the frames are seen from it
@@ -155,7 +157,11 @@ class Eye:
                 sim.wait()
             newer = late_gaze()
         seen = None if newer is None else self.pane_gaze(newer)
-        return [sim.frame(output, seen) for sim in self.sims]
+        if out is None:
+            return [sim.frame(output, seen) for sim in self.sims]
+        w = self.sims[0].width
+        panes = (out[:, i * w : (i + 1) * w] for i in range(len(self.sims)))
+        return [sim.frame(output, seen, pane) for sim, pane in zip(self.sims, panes, strict=True)]
 
     def warp_layers(self) -> list[WarpLayers]:
         """Each pane's last step as a late gaze warp sends it (`Simulator.warp_layers`)."""
@@ -173,15 +179,3 @@ class Eye:
         frame = self.scene.render(t, *self.pane_size)
         for sim in self.sims:
             sim.load_scene(frame, reset=reset)
-
-
-def side_by_side(panes: list[np.ndarray], width: int) -> np.ndarray:
-    """The panes' frames next to each other in a frame `width` px wide (one pane: as it is)."""
-    if len(panes) == 1:
-        return panes[0]
-    first = panes[0]
-    frame = np.zeros((first.shape[0], width, *first.shape[2:]), first.dtype)  # 0 is black
-    w = first.shape[1]
-    for i, pane in enumerate(panes):
-        frame[:, i * w : (i + 1) * w] = pane
-    return frame

@@ -42,7 +42,7 @@ from typing import Any
 
 from gazehdr.drivers import registry, sessionlog
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
-from gazehdr.eye import Eye, side_by_side
+from gazehdr.eye import Eye
 from gazehdr.gaze import (
     REMOTE,
     REMOTE_PREFIX,
@@ -69,7 +69,7 @@ from gazehdr.protocol import (
     SceneMap,
     SceneSettings,
     Viewport,
-    frame_message,
+    frame_buffer,
 )
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes.estimate import KINDS, kind_luminance
@@ -135,13 +135,14 @@ class SessionSettings:
 @dataclass(frozen=True)
 class Frame:
     header: FrameHeader
-    #: The frame's message as `header` has it (no frames dropped before it), made on the step's
-    #: thread: most viewers are sent it as it is, and the event loop copies no pixels under the
-    #: GIL while the next step needs it. b"" when no viewer wanted the plain frame.
-    plain: bytes
+    #: The frame's message as `header` has it (no frames dropped before it), its pixels read
+    #: back from the device into it (`protocol.frame_buffer`): most viewers are sent it as it
+    #: is, and the event loop copies no pixels under the GIL while the next step needs it. b""
+    #: when no viewer wanted the plain frame.
+    plain: bytes | bytearray
     sim_seconds: float
-    #: From the step's simulation to its message (the header's server_ms ends before the
-    #: message's copy of the pixels, which it is packed into).
+    #: From the step's simulation to its frame's forms (the warp layers' packing: a plain
+    #: frame's pixels are encoded by the device, into its message).
     encode_seconds: float
     #: When the gaze this frame is the first to use reached the server (None: no new gaze).
     gaze_received_at: float | None
@@ -153,7 +154,7 @@ class Frame:
         """The frame's pixels as its encoding has them (empty when no plain frame was made)."""
         return memoryview(self.plain)[HEADER_BYTES:]
 
-    def message(self, dropped: int, warp: bool = False) -> bytes | None:
+    def message(self, dropped: int, warp: bool = False) -> bytes | bytearray | None:
         """The frame's message, as late-warp layers if `warp`; None when the step did not make
         that form (the viewer switched between the step and the send: it takes the next)."""
         if warp:
@@ -584,16 +585,18 @@ class Session:
         previous, self.reading = self.reading, self._input.at(read_at)
         self._log_gaze(self._now_ns)
         eyes_open = self.reading.eyes_open
-        output = SIM_OUTPUT[self.settings.encoding] if plain else None
+        w, h = self.size
+        output, message, pixels = None, b"", None
+        if plain:  # the panes are composed into the message (zeros, black, between them)
+            output = SIM_OUTPUT[self.settings.encoding]
+            message, pixels = frame_buffer(w, h, self.settings.encoding)
         late = functools.partial(self._late_gaze, read_at) if self.settings.late_gaze else None
-        outs = self.eye.step(dt, self.gaze, eyes_open, output, late)
+        self.eye.step(dt, self.gaze, eyes_open, output, late, pixels)
         new_gaze_at = self.reading.received_at  # the step's gaze, or the late one
         if new_gaze_at == previous.received_at:
             new_gaze_at = None
         layers = self.eye.warp_layers() if warp else None
         stepped = self.clock()
-        w, h = self.size
-        pixels = side_by_side(outs, w) if plain else None  # each pane encoded already
         warp_data = None if layers is None else pack_warp(layers, w, self.params)
         encoded = self.clock()
         sim = self.sim
@@ -614,12 +617,10 @@ class Session:
             server_ms=(encoded - started) * 1e3,
             split=len(self.eye.sims) == 2,
         )
-        plain_message = b"" if pixels is None else frame_message(header, pixels)
+        if message:
+            message[:HEADER_BYTES] = header.pack()
         self.frame += 1
-        done = self.clock()  # the message's copy of the pixels is not in the header's server_ms
-        return Frame(
-            header, plain_message, stepped - started, done - stepped, new_gaze_at, warp_data
-        )
+        return Frame(header, message, stepped - started, encoded - stepped, new_gaze_at, warp_data)
 
 
 def _check_split_width(size: tuple[int, int]) -> None:

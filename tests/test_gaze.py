@@ -109,12 +109,12 @@ def test_remote_binds_once_exactly_one_tracker_is_connected() -> None:
 
 
 def test_the_session_times_its_step_with_the_clock_it_is_given() -> None:
-    readings = iter([10.0, 10.25, 10.5, 10.75])  # start, simulated, encoded, message made
+    readings = iter([10.0, 10.25, 10.75])  # start, simulated (pixels in the message), encoded
     session = new_session(SETTINGS)
     session.clock = lambda: next(readings)
     frame, _ = tick(session, 0.0, [])
     assert (frame.sim_seconds, frame.encode_seconds) == (0.25, 0.5)
-    assert frame.header.server_ms == 500.0  # packed into the message: the copy is not in it
+    assert frame.header.server_ms == 750.0
 
 
 # --- the source's figures reach the model (Sec. 5 foveal blind spot) -------------------------

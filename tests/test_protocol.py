@@ -14,6 +14,7 @@ from gazehdr.protocol import (
     HEADER_BYTES,
     MAX_CONTROL_BYTES,
     RAW,
+    SIM_OUTPUT,
     Choose,
     Encoding,
     Eyes,
@@ -29,11 +30,13 @@ from gazehdr.protocol import (
     Viewport,
     decode_frame,
     encode_pixels,
-    frame_message,
+    frame_buffer,
     parse_control,
     payload,
+    split_frame,
 )
 from gazehdr.session import fit_size
+from gazehdr.sim import Simulator
 
 
 def _header(w: int, h: int, encoding: Encoding) -> FrameHeader:
@@ -61,16 +64,32 @@ def test_frame_round_trip(encoding: Encoding) -> None:
     assert np.all(np.abs(back - v) <= tol)
 
 
-def test_a_frame_message_is_its_header_then_its_payload() -> None:
-    """`frame_message` (one copy of the pixels) gives the bytes `header.pack() + payload` does,
-    for what a step returns: H×W×3 half floats, H×W RGB10_A2 words, and arrays of the other
-    byte order or not contiguous (put in order and little-endian on the wire)."""
+def test_a_payload_is_the_array_in_order_and_little_endian() -> None:
+    """Arrays of the other byte order or not contiguous go on the wire as the plain ones do."""
     rng = np.random.default_rng(1)
     halves = rng.random((5, 7, 3)).astype(np.float16)
     words = rng.integers(0, 2**30, (5, 7), dtype=np.uint32)
-    for encoded in (halves, words, words.astype(">u4"), words[:, ::2], halves.transpose(1, 0, 2)):
-        header = _header(encoded.shape[1], encoded.shape[0], Encoding.rgb10a2)
-        assert frame_message(header, encoded) == header.pack() + payload(encoded)
+    assert payload(words) == b"".join(int(w).to_bytes(4, "little") for w in words.flat)
+    assert payload(words.astype(">u4")) == payload(words)
+    assert payload(words[:, ::2]) == payload(words[:, ::2].copy())
+    assert payload(halves.transpose(1, 0, 2)) == payload(halves.transpose(1, 0, 2).copy())
+
+
+@pytest.mark.parametrize("encoding", RAW)
+def test_a_frame_buffer_is_laid_out_as_a_header_then_a_payload(encoding: Encoding) -> None:
+    """A step's pixels composed into `frame_buffer`'s array, its header packed into the first
+    HEADER_BYTES, give the bytes `header.pack() + payload(pixels)` does, for the arrays the
+    simulator makes for the encoding (their shape and dtype, which `PIXELS` states)."""
+    sim = Simulator(19, 16, backend="reference")
+    sim.load_scene(np.random.default_rng(1).uniform(0.0, 500.0, (16, 19, 3)))
+    step = sim.step(0.05, output=SIM_OUTPUT[encoding])
+    message, pixels = frame_buffer(19, 16, encoding)
+    assert (pixels.shape, pixels.dtype) == (step.shape, step.dtype.newbyteorder("<"))
+    sim.frame(SIM_OUTPUT[encoding], out=pixels)
+    header = _header(19, 16, encoding)
+    message[:HEADER_BYTES] = header.pack()
+    assert bytes(message) == header.pack() + payload(step)
+    assert split_frame(message)[0] == header
 
 
 @pytest.mark.parametrize("encoding", RAW)  # av1: tests/test_video.py; warp: tests/test_warp.py

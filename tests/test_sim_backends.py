@@ -16,7 +16,7 @@ import pytest
 
 from gazehdr.sim import Geometry, Params, Simulator
 from gazehdr.sim.cl_program import VECTOR_WIDTHS
-from gazehdr.sim.layout import Layout, NoiseField
+from gazehdr.sim.layout import Layout, NoiseField, bilinear, bilinear_at
 from gazehdr.sim.opencl import OpenCLBackend
 from gazehdr.sim.reference import ReferenceBackend
 
@@ -333,6 +333,18 @@ def test_device_encoding_equals_host_encoding(output: str, vec: int) -> None:
     assert ref.step(0.05, output=output).dtype == host.dtype
     with pytest.raises(ValueError, match="output must be one of"):
         ref.step(0.05, output="png")
+
+
+def test_one_point_bilinear_is_the_array_version_bit_for_bit() -> None:
+    """`bilinear_at` (the header's rho at the gaze, the uniform models' sigma) gives the bits
+    `bilinear` gives, inside, on the edges and clamped outside."""
+    rng = np.random.default_rng(5)
+    img = rng.random((9, 13))
+    points = [(0.0, 0.0), (13.0, 9.0), (0.5, 0.5), (12.5, 8.5), (-3.2, 4.0), (20.0, -1.0)]
+    points += [tuple(p) for p in rng.uniform(-1.0, 14.0, (40, 2))]
+    for x, y in points:
+        array = bilinear(img[None], np.array([x]), np.array([y]))[0, 0]
+        assert bilinear_at(img, x, y) == array, (x, y)
 
 
 def test_blur_taps_cache_stays_bounded_when_dt_varies() -> None:

@@ -151,6 +151,21 @@ def bilinear(
     return out
 
 
+def bilinear_at(img: np.ndarray, x: float, y: float) -> float:
+    """`bilinear` of one H×W plane at one point, in plain floats and the same arithmetic (so
+    the same bits): the array version costs 0.13 ms a call, on the live step's path once a
+    frame (the header's rho at the gaze)."""
+    h, w = img.shape
+    u, v = x - 0.5, y - 0.5
+    x0, y0 = math.floor(u), math.floor(v)
+    fx, fy = u - x0, v - y0
+    out = 0.0
+    for yi, wy in ((y0, 1 - fy), (y0 + 1, fy)):
+        for xi, wx in ((x0, 1 - fx), (x0 + 1, fx)):
+            out += wx * wy * float(img[min(max(yi, 0), h - 1), min(max(xi, 0), w - 1)])
+    return out
+
+
 def adaptation_window(
     gaze: Sequence[float], lay: Layout, p: Params
 ) -> tuple[float, float, float, int, int, int, int]:

@@ -518,18 +518,26 @@ class OpenCLBackend:
         self.queue.finish()
 
     def compose(
-        self, gaze, eyes: float, out_dtype=np.float32, visibility: float = 1.0
+        self,
+        gaze,
+        eyes: float,
+        out_dtype=np.float32,
+        visibility: float = 1.0,
+        out: np.ndarray | None = None,
     ) -> np.ndarray:
         """H×W×3 `v` as float32, or made ready to send without a pass over it in NumPy:
         out_dtype float16 gives H×W×3 half floats (round to nearest even, the same as
         `v.astype(np.float16)`), uint32 gives H×W RGB10_A2 words (`r | g << 10 | b << 20` of
         round(1023 v), the same as gazehdr.protocol's rgb10a2 encoding). The afterimage maps
-        are seen with `visibility` (Sec. 5's boost) times the foveal fall-off."""
+        are seen with `visibility` (Sec. 5's boost) times the foveal fall-off. Read back into
+        `out` when given (that shape and dtype; a pane of a split frame is a strided view)."""
         lay, b = self.lay, self.buf
         kind = np.dtype(out_dtype)
         if kind not in COMPOSE_OUTPUTS:
             raise ValueError(f"out_dtype must be float32, float16 or uint32, got {out_dtype!r}")
         kernel, buf_name, shape = COMPOSE_OUTPUTS[kind]
+        if out is not None and (out.shape != shape(lay) or out.dtype != kind):
+            raise ValueError(f"out must be {shape(lay)} {kind}, got {out.shape} {out.dtype}")
         rho_full = self.rho_full()
         self._more_maps(self._screen_window(gaze))
         fovea = self._gaussian_xy(gaze, lay.px(self.p.fovea_sigma_deg))  # the foveal fall-off
@@ -542,9 +550,15 @@ class OpenCLBackend:
             np.int32(lay.grid_w), np.int32(lay.grid_h),
             np.float32(gaze[0]), np.float32(gaze[1]), np.float32(eyes), b["fovea"], b[buf_name],
         )  # fmt: skip
+        if out is not None and out.flags.c_contiguous:
+            cl.enqueue_copy(self.queue, out, b[buf_name])
+            return out
         v = np.empty(shape(lay), kind)
         cl.enqueue_copy(self.queue, v, b[buf_name])
-        return v
+        if out is None:
+            return v
+        out[...] = v
+        return out
 
     def warp_layers(self, eyes: float) -> tuple[np.ndarray, np.ndarray]:
         """What a late gaze warp sends (`gazehdr.warp`), made on the device: linear RGB before

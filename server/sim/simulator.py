@@ -18,6 +18,7 @@ from gazehdr.sim.layout import (
     Layout,
     NoiseField,
     bilinear,
+    bilinear_at,
     blind_spot_strength,
     encode_output,
     fit_to_frame,
@@ -138,9 +139,9 @@ class Simulator:
         """Mesopic rho (Eq. 13, unclamped) of the scene where the eye looks, for displays."""
         if self._rho is None:
             self._prepare()
-            self._rho = self._backend.get("rho")[None].astype(np.float64)
-        x, y = (np.array([c / self.layout.cell]) for c in self._gaze)
-        return float(bilinear(self._rho, x, y)[0, 0])
+            self._rho = self._backend.get("rho").astype(np.float64)
+        x, y = (c / self.layout.cell for c in self._gaze)
+        return bilinear_at(self._rho, x, y)
 
     def scene_maps(self) -> tuple[np.ndarray, np.ndarray]:
         """What the eye looks at, for inspection: the radiance as loaded (H×W×3 cd/m^2, fitted
@@ -237,8 +238,15 @@ class Simulator:
         self.advance(dt, gaze, eyes_open)
         return self.frame(output)
 
-    def frame(self, output: str = "float32", gaze: Sequence[float] | None = None) -> np.ndarray:
-        """The frame of the eye as the last step left it (`step` is `advance` then this).
+    def frame(
+        self,
+        output: str = "float32",
+        gaze: Sequence[float] | None = None,
+        out: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The frame of the eye as the last step left it (`step` is `advance` then this); into
+        `out` when given (an array of the output's shape and dtype: a frame message's pixels,
+        `protocol.frame_buffer`), which is returned.
 
         With `gaze` (screen px) it is seen from there instead of from the step's gaze: the
         afterimages, locked to the retina, and their foveal fall-off move with it, as they do
@@ -250,8 +258,13 @@ class Simulator:
             self._gaze = self._check_gaze(gaze)
         b = self._backend
         if output != "float32" and b.name == "opencl":
-            return b.compose(self._gaze, self._eyes, _DEVICE_OUTPUT[output], self._visibility)
-        return encode_output(b.compose(self._gaze, self._eyes, visibility=self._visibility), output)
+            kind = _DEVICE_OUTPUT[output]
+            return b.compose(self._gaze, self._eyes, kind, self._visibility, out)
+        v = encode_output(b.compose(self._gaze, self._eyes, visibility=self._visibility), output)
+        if out is None:
+            return v
+        out[...] = v
+        return out
 
     def wait(self) -> None:
         """Block until the device has done the steps asked of it: a gaze read after this is

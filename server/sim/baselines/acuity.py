@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from gazehdr.sim.layout import Layout, NoiseFrame, bilinear
+from gazehdr.sim.layout import Layout, NoiseFrame, bilinear, bilinear_at
 from gazehdr.sim.models import Gaze, ReferenceStageBackend
 from gazehdr.sim.params import Params
 from gazehdr.sim.reference import blur2d, screen_coords
@@ -67,8 +67,7 @@ def log10_L_of_rho(rho: Any, p: Params) -> Any:
 def gaze_sigma_px(rho: np.ndarray, gaze: Gaze, lay: Layout, p: Params) -> float:
     """The one sigma of the uniform models: from rho (the 0.5 deg local mean, Eq. 13) at the
     gaze, read from the low-res map as compose reads it (edges clamped)."""
-    x, y = (np.array([c / lay.cell]) for c in gaze)
-    r = bilinear(np.asarray(rho, np.float64)[None], x, y)[0, 0]
+    r = bilinear_at(np.asarray(rho, np.float64), gaze[0] / lay.cell, gaze[1] / lay.cell)
     return float(blur_sigma_px(log10_L_of_rho(r, p), lay, p))
 
 
