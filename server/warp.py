@@ -52,7 +52,8 @@ class WarpFrame:
 
 
 def pack(panes: Sequence[WarpLayers], width: int, params: Params) -> bytearray:
-    """The payload of one warp frame (`width` px wide; panes side by side, as `side_by_side`)."""
+    """The payload of one warp frame (`width` px wide; panes side by side from the left, as a
+    plain frame has them, `Eye.step`)."""
     if not 1 <= len(panes) <= MAX_PANES:
         raise ValueError(f"a warp frame has 1 or {MAX_PANES} panes, not {len(panes)}")
     first = panes[0]
