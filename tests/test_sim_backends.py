@@ -12,6 +12,7 @@ Tolerances (float32 kernels vs float64 reference, relaxed math):
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pytest
 
 from gazehdr.sim import Geometry, Params, Simulator
@@ -335,6 +336,37 @@ def test_device_encoding_equals_host_encoding(output: str, vec: int) -> None:
         ref.step(0.05, output="png")
 
 
+@pytest.mark.parametrize("output", ["float16", "rgb10a2"])
+def test_compose_writes_into_the_message_where_the_device_shares_host_memory(output: str) -> None:
+    """A frame composed into `out` (a frame message's pixels) is the frame `frame` returns, on
+    both paths: written there by the kernel (PoCL: the device's memory is the host's, and the
+    device's own output buffer is left as it was) or read back into it (a GPU's path, taken
+    here by saying the memory is not shared); and into a pane's strided view."""
+    sim = Simulator(136, 77, backend="opencl", seed=1)
+    sim.load_scene(np.resize(mixed_scene(4), (77, 136, 3)))
+    sim.step(0.05, gaze=(40.0, 30.0))
+    backend = sim._backend
+    assert backend.shares_host_memory  # PoCL's CPU device
+    want = sim.frame(output)
+    kept = np.full(want.shape, 7, want.dtype)
+    device_own = backend.buf["v10" if output == "rgb10a2" else "v16"]
+    cl.enqueue_copy(backend.queue, device_own, kept)
+    direct = np.zeros_like(want)
+    assert sim.frame(output, out=direct) is direct
+    assert np.array_equal(direct, want)
+    left = np.empty_like(want)
+    cl.enqueue_copy(backend.queue, left, device_own)
+    assert np.array_equal(left, kept)  # compose wrote into `direct` itself
+    backend.shares_host_memory = False
+    read_back = np.zeros_like(want)
+    assert np.array_equal(sim.frame(output, out=read_back), want)
+    wide = np.zeros((77, 300, *want.shape[2:]), want.dtype)
+    sim.frame(output, out=wide[:, 136:272])
+    assert np.array_equal(wide[:, 136:272], want) and not wide[:, :136].any()
+    with pytest.raises(ValueError, match="out must be"):
+        sim.frame(output, out=np.zeros((77, 135, *want.shape[2:]), want.dtype))
+
+
 def test_one_point_bilinear_is_the_array_version_bit_for_bit() -> None:
     """`bilinear_at` (the header's rho at the gaze, the uniform models' sigma) gives the bits
     `bilinear` gives, inside, on the edges and clamped outside."""
@@ -390,8 +422,6 @@ def test_a_launch_starts_its_queue_at_once() -> None:
     """A kernel launched through the backend is flushed to the device as it is enqueued (PoCL
     otherwise lets a step's kernels wait until the host has enqueued all of them): a real
     kernel on a real queue that counts its flushes."""
-    import pyopencl as cl
-
     from gazehdr.sim.cl_program import Launch, shared_context
 
     class CountingQueue(cl.CommandQueue):
