@@ -441,3 +441,27 @@ def test_a_launch_starts_its_queue_at_once() -> None:
     got = np.zeros(64, np.int32)
     cl.enqueue_copy(queue, got, out)
     assert (got == 1).all()
+
+
+def test_a_launch_packs_by_value_arguments_as_the_kernel_declares_them() -> None:
+    """`Launch` reads a kernel's by-value argument types from the kernel (built with the
+    project's options, which ask for argument info), so plain Python numbers are packed as
+    those types; without argument info it launches as pyopencl does (NumPy scalars only)."""
+    from gazehdr.sim.cl_program import Launch, build_options, shared_context
+
+    ctx = shared_context()
+    queue = cl.CommandQueue(ctx)
+    source = "__kernel void f(__global float *o, int n, uint m, float a) {"
+    source += " o[get_global_id(0)] = n * a + m; }"
+    out = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * 8)
+    got = np.zeros(8, np.float32)
+    declared = Launch(cl.Kernel(cl.Program(ctx, source).build(build_options(ctx)), "f"))
+    declared(queue, (8,), None, out, -3, 7, 0.5)
+    cl.enqueue_copy(queue, got, out)
+    assert (got == 5.5).all()
+    plain = Launch(cl.Kernel(cl.Program(ctx, source).build(), "f"))  # no argument info
+    plain(queue, (8,), None, out, np.int32(2), np.uint32(1), np.float32(0.25))
+    cl.enqueue_copy(queue, got, out)
+    assert (got == 1.5).all()
+    with pytest.raises(cl.LogicError):
+        plain(queue, (8,), None, out, 2, 1, 0.25)

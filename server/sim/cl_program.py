@@ -12,6 +12,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyopencl as cl
 
 from gazehdr.sim.kernel_params import params_struct
@@ -85,7 +86,8 @@ def build_options(ctx: cl.Context, vec: int | None = None) -> list[str]:
     (vector_width() when None). GAZEHDR_CL_PORTABLE=1 builds them on PoCL as other OpenCL
     implementations (GPUs) do, with the builtins in place of PoCL's clang and x86 ones: slow,
     for the tests of that code."""
-    options = ["-cl-fast-relaxed-math", f"-DVEC={vec or vector_width()}"]
+    # -cl-kernel-arg-info: each launch's by-value argument types (`Launch`) from the kernels
+    options = ["-cl-fast-relaxed-math", "-cl-kernel-arg-info", f"-DVEC={vec or vector_width()}"]
     if _is_pocl(ctx) and not os.environ.get("GAZEHDR_CL_PORTABLE"):
         options.append("-DGAZEHDR_POCL")  # see kernels/common.cl
     return options
@@ -128,8 +130,35 @@ class Launch:
 
     def __init__(self, kernel: cl.Kernel) -> None:
         self.kernel = kernel
+        _declare_scalars(kernel)
 
     def __call__(self, queue: cl.CommandQueue, *args: Any) -> cl.Event:
         event = self.kernel(queue, *args)
         queue.flush()
         return event
+
+
+#: OpenCL C's scalar types, as a kernel's argument info names them, in NumPy.
+_SCALARS = {
+    "char": np.int8, "uchar": np.uint8, "short": np.int16, "ushort": np.uint16,
+    "int": np.int32, "uint": np.uint32, "long": np.int64, "ulong": np.uint64,
+    "float": np.float32, "double": np.float64,
+}  # fmt: skip
+
+
+def _declare_scalars(kernel: cl.Kernel) -> None:
+    """Give pyopencl the types of `kernel`'s by-value arguments, read from the kernel itself
+    (built with -cl-kernel-arg-info): a launch then packs them at once, where pyopencl first
+    tries each argument as a memory object and falls back through a C++ exception. Setting
+    compose's 15 arguments took 85-91 us that way, 2 us declared, on the step's thread with
+    the GIL held (docs/cli.md, ninth pass). A kernel without argument info, or with a
+    by-value type not in _SCALARS, is launched as pyopencl does by default."""
+    info, private = cl.kernel_arg_info, cl.kernel_arg_address_qualifier.PRIVATE
+    dtypes: list[Any] = []
+    try:
+        for i in range(kernel.num_args):
+            by_value = kernel.get_arg_info(i, info.ADDRESS_QUALIFIER) == private
+            dtypes.append(_SCALARS[kernel.get_arg_info(i, info.TYPE_NAME)] if by_value else None)
+    except (cl.Error, KeyError):
+        return
+    kernel.set_scalar_arg_dtypes(dtypes)
