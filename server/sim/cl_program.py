@@ -123,7 +123,8 @@ class Launch:
     a flush or a blocking call, else only a while later (0.6 ms for a lone kernel here): a
     step's first kernels waited until the host had enqueued them all (about 1 ms of Python at
     1280x720). Flushed at each launch, bench-live made 1.02-1.14x the frames at 1280x720 and
-    1.03-1.04x at 1920x1080 (docs/cli.md, eighth pass). Called as a `cl.Kernel` is:
+    1.03-1.04x at 1920x1080 (docs/cli.md, eighth pass). Its by-value arguments are packed as
+    the kernel declares them (`_declare_scalars`). Called as a `cl.Kernel` is:
     `launch(queue, global_size, local_size, *args)`."""
 
     __slots__ = ("kernel",)
