@@ -130,7 +130,7 @@ class Eye:
         (`Simulator.step`'s encodings; None: no frame, for a late gaze warp only, see
         `warp_layers`). The step is split where the scene changes, and each part sees the
         scene as it is at the part's start. With `out` (the whole frame, in `output`'s dtype)
-        the panes are made into it side by side, from the left; what they leave stays as it is.
+        the panes are made into it side by side, from the left; what they leave is made 0.
 
         `late_gaze`, when given, is asked once the panes have advanced (their device work
         done) for a gaze newer than `gaze`, or None: the frames are seen from it
@@ -160,6 +160,7 @@ class Eye:
         if out is None:
             return [sim.frame(output, seen) for sim in self.sims]
         w = self.sims[0].width
+        out[:, len(self.sims) * w :] = 0  # black right of the panes (a split frame's odd column)
         panes = (out[:, i * w : (i + 1) * w] for i in range(len(self.sims)))
         return [sim.frame(output, seen, pane) for sim, pane in zip(self.sims, panes, strict=True)]
 

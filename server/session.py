@@ -139,7 +139,7 @@ class Frame:
     #: back from the device into it (`protocol.frame_buffer`): most viewers are sent it as it
     #: is, and the event loop copies no pixels under the GIL while the next step needs it. b""
     #: when no viewer wanted the plain frame.
-    plain: bytes | bytearray
+    plain: bytes | memoryview
     sim_seconds: float
     #: From the step's simulation to its frame's forms (the warp layers' packing: a plain
     #: frame's pixels are encoded by the device, into its message).
@@ -154,7 +154,7 @@ class Frame:
         """The frame's pixels as its encoding has them (empty when no plain frame was made)."""
         return memoryview(self.plain)[HEADER_BYTES:]
 
-    def message(self, dropped: int, warp: bool = False) -> bytes | bytearray | None:
+    def message(self, dropped: int, warp: bool = False) -> bytes | memoryview | None:
         """The frame's message, as late-warp layers if `warp`; None when the step did not make
         that form (the viewer switched between the step and the send: it takes the next)."""
         if warp:
@@ -586,8 +586,9 @@ class Session:
         self._log_gaze(self._now_ns)
         eyes_open = self.reading.eyes_open
         w, h = self.size
-        output, message, pixels = None, b"", None
-        if plain:  # the panes are composed into the message (zeros, black, between them)
+        output, pixels = None, None
+        message: bytes | memoryview = b""
+        if plain:  # the panes are composed into the message
             output = SIM_OUTPUT[self.settings.encoding]
             message, pixels = frame_buffer(w, h, self.settings.encoding)
         late = functools.partial(self._late_gaze, read_at) if self.settings.late_gaze else None
