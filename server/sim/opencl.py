@@ -94,7 +94,8 @@ class OpenCLBackend:
         self.queue = cl.CommandQueue(self.ctx)
         self.device_name = self.ctx.devices[0].name.strip()
         #: The device's memory is the host's (PoCL on the CPU): compose writes into a frame's
-        #: message itself (`compose`'s `out`) instead of being read back into it.
+        #: message itself (`compose`'s `out`, CL_MEM_USE_HOST_PTR; mapping it copies nothing)
+        #: instead of being read back into it: 1.05x the frames at 720p (docs/cli.md, ninth).
         self.shares_host_memory = bool(self.ctx.devices[0].host_unified_memory)
         self.vec = vector_width()  # pixels per work-item, fixed for this backend's programs
         self.k = self.kernels(KERNEL_FILES)
@@ -547,7 +548,8 @@ class OpenCLBackend:
         fovea[: lay.width] *= visibility
         self._upload(b["fovea"], fovea)
         direct = out is not None and out.flags.c_contiguous and self.shares_host_memory
-        target = self._over(out) if direct else b[buf_name]
+        host_memory = cl.mem_flags.WRITE_ONLY | cl.mem_flags.USE_HOST_PTR  # `out`'s, as it is
+        target = cl.Buffer(self.ctx, host_memory, hostbuf=out) if direct else b[buf_name]
         self.k[kernel](
             self.queue, self.rows_v(), None,
             self.P, b["G"], rho_full, b["maps"], b["A"],
@@ -568,14 +570,6 @@ class OpenCLBackend:
         if into is not out:  # a pane of a split frame: its rows lie apart in `out`
             out[...] = into
         return out
-
-    def _over(self, host: np.ndarray) -> cl.Buffer:
-        """A buffer whose memory is `host`'s (CL_MEM_USE_HOST_PTR): where the device's memory
-        is the host's, a kernel writes there and mapping it copies nothing (PoCL: checked by
-        `test_compose_writes_into_the_message_where_the_device_shares_host_memory`). A 720p
-        frame's 3.7 MB read back no more: 1.05x the frames in bench-live (11 pairs)."""
-        flags = cl.mem_flags.WRITE_ONLY | cl.mem_flags.USE_HOST_PTR
-        return cl.Buffer(self.ctx, flags, hostbuf=host)
 
     def warp_layers(self, eyes: float) -> tuple[np.ndarray, np.ndarray]:
         """What a late gaze warp sends (`gazehdr.warp`), made on the device: linear RGB before
