@@ -135,10 +135,10 @@ class SessionSettings:
 @dataclass(frozen=True)
 class Frame:
     header: FrameHeader
-    #: The frame's message as `header` has it (no frames dropped before it), its pixels read
-    #: back from the device into it (`protocol.frame_buffer`): most viewers are sent it as it
-    #: is, and the event loop copies no pixels under the GIL while the next step needs it. b""
-    #: when no viewer wanted the plain frame.
+    #: The frame's message as `header` has it (no frames dropped before it), its pixels put
+    #: there by the device (`protocol.frame_buffer`): most viewers are sent it as it is, and
+    #: the event loop copies no pixels under the GIL while the next step needs it. b"" when no
+    #: viewer wanted the plain frame.
     plain: bytes | memoryview
     sim_seconds: float
     #: From the step's simulation to its frame's forms (the warp layers' packing: a plain

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gazehdr.protocol import SIM_OUTPUT, frame_buffer
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.models import Models, each_beside_default
 
@@ -189,12 +190,18 @@ def test_bad_parameters_are_refused() -> None:
 @pytest.mark.parametrize("scene", list(scenes()))
 def test_wire_outputs_stay_in_range_at_the_edges(scene: str) -> None:
     """The kernels that encode for the wire (f16, RGB10_A2) see the same extremes as `v`:
-    darkness, 1e8 cd/m^2, NaN/Inf input, gaze far off screen, dt = 0 and 1 s."""
+    darkness, 1e8 cd/m^2, NaN/Inf input, gaze far off screen, dt = 0 and 1 s; composed into a
+    frame's message (the server's path) they give the same words, and the header's rho at
+    the gaze is finite."""
     sims = {out: Simulator(W, H, backend="opencl") for out in ("float16", "rgb10a2")}
+    encodings = {output: encoding for encoding, output in SIM_OUTPUT.items()}
     for out, sim in sims.items():
         sim.load_scene(scenes()[scene])
         for dt, gaze in [(0.0, (48.0, 27.0)), (1.0, (-1e6, 3e9)), (1 / 60, (W, H))]:
             frame = sim.step(dt, gaze=gaze, output=out)
+            _, pixels = frame_buffer(W, H, encodings[out])
+            assert np.array_equal(sim.frame(out, out=pixels), frame)
+            assert np.isfinite(sim.rho_at_gaze())
             if out == "float16":
                 assert np.isfinite(frame).all() and frame.min() >= 0 and frame.max() <= 1
             else:

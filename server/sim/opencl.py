@@ -533,8 +533,9 @@ class OpenCLBackend:
         out_dtype float16 gives H×W×3 half floats (round to nearest even, the same as
         `v.astype(np.float16)`), uint32 gives H×W RGB10_A2 words (`r | g << 10 | b << 20` of
         round(1023 v), the same as gazehdr.protocol's rgb10a2 encoding). The afterimage maps
-        are seen with `visibility` (Sec. 5's boost) times the foveal fall-off. Read back into
-        `out` when given (that shape and dtype; a pane of a split frame is a strided view)."""
+        are seen with `visibility` (Sec. 5's boost) times the foveal fall-off. Into `out` when
+        given (that shape and dtype; a pane of a split frame is a strided view): written there
+        by the kernel where `shares_host_memory`, else read back into it."""
         lay, b = self.lay, self.buf
         kind = np.dtype(out_dtype)
         if kind not in COMPOSE_OUTPUTS:
