@@ -68,6 +68,7 @@ def serve_web(page: Any, origin: str = "http://viewer.test", web_dir: Path | Non
 
 def _server_snapshot(metrics) -> dict[str, float]:
     return {
+        "at": time.monotonic(),
         "frames": metrics.frames_sent.value,
         "bytes": metrics.bytes_sent.value,
         "sim_s": metrics.sim_seconds.total,
@@ -88,7 +89,10 @@ def _server_figures(before: dict[str, float], after: dict[str, float]) -> dict[s
         "sim_ms": 1e3 * d["sim_s"] / n,
         "encode_ms": 1e3 * d["enc_s"] / n,
         "send_ms": 1e3 * d["send_s"] / max(d["send_n"], 1),
-        "made": d["sim_n"],
+        # Steps the session made a second in the same window: below the setting where steps ran
+        # more than an interval late (`live.next_due`); a client's fps below this where its
+        # mailbox replaced frames it had not taken.
+        "steps_per_s": d["sim_n"] / max(d["at"], 1e-9),
         # From a gaze reaching the server to its first frame handed to the socket (a mean).
         "server_lat_ms": 1e3 * d["gaze_s"] / max(d["gaze_n"], 1),
     }
@@ -326,7 +330,8 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"link: {netlink.link() or 'loopback, not shaped'}")
     print(
-        f"{'size':>10} {'encoding':>8} {'client':>7} {'late':>4} {'fps':>6} {'KiB/frame':>10} "
+        f"{'size':>10} {'encoding':>8} {'client':>7} {'late':>4} {'fps':>6} {'steps/s':>7} "
+        f"{'KiB/frame':>10} "
         f"{'sim ms':>7} {'enc ms':>7} {'send ms':>7} {'lat p50':>8} {'lat p95':>8} {'n':>4} "
         f"{'srv lat':>7} "
         f"{'Mbit/s':>7} {'dec ms':>7} {'lost':>4}"
@@ -357,6 +362,7 @@ def main(argv: list[str] | None = None) -> int:
                 live.stop()
         print(
             f"{size[0]:>5}x{size[1]:<4} {encoding:>8} {client:>7} {late:>4} {r['fps']:6.1f} "
+            f"{r['steps_per_s']:7.1f} "
             f"{r['bytes_per_frame'] / 1024:10.0f} {r['sim_ms']:7.1f} "
             f"{r['encode_ms']:7.2f} {r['send_ms']:7.2f} {r['lat_p50']:8.0f} "
             f"{r['lat_p95']:8.0f} {r['lat_n']:4d} {r['server_lat_ms']:7.1f} "

@@ -50,15 +50,18 @@ def test_bench_live_measures_a_client_in_this_process_and_in_its_own(capsys) -> 
     argv += ["--seconds", "1", "--warmup", "0.5", "--fps", "30", "--late-gaze", "on,off"]
     assert bench_live.main(argv) == 0
     rows = re.findall(
-        r"^\s+96x54\s+rgb10a2\s+(\w+)\s+(on|off)\s+([\d.]+)\s+(\d+)", capsys.readouterr().out, re.M
+        r"^\s+96x54\s+rgb10a2\s+(\w+)\s+(on|off)\s+([\d.]+)\s+([\d.]+)\s+(\d+)",
+        capsys.readouterr().out,
+        re.M,
     )
-    assert [(c, late) for c, late, _, _ in rows] == [
+    assert [(c, late) for c, late, _, _, _ in rows] == [
         ("socket", "on"),
         ("socket", "off"),
         ("process", "on"),
         ("process", "off"),
     ]
-    for _, _, fps, kib in rows:
-        assert float(fps) > 0 and int(kib) == 20  # 96 x 54 x 4 bytes and a header, in KiB
+    for _, _, fps, steps, kib in rows:
+        # Frames delivered, the session's steps a second, 96 x 54 x 4 bytes and a header in KiB.
+        assert float(fps) > 0 and float(steps) > 0 and int(kib) == 20
     with pytest.raises(SystemExit):
         bench_live.main(["--clients", "socket,telnet"])
