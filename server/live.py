@@ -332,10 +332,12 @@ class LiveSession:
 
     async def _demand(self, patience: float) -> None:
         """Wait (up to `patience` s) until some viewer would take a new frame: frames nobody
-        can take yet cost CPU that a browser on the same machine needs. The eye still advances
-        by the real elapsed time at the next step."""
+        can take yet cost CPU that a browser on the same machine, or a stream's encoder, needs
+        (`StreamViewers.wants_frame`). The eye still advances by the real elapsed time at the
+        next step."""
         deadline = time.monotonic() + patience
-        while not any(v.wants_frame() for v in self.viewers) and time.monotonic() < deadline:
+        wants = self.streams.wants_frame
+        while not any(wants(v) for v in self.viewers) and time.monotonic() < deadline:
             await asyncio.sleep(DEMAND_POLL_S)
 
     async def run(self) -> None:

@@ -4,7 +4,7 @@ A session's simulator writes one raw encoding (`f16` or `rgb10a2`, the server's 
 a viewer may ask for a stream instead (`av1`, gazehdr.video: for viewers on another machine,
 docs/deployment.md). `Streams` holds one encoder per stream in use and encodes each frame once
 for all the viewers that chose it, on a thread of its own, so that encoding frame N overlaps
-simulating frame N+1.
+simulating frame N+1, and the session simulates no further ahead of its encoder than that.
 """
 
 from __future__ import annotations
@@ -49,11 +49,19 @@ class Streams:
         self._streams: dict[Encoding, video.Stream] = {}
         self._thread: concurrent.futures.ThreadPoolExecutor | None = None
         self._busy: concurrent.futures.Future[dict[Encoding, Frame]] | None = None
+        #: A frame made while the last was being encoded: it goes next (`encode_waiting`).
+        self._waiting: tuple[Frame, frozenset[Encoding], Done] | None = None
         self._dropping = False  # `idle` has sent the streams' end to their thread
+
+    @property
+    def backlogged(self) -> bool:
+        """A frame waits for the encoder: a frame made now could only take its place."""
+        return self._waiting is not None
 
     def idle(self) -> None:
         """Nobody watches a stream: end them (on their thread, where one may be encoding), so
         that a new viewer starts a new stream; once, not at every frame until that is done."""
+        self._waiting = None
         if self._streams and self._thread is not None and not self._dropping:
             self._dropping = True
             self._thread.submit(self._drop_all)
@@ -64,19 +72,29 @@ class Streams:
 
     def submit(self, frame: Frame, encodings: frozenset[Encoding], done: Done) -> bool:
         """Encode `frame` for `encodings` on the streams' thread, then call `done` (there) with
-        the future of `encode`'s result. False, and nothing done, while the last frame is still
-        being encoded: frames come faster than they can be coded, so this one is left out."""
-        if self._busy is not None and not self._busy.done():
-            return False
+        the future of `encode`'s result. While the last frame is still being encoded, `frame`
+        waits, to go as soon as the encoder is free (`encode_waiting`). True where this left a
+        frame that was waiting out (this one is newer)."""
+        left_out = self._waiting is not None
+        self._waiting = (frame, encodings, done)
+        self.encode_waiting()
+        return left_out
+
+    def encode_waiting(self) -> None:
+        """Start encoding the frame that waits, if the encoder is free (the event loop calls
+        this once the last frame's packets are out)."""
+        if self._waiting is None or (self._busy is not None and not self._busy.done()):
+            return
+        (frame, encodings, done), self._waiting = self._waiting, None
         if self._thread is None:
             self._thread = concurrent.futures.ThreadPoolExecutor(1, "gazehdr-encode")
         self._busy = self._thread.submit(self.encode, frame, encodings)
         self._busy.add_done_callback(done)
-        return True
 
     def close(self) -> None:
         """The session ended: no more frames; one being encoded finishes on its own thread,
         which then ends the streams."""
+        self._waiting = None
         if self._thread is not None:
             self._thread.submit(self._drop, list(self._streams))
             self._thread.shutdown(wait=False, cancel_futures=False)
@@ -155,11 +173,12 @@ class StreamViewers:
 
     A packet is of use to a viewer only after every one since its last keyframe, so a stream's
     packets are never dropped as raw frames are: a frame is left out of a stream (its viewers
-    miss a frame, the stream stays whole) while the last one is still being encoded, and while a
-    viewer of the stream could not take a packet now (its window is full, or a packet waits
-    unsent): a stream runs at the pace of its slowest viewer, so a slow link gets fewer frames,
-    not gaps and the keyframes they would cost. A viewer that lost its stream anyway (it asked,
-    after a corrupt packet) gets nothing until the keyframe that is then made.
+    miss a frame, the stream stays whole) while a viewer of the stream could not take a packet
+    now (its window is full, or a packet waits unsent), and when a newer frame takes its place
+    while it waits for the encoder: a stream runs at the pace of its slowest viewer, so a slow
+    link gets fewer frames, not gaps and the keyframes they would cost. A viewer that lost its
+    stream anyway (it asked, after a corrupt packet) gets nothing until the keyframe that is
+    then made.
     """
 
     def __init__(self, raw: Encoding, fps: float, metrics: Metrics) -> None:
@@ -170,6 +189,12 @@ class StreamViewers:
     def takes(self, viewer: Viewer) -> bool:
         """Whether `viewer` gets a stream rather than the raw frames."""
         return viewer.encoding is not None and self.streams.is_stream(viewer.encoding)
+
+    def wants_frame(self, viewer: Viewer) -> bool:
+        """`viewer.wants_frame()`, and for a stream's viewer, no frame waiting for the encoder
+        already: the session makes no frame that could only take that one's place, so the
+        encoder, sharing the CPU with the simulation, gets the time such frames would cost."""
+        return viewer.wants_frame() and not (self.takes(viewer) and self.streams.backlogged)
 
     def choose(self, viewer: Viewer, encoding: Encoding | None) -> None:
         """`viewer` gets frames in `encoding` from the next one on (a stream: from a keyframe);
@@ -223,13 +248,14 @@ class StreamViewers:
                 else:
                     loop.call_soon_threadsafe(self._deliver, viewers, work.result())
 
-        if not self.streams.submit(frame, encodings, done):
+        if self.streams.submit(frame, encodings, done):
             self._missed(viewers, encodings)
 
     def close(self) -> None:
         self.streams.close()
 
     def _deliver(self, viewers: list[Viewer], frames: dict[Encoding, Frame]) -> None:
+        self.streams.encode_waiting()
         m = self.metrics
         for frame in frames.values():
             m.stream_encode_seconds.observe(frame.encode_seconds)

@@ -16,11 +16,15 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import queue
+import threading
 import time
 
 import numpy as np
 import pytest
 
+from gazehdr.live import LiveSession, Viewer
+from gazehdr.metrics import Metrics
 from gazehdr.protocol import (
     Encoding,
     EncodingChoice,
@@ -33,7 +37,7 @@ from gazehdr.protocol import (
 )
 from gazehdr.scenes.library import SceneLibrary
 from gazehdr.session import Session, SessionSettings
-from gazehdr.transport import Streams, raw_pixels
+from gazehdr.transport import Streams, StreamViewers, raw_pixels
 from gazehdr.video import Decoder, Encoder
 from gazehdr.yuv import KB, KG, KR, Converter, to_rgb, to_yuv420p10
 from tests.test_server import Client, run
@@ -279,6 +283,121 @@ def test_decode_frame_refuses_a_packet_with_a_clear_message() -> None:
     assert header.encoding is Encoding.av1 and header.keyframe and bytes(payload)
     with pytest.raises(ProtocolError, match=r"decode it with gazehdr\.video"):
         decode_frame(message)
+
+
+class GatedStreams(Streams):
+    """Streams whose encoder starts each frame only once `gate` is set: the test decides when
+    the encoder is busy. The queueing around it is the real one."""
+
+    gate = threading.Event()
+
+    def encode(self, frame, encodings):
+        assert self.gate.wait(30), "the test never let the encoder go"
+        return super().encode(frame, encodings)
+
+
+def test_a_frame_made_while_the_encoder_is_busy_waits_and_goes_next() -> None:
+    """While a frame is being encoded the next one waits, a newer one takes its place, and the
+    one waiting goes as soon as the encoder is free: the stream stays whole and in order. While
+    a frame waits, a stream's viewer wants no new frame (the session makes none that could only
+    take its place, `LiveSession._demand`); a raw viewer still does."""
+    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
+    session = Session("t", settings, SceneLibrary(None), clock=time.perf_counter)
+    a, b, c = (session.tick(1 / 30, [])[0] for _ in range(3))
+    viewers = StreamViewers(Encoding.rgb10a2, 30, Metrics())
+    streams = viewers.streams = GatedStreams(30)
+    streams.gate.clear()
+
+    async def no_send(_: object) -> None:
+        return None
+
+    stream_viewer, raw_viewer = (Viewer(no_send, no_send, Metrics()) for _ in range(2))
+    viewers.choose(stream_viewer, Encoding.av1)
+    assert viewers.wants_frame(stream_viewer) and viewers.wants_frame(raw_viewer)
+    encoded: queue.Queue = queue.Queue()
+    av1 = frozenset({Encoding.av1})
+    assert not streams.submit(a, av1, encoded.put) and not streams.backlogged  # a: encoding
+    assert not streams.submit(b, av1, encoded.put) and streams.backlogged  # b waits
+    assert not viewers.wants_frame(stream_viewer) and viewers.wants_frame(raw_viewer)
+    assert streams.submit(c, av1, encoded.put)  # c takes b's place: b is left out
+    streams.encode_waiting()  # the encoder is still busy with a: c keeps waiting
+    assert streams.backlogged
+    streams.gate.set()
+    first = encoded.get(timeout=60).result()[Encoding.av1]
+    streams.encode_waiting()  # as the event loop does once a's packet is out
+    assert not streams.backlogged and viewers.wants_frame(stream_viewer)
+    second = encoded.get(timeout=60).result()[Encoding.av1]
+    assert (first.header.frame, second.header.frame) == (a.header.frame, c.header.frame)
+    decoder = Decoder()  # the delta after the keyframe decodes on it: the stream is whole
+    for packet in (first, second):
+        header, payload = split_frame(packet.message(0))
+        decoder.planes(bytes(payload), header.keyframe)
+    streams.close()
+
+
+def test_the_frame_that_waited_is_encoded_once_the_last_ones_packet_is_out() -> None:
+    """The same through `StreamViewers.publish`, on an event loop as a live session runs it:
+    frame b, made while a was being encoded, reaches the viewer after a without anyone asking
+    (the loop starts it as it delivers a's packet)."""
+    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
+    session = Session("t", settings, SceneLibrary(None), clock=time.perf_counter)
+    a, b = (session.tick(1 / 30, [])[0] for _ in range(2))
+
+    async def check() -> None:
+        viewers = StreamViewers(Encoding.rgb10a2, 30, Metrics())
+        streams = viewers.streams = GatedStreams(30)
+        streams.gate.clear()
+
+        async def no_send(_: object) -> None:
+            return None
+
+        viewer = Viewer(no_send, no_send, Metrics())
+        viewers.choose(viewer, Encoding.av1)
+        viewers.publish(a, [viewer])
+        viewers.publish(b, [viewer])
+        assert streams.backlogged
+        streams.gate.set()
+        for made in (a, b):
+            frame, _ = await asyncio.wait_for(viewer.mailbox.take(), 60)
+            assert frame is not None and frame.header.frame == made.header.frame
+        assert not streams.backlogged
+        streams.close()
+
+    run(check())
+
+
+def test_a_session_whose_stream_has_a_frame_waiting_makes_no_new_one() -> None:
+    """`LiveSession._demand` for a stream's only viewer: while a frame waits for the encoder it
+    keeps waiting (the frame could only take that one's place); once the encoder has taken it,
+    it returns at once."""
+    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
+    live = LiveSession(
+        Session("t", settings, SceneLibrary(None), clock=time.perf_counter), Metrics()
+    )
+    streams = live.streams.streams = GatedStreams(30)
+    streams.gate.clear()
+
+    async def no_send(_: object) -> None:
+        return None
+
+    async def check() -> None:
+        viewer = Viewer(no_send, no_send, Metrics())
+        live.streams.choose(viewer, Encoding.av1)
+        live.viewers.add(viewer)
+        a, b = (live._tick(1 / 30, [])[0] for _ in range(2))
+        encoded = threading.Event()
+        av1 = frozenset({Encoding.av1})
+        streams.submit(a, av1, lambda _: encoded.set())
+        streams.submit(b, av1, lambda _: None)
+        with pytest.raises(TimeoutError):  # b waits: no new frame
+            await asyncio.wait_for(live._demand(60), 0.3)
+        streams.gate.set()
+        assert await asyncio.to_thread(encoded.wait, 60)
+        streams.encode_waiting()  # the encoder takes b
+        await asyncio.wait_for(live._demand(60), 10)
+        streams.close()
+
+    run(check())
 
 
 def test_a_stream_waits_for_a_slow_viewer_without_breaking(live_server) -> None:
