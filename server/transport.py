@@ -82,7 +82,7 @@ class Streams:
 
     def encode_waiting(self) -> None:
         """Start encoding the frame that waits, if the encoder is free (the event loop calls
-        this once the last frame's packets are out)."""
+        this once the last frame's encoding has ended, its packets out or its error told)."""
         if self._waiting is None or (self._busy is not None and not self._busy.done()):
             return
         (frame, encodings, done), self._waiting = self._waiting, None
@@ -277,6 +277,7 @@ class StreamViewers:
         return 1
 
     def _failed(self, viewers: list[Viewer], error: BaseException) -> None:
+        self.streams.encode_waiting()  # the frame that waited goes on, as after a success
         log.error("encoding a stream failed: %s", error)
         note = {"type": "error", "message": f"encoding failed: {error}", "in": "encoding"}
         for viewer in viewers:
