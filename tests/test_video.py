@@ -285,6 +285,15 @@ def test_decode_frame_refuses_a_packet_with_a_clear_message() -> None:
         decode_frame(message)
 
 
+async def _no_send(_: object) -> None:
+    return None
+
+
+def _small_session() -> Session:
+    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
+    return Session("t", settings, SceneLibrary(None), clock=time.perf_counter)
+
+
 class GatedStreams(Streams):
     """Streams whose encoder starts each frame only once `gate` is set: the test decides when
     the encoder is busy. The queueing around it is the real one."""
@@ -301,17 +310,13 @@ def test_a_frame_made_while_the_encoder_is_busy_waits_and_goes_next() -> None:
     one waiting goes as soon as the encoder is free: the stream stays whole and in order. While
     a frame waits, a stream's viewer wants no new frame (the session makes none that could only
     take its place, `LiveSession._demand`); a raw viewer still does."""
-    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
-    session = Session("t", settings, SceneLibrary(None), clock=time.perf_counter)
+    session = _small_session()
     a, b, c = (session.tick(1 / 30, [])[0] for _ in range(3))
     viewers = StreamViewers(Encoding.rgb10a2, 30, Metrics())
     streams = viewers.streams = GatedStreams(30)
     streams.gate.clear()
 
-    async def no_send(_: object) -> None:
-        return None
-
-    stream_viewer, raw_viewer = (Viewer(no_send, no_send, Metrics()) for _ in range(2))
+    stream_viewer, raw_viewer = (Viewer(_no_send, _no_send, Metrics()) for _ in range(2))
     viewers.choose(stream_viewer, Encoding.av1)
     assert viewers.wants_frame(stream_viewer) and viewers.wants_frame(raw_viewer)
     encoded: queue.Queue = queue.Queue()
@@ -339,8 +344,7 @@ def test_the_frame_that_waited_is_encoded_once_the_last_ones_packet_is_out() -> 
     """The same through `StreamViewers.publish`, on an event loop as a live session runs it:
     frame b, made while a was being encoded, reaches the viewer after a without anyone asking
     (the loop starts it as it delivers a's packet)."""
-    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
-    session = Session("t", settings, SceneLibrary(None), clock=time.perf_counter)
+    session = _small_session()
     a, b = (session.tick(1 / 30, [])[0] for _ in range(2))
 
     async def check() -> None:
@@ -348,10 +352,7 @@ def test_the_frame_that_waited_is_encoded_once_the_last_ones_packet_is_out() -> 
         streams = viewers.streams = GatedStreams(30)
         streams.gate.clear()
 
-        async def no_send(_: object) -> None:
-            return None
-
-        viewer = Viewer(no_send, no_send, Metrics())
+        viewer = Viewer(_no_send, _no_send, Metrics())
         viewers.choose(viewer, Encoding.av1)
         viewers.publish(a, [viewer])
         viewers.publish(b, [viewer])
@@ -370,18 +371,12 @@ def test_a_session_whose_stream_has_a_frame_waiting_makes_no_new_one() -> None:
     """`LiveSession._demand` for a stream's only viewer: while a frame waits for the encoder it
     keeps waiting (the frame could only take that one's place); once the encoder has taken it,
     it returns at once."""
-    settings = SessionSettings(width=64, height=48, encoding=Encoding.rgb10a2, fit_viewport=False)
-    live = LiveSession(
-        Session("t", settings, SceneLibrary(None), clock=time.perf_counter), Metrics()
-    )
+    live = LiveSession(_small_session(), Metrics())
     streams = live.streams.streams = GatedStreams(30)
     streams.gate.clear()
 
-    async def no_send(_: object) -> None:
-        return None
-
     async def check() -> None:
-        viewer = Viewer(no_send, no_send, Metrics())
+        viewer = Viewer(_no_send, _no_send, Metrics())
         live.streams.choose(viewer, Encoding.av1)
         live.viewers.add(viewer)
         a, b = (live._tick(1 / 30, [])[0] for _ in range(2))
