@@ -58,6 +58,15 @@ class Streams:
         """A frame waits for the encoder: a frame made now could only take its place."""
         return self._waiting is not None
 
+    @property
+    def waiting_for(self) -> frozenset[Encoding]:
+        """The streams the waiting frame is for (none: no frame waits)."""
+        return frozenset() if self._waiting is None else self._waiting[1]
+
+    def leave_out_waiting(self) -> None:
+        """The waiting frame is not encoded after all (its viewers could not take it now)."""
+        self._waiting = None
+
     def idle(self) -> None:
         """Nobody watches a stream: end them (on their thread, where one may be encoding), so
         that a new viewer starts a new stream; once, not at every frame until that is done."""
@@ -234,7 +243,7 @@ class StreamViewers:
         if not encodings:
             self.streams.idle()
             return
-        if any(v.encoding in encodings and v.keyed and not v.wants_frame() for v in viewers):
+        if self._blocked(viewers, encodings):
             self._missed(viewers, encodings)
             return
         loop = asyncio.get_running_loop()
@@ -254,8 +263,13 @@ class StreamViewers:
     def close(self) -> None:
         self.streams.close()
 
+    @staticmethod
+    def _blocked(viewers: list[Viewer], encodings: frozenset[Encoding]) -> bool:
+        """Whether a viewer of these streams could not take a packet now (its window is full, or
+        a packet waits unsent): the frame is then left out, not its packet out of the stream."""
+        return any(v.encoding in encodings and v.keyed and not v.wants_frame() for v in viewers)
+
     def _deliver(self, viewers: list[Viewer], frames: dict[Encoding, Frame]) -> None:
-        self.streams.encode_waiting()
         m = self.metrics
         for frame in frames.values():
             m.stream_encode_seconds.observe(frame.encode_seconds)
@@ -263,6 +277,18 @@ class StreamViewers:
             frame = frames.get(viewer.encoding) if self.takes(viewer) else None
             if frame is not None:
                 m.frames_dropped.inc(self._offer(viewer, frame))
+        self._encode_waiting(viewers)
+
+    def _encode_waiting(self, viewers: list[Viewer]) -> None:
+        """The last frame's encoding has ended: the frame that waited goes now, unless, with that
+        one's packet offered, a viewer of its streams could not take another (`publish`'s check,
+        made again): then it is left out."""
+        encodings = self.streams.waiting_for
+        if encodings and self._blocked(viewers, encodings):
+            self.streams.leave_out_waiting()
+            self._missed(viewers, encodings)
+            return
+        self.streams.encode_waiting()
 
     def _offer(self, viewer: Viewer, frame: Frame) -> int:
         """Put a packet in the viewer's mailbox, never in place of one still waiting (the next
@@ -277,7 +303,7 @@ class StreamViewers:
         return 1
 
     def _failed(self, viewers: list[Viewer], error: BaseException) -> None:
-        self.streams.encode_waiting()  # the frame that waited goes on, as after a success
+        self._encode_waiting(viewers)  # the frame that waited goes on, as after a success
         log.error("encoding a stream failed: %s", error)
         note = {"type": "error", "message": f"encoding failed: {error}", "in": "encoding"}
         for viewer in viewers:

@@ -302,6 +302,7 @@ class GatedStreams(Streams):
 
     def encode(self, frame, encodings):
         assert self.gate.wait(30), "the test never let the encoder go"
+        self.encoded = [*getattr(self, "encoded", []), frame.header.frame]
         return super().encode(frame, encodings)
 
 
@@ -340,10 +341,13 @@ def test_a_frame_made_while_the_encoder_is_busy_waits_and_goes_next() -> None:
     streams.close()
 
 
-def test_the_frame_that_waited_is_encoded_once_the_last_ones_packet_is_out() -> None:
+@pytest.mark.parametrize("taking", [True, False], ids=["viewer-waiting", "packet-unsent"])
+def test_the_frame_that_waited_goes_once_the_last_ones_packet_is_out(taking: bool) -> None:
     """The same through `StreamViewers.publish`, on an event loop as a live session runs it:
-    frame b, made while a was being encoded, reaches the viewer after a without anyone asking
-    (the loop starts it as it delivers a's packet)."""
+    frame b, made while a was being encoded, goes once a's packet is offered, without anyone
+    asking, if the viewer can take another packet then (its task waits on its mailbox).
+    Where a's packet still waits unsent, b is left out instead, as `publish` leaves out a
+    frame then: a dropped frame, not a packet missing from the stream (no keyframe asked)."""
     session = _small_session()
     a, b = (session.tick(1 / 30, [])[0] for _ in range(2))
 
@@ -351,18 +355,23 @@ def test_the_frame_that_waited_is_encoded_once_the_last_ones_packet_is_out() -> 
         viewers = StreamViewers(Encoding.rgb10a2, 30, Metrics())
         streams = viewers.streams = GatedStreams(30)
         streams.gate.clear()
-
         viewer = Viewer(_no_send, _no_send, Metrics())
+        viewer.taking = taking  # as `Viewer.pump` sets it while it waits on the mailbox
         viewers.choose(viewer, Encoding.av1)
         viewers.publish(a, [viewer])
         viewers.publish(b, [viewer])
         assert streams.backlogged
         streams.gate.set()
-        for made in (a, b):
+        frame, _ = await asyncio.wait_for(viewer.mailbox.take(), 60)
+        assert frame is not None and frame.header.frame == a.header.frame
+        if taking:
             frame, _ = await asyncio.wait_for(viewer.mailbox.take(), 60)
-            assert frame is not None and frame.header.frame == made.header.frame
+            assert frame is not None and frame.header.frame == b.header.frame
+        else:
+            assert viewer.mailbox.dropped == 1 and viewer.keyed  # b left out, the stream whole
         assert not streams.backlogged
         streams.close()
+        assert streams.encoded == ([a.header.frame, b.header.frame] if taking else [a.header.frame])
 
     run(check())
 
