@@ -298,11 +298,14 @@ class GatedStreams(Streams):
     """Streams whose encoder starts each frame only once `gate` is set: the test decides when
     the encoder is busy. The queueing around it is the real one."""
 
-    gate = threading.Event()
+    def __init__(self, fps: float) -> None:
+        super().__init__(fps)
+        self.gate = threading.Event()
+        self.encoded: list[int] = []  # the frames encoded, by number, in order
 
     def encode(self, frame, encodings):
         assert self.gate.wait(30), "the test never let the encoder go"
-        self.encoded = [*getattr(self, "encoded", []), frame.header.frame]
+        self.encoded.append(frame.header.frame)
         return super().encode(frame, encodings)
 
 
@@ -315,7 +318,6 @@ def test_a_frame_made_while_the_encoder_is_busy_waits_and_goes_next() -> None:
     a, b, c = (session.tick(1 / 30, [])[0] for _ in range(3))
     viewers = StreamViewers(Encoding.rgb10a2, 30, Metrics())
     streams = viewers.streams = GatedStreams(30)
-    streams.gate.clear()
 
     stream_viewer, raw_viewer = (Viewer(_no_send, _no_send, Metrics()) for _ in range(2))
     viewers.choose(stream_viewer, Encoding.av1)
@@ -354,7 +356,6 @@ def test_the_frame_that_waited_goes_once_the_last_ones_packet_is_out(taking: boo
     async def check() -> None:
         viewers = StreamViewers(Encoding.rgb10a2, 30, Metrics())
         streams = viewers.streams = GatedStreams(30)
-        streams.gate.clear()
         viewer = Viewer(_no_send, _no_send, Metrics())
         viewer.taking = taking  # as `Viewer.pump` sets it while it waits on the mailbox
         viewers.choose(viewer, Encoding.av1)
@@ -382,7 +383,6 @@ def test_a_session_whose_stream_has_a_frame_waiting_makes_no_new_one() -> None:
     it returns at once."""
     live = LiveSession(_small_session(), Metrics())
     streams = live.streams.streams = GatedStreams(30)
-    streams.gate.clear()
 
     async def check() -> None:
         viewer = Viewer(_no_send, _no_send, Metrics())
