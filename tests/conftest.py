@@ -1,5 +1,6 @@
 """Shared fixtures: a real uvicorn server on loopback, started per test with the given settings;
-and the suite's skip policy: under CI (CI set) a skipped test fails the run."""
+LSL outlets withdrawn safely after a test; and the suite's skip policy: under CI (CI set) a
+skipped test fails the run."""
 
 from __future__ import annotations
 
@@ -56,6 +57,17 @@ def live_server(tmp_path: Path) -> Iterator[Callable[..., BackgroundServer]]:
     yield start
     for live in started:
         live.stop()
+
+
+@pytest.fixture
+def lsl_outlet() -> Iterator[Callable[[Any], Any]]:
+    """Factory: `lsl_outlet(info)`, a real pylsl outlet, destroyed after the test once its
+    consumers have left (tests/lsl_loopback.py `Publisher`: liblsl may crash otherwise)."""
+    from lsl_loopback import Publisher  # imported here: it sets LSLAPICFG before liblsl loads
+
+    publisher = Publisher()
+    yield publisher.outlet
+    publisher.withdraw_all()
 
 
 def sole_tracker(server: BackgroundServer) -> TrackerFeed:

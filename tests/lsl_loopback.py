@@ -11,6 +11,7 @@ The layouts are those the apps publish (read in their sources: labstreaminglayer
 
 from __future__ import annotations
 
+import gc
 import os
 import threading
 import time
@@ -129,6 +130,41 @@ class Recorder:
             self.lost = True
 
     def stop(self) -> Recorder:
+        """Stop recording and destroy the inlet here, once its thread has let it go: an inlet
+        is never destroyed under a pull, nor left for the garbage collector to destroy after
+        its outlet (see `Publisher`)."""
         self._stop.set()
         self._thread.join(5.0)
+        assert not self._thread.is_alive(), "the recorder's thread did not stop"
+        self.inlet = None
         return self
+
+
+class Publisher:
+    """The outlets of one test (`outlet(info)`), destroyed by `withdraw_all` once no consumer is
+    connected to any: after the test, whose inlets, Recorders and sources went with its locals.
+
+    liblsl can crash the process when an outlet is destroyed while a consumer's connection to it
+    is being torn down, or while an inlet on it is still open (sccn/liblsl#218 and #220;
+    mne-lsl's tests learnt to destroy inlets before outlets). A test that ends right after its
+    daemon exits would otherwise destroy the daemon's tracker outlet in that window. A consumer
+    that has gone leaves within milliseconds (`have_consumers`), so the wait costs nothing.
+    """
+
+    def __init__(self) -> None:
+        self.outlets: list[pylsl.StreamOutlet] = []
+
+    def outlet(self, info: pylsl.StreamInfo) -> pylsl.StreamOutlet:
+        self.outlets.append(pylsl.StreamOutlet(info))
+        return self.outlets[-1]
+
+    def withdraw_all(self, timeout: float = 10.0) -> None:
+        gc.collect()  # an inlet a reference cycle still holds goes first
+        while self.outlets:
+            self._withdraw(self.outlets.pop(), timeout)
+
+    @staticmethod
+    def _withdraw(outlet: pylsl.StreamOutlet, timeout: float) -> None:
+        name = outlet.get_info().name()
+        until(lambda: not outlet.have_consumers(), timeout, f"{name}'s consumers to leave")
+        # returning drops the last reference: the outlet is destroyed here

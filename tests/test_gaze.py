@@ -330,7 +330,7 @@ def test_serve_streams_a_tracker_of_its_own_machine_to_its_sessions(tmp_path) ->
         server.wait(timeout=30)
 
 
-def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path) -> None:
+def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path, lsl_outlet) -> None:
     """`gazehdr serve --tracker lsl:NAME`: a real pylsl outlet in the test (liblsl on loopback,
     tests/lsl_loopback.py) fixating A then B by turns; the session follows the tracker's
     fixations to A and to B (normalised on the default 1920x1080 screen)."""
@@ -343,10 +343,9 @@ def test_serve_follows_an_lsl_tracker_of_its_own_machine(tmp_path) -> None:
 
     import lsl_loopback as loopback  # sets LSLAPICFG (loopback only) as it is imported
 
-    pylsl = loopback.pylsl
     xy = [("x", "both", "ScreenX", "pixels"), ("y", "both", "ScreenY", "pixels")]
     info = loopback.stream_info("ServeLoop", "Gaze", xy, rate=100, source_id="serve-loop")
-    outlet = pylsl.StreamOutlet(info)
+    outlet = lsl_outlet(info)
     stop = threading.Event()
 
     def fixate() -> None:  # A for 0.4 s, B for 0.4 s, ... at 100 Hz until stopped

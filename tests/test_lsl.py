@@ -43,10 +43,10 @@ def _scripted_tobii(rate_hz: float = 250.0) -> list[list[float]]:
 
 
 def test_the_daemon_follows_an_lsl_tracker_and_publishes_what_it_records(
-    live_server, tmp_path: Path
+    live_server, lsl_outlet, tmp_path: Path
 ) -> None:
     server = live_server(token="t")
-    tracker = pylsl.StreamOutlet(
+    tracker = lsl_outlet(
         stream_info("LoopTobii", "Eyetracker", TOBII, rate=250, source_id="loop-tobii")
     )
     record = tmp_path / "rec.jsonl"
@@ -101,11 +101,13 @@ def test_the_daemon_follows_an_lsl_tracker_and_publishes_what_it_records(
     assert {m["id"] for m in fixations} == {1, 2}  # A and B, nothing along the saccade
 
 
-def test_the_daemon_passes_min_confidence_to_the_lsl_source(live_server, tmp_path: Path) -> None:
+def test_the_daemon_passes_min_confidence_to_the_lsl_source(
+    live_server, lsl_outlet, tmp_path: Path
+) -> None:
     """`gazehdr daemon --min-confidence 0.4`: Pupil Capture's relay layout, confidence 0.5 then
     0.2 by turns: the 0.5 samples valid (below the default 0.6 they would not be), the 0.2 not."""
     server = live_server(token="t")
-    tracker = pylsl.StreamOutlet(
+    tracker = lsl_outlet(
         stream_info("LoopPupil", "Gaze", PUPIL_CAPTURE, rate=100, source_id="loop-pupil")
     )
     record = tmp_path / "rec.jsonl"
@@ -144,11 +146,13 @@ def test_min_confidence_is_refused_for_a_source_without_one(capsys) -> None:
     assert "--min-confidence: expected a number from 0 to 1, got '1.5'" in capsys.readouterr().err
 
 
-def test_a_stream_that_goes_and_comes_back_is_read_again_and_nothing_received_is_lost() -> None:
-    def outlet() -> pylsl.StreamOutlet:
-        return pylsl.StreamOutlet(stream_info("Flaky", "Gaze", XY, rate=100, source_id="flaky"))
+def test_a_stream_that_goes_and_comes_back_is_read_again_and_nothing_received_is_lost(
+    lsl_outlet,
+) -> None:
+    def flaky() -> pylsl.StreamInfo:
+        return stream_info("Flaky", "Gaze", XY, rate=100, source_id="flaky")
 
-    first = outlet()
+    first = pylsl.StreamOutlet(flaky())  # destroyed in the test, its consumer connected
     source = open_source("lsl:Flaky", **FAST)
     got: list[GazeSample | Note] = []
     reader = threading.Thread(target=lambda: got.extend(source.records()), daemon=True)
@@ -162,7 +166,7 @@ def test_a_stream_that_goes_and_comes_back_is_read_again_and_nothing_received_is
     until(lambda: len(samples()) == 50, what="the first 50 samples")
     del first  # the tracker's app quits
     until(lambda: any("lost" in r.text for r in list(got) if isinstance(r, Note)), what="loss")
-    second = outlet()  # ... and starts again; its samples count from when it is read again
+    second = lsl_outlet(flaky())  # ... and starts again; its samples count from when it is read
 
     def connected() -> int:
         return sum("connected" in r.text for r in list(got) if isinstance(r, Note))
@@ -184,7 +188,7 @@ def test_a_stream_that_goes_and_comes_back_is_read_again_and_nothing_received_is
     assert source.reconnects == 1
 
 
-def test_a_daemon_started_before_its_stream_waits_for_it() -> None:
+def test_a_daemon_started_before_its_stream_waits_for_it(lsl_outlet) -> None:
     opened: list = []
     waiter = threading.Thread(
         target=lambda: opened.append(open_source("lsl:Late", wait=True, **FAST))
@@ -192,23 +196,23 @@ def test_a_daemon_started_before_its_stream_waits_for_it() -> None:
     waiter.start()
     time.sleep(1.0)
     assert waiter.is_alive() and not opened  # still waiting, with back-off
-    late = pylsl.StreamOutlet(stream_info("Late", "Gaze", XY, source_id="late"))
+    late = lsl_outlet(stream_info("Late", "Gaze", XY, source_id="late"))
     waiter.join(10)
     (source,) = opened
     assert source.info.name == "lsl Late" and source.info.tracker["source_id"] == "late" and late
 
 
-def test_what_cannot_be_followed_is_refused_clearly(monkeypatch: pytest.MonkeyPatch) -> None:
-    twins = [
-        pylsl.StreamOutlet(stream_info("Twin", "Gaze", XY, source_id=f"twin-{c}")) for c in "ab"
-    ]
+def test_what_cannot_be_followed_is_refused_clearly(
+    lsl_outlet, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    twins = [lsl_outlet(stream_info("Twin", "Gaze", XY, source_id=f"twin-{c}")) for c in "ab"]
     with pytest.raises(SourceUnavailableError, match="several LSL streams match name='Twin'") as e:
         open_source("lsl:Twin", **FAST)
     assert "'twin-a'" in str(e.value) and "'twin-b'" in str(e.value) and twins
     assert open_source("lsl:source_id=twin-b", **FAST).info.tracker["source_id"] == "twin-b"
     with pytest.raises(SourceUnavailableError, match="no LSL stream matches name='Nobody'"):
         open_source("lsl:Nobody", **FAST)
-    bare = pylsl.StreamOutlet(pylsl.StreamInfo("Bare", "Gaze", 2, 0, "float32", "bare"))
+    bare = lsl_outlet(pylsl.StreamInfo("Bare", "Gaze", 2, 0, "float32", "bare"))
     with pytest.raises(SourceUnavailableError, match=r"'Bare' .* has no usable gaze channels"):
         open_source("lsl:Bare", **FAST)
     assert bare

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from lsl_loopback import TOBII, Recorder, pylsl, stream_info
+from lsl_loopback import TOBII, Publisher, Recorder, pylsl, stream_info
 from xdf_files import Stream, chunk, samples_chunk, varlen, write_xdf, xdf_bytes
 
 from gazehdr.drivers.formats import detect_format, import_main
@@ -57,8 +57,9 @@ def recording() -> tuple[list[Stream], list[GazeSample], list[GazeEvent | Note]]
     """gazehdr's outlets publishing known records beside an experiment's markers and an EEG
     stream, each recorded as LabRecorder would (header, stamped samples, clock offsets)."""
     outlets = GazeOutlets("gz-xdf", source_id="gz-xdf-test", geometry=GEOMETRY, model="test rig")
-    experiment = pylsl.StreamOutlet(pylsl.StreamInfo("PsychoPy", "Markers", 1, 0, "string", "pp"))
-    eeg = pylsl.StreamOutlet(pylsl.StreamInfo("EEG", "EEG", 4, 250, "float32", "eeg-xdf"))
+    publisher = Publisher()
+    experiment = publisher.outlet(pylsl.StreamInfo("PsychoPy", "Markers", 1, 0, "string", "pp"))
+    eeg = publisher.outlet(pylsl.StreamInfo("EEG", "EEG", 4, 250, "float32", "eeg-xdf"))
     names = ("gz-xdf", "gz-xdf events", "PsychoPy", "EEG")
     recorders = [Recorder(f"name='{n}'") for n in names]
     samples, others = _published()
@@ -71,8 +72,10 @@ def recording() -> tuple[list[Stream], list[GazeSample], list[GazeEvent | Note]]
     while [len(r.rows) for r in recorders] != list(counts):
         assert time.monotonic() < deadline, [len(r.rows) for r in recorders]
         time.sleep(0.02)
-    streams = [Stream.of(r.stop()) for r in recorders]
+    streams = [Stream.of(r.stop()) for r in recorders]  # their inlets gone before the outlets
     outlets.close(wait=True)
+    del experiment, eeg
+    publisher.withdraw_all()
     return streams, samples, others
 
 
