@@ -49,9 +49,10 @@ from gazehdr.scenes.library import (
     check_name,
 )
 from gazehdr.security import install as install_guard
-from gazehdr.session import Session, SessionSettings
+from gazehdr.session import PRESET_VALUES, Session, SessionSettings
 from gazehdr.sim import Params
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
+from gazehdr.sim.presets import describe
 from gazehdr.viewer import default_web_dir, viewer_files
 
 CLOSE_POLICY = 1008
@@ -239,9 +240,13 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     @app.get("/api/params")
     async def get_params() -> dict[str, Any]:
-        """Parameters new sessions start with; `defaults` is the paper's preset."""
+        """Parameters new sessions start with, the preset they are nearest (`preset`: "paper",
+        "visible", or one with the names it changes), and every preset's values; `defaults`
+        is the paper's preset."""
         return {
             "params": defaults["params"].to_dict(),
+            "preset": describe(defaults["params"]),
+            "presets": PRESET_VALUES,
             "defaults": Params().to_dict(),
             "sections": SECTIONS,
             "ours": sorted(OURS),

@@ -92,7 +92,7 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
         "with, else 0)",
     )
     _add_model_options(p, "", "a recorded session's, else the paper's")
-    p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
+    _add_preset_options(p, "a recorded session's, else the paper's: 'paper'")
     p.add_argument(
         "--data-dir",
         metavar="DIR",
@@ -133,6 +133,22 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_preset_options(p: argparse.ArgumentParser, default: str) -> None:
+    from gazehdr.sim.presets import PRESETS
+
+    p.add_argument(
+        "--preset",
+        choices=list(PRESETS),
+        help="the model's parameters: 'paper' (Appendix A, the paper's results) or 'visible' "
+        f"(ours: afterimages visible on a plain monitor; docs/model.md) (default: {default})",
+    )
+    p.add_argument(
+        "--params",
+        metavar="PARAMS.json",
+        help="parameter values over the preset (a JSON object; partial is fine)",
+    )
+
+
 def _render_defaults() -> dict[str, object]:
     """The render options' defaults: a batch manifest's values replace these, not given ones."""
     p = argparse.ArgumentParser()
@@ -148,7 +164,8 @@ def _render_request(args: argparse.Namespace, **fields: object) -> object:
     values = dict(
         gaze=args.gaze, scene=args.scene, seconds=args.seconds, fps=args.fps, width=width,
         height=height, seed=args.seed, backend=args.backend, afterimage=args.afterimage,
-        acuity=args.acuity, params=args.params, data_dir=str(_data_dir(args.data_dir)),
+        acuity=args.acuity, preset=args.preset, params=args.params,
+        data_dir=str(_data_dir(args.data_dir)),
         scale=args.scale, exr=args.exr, video=args.video,
     )  # fmt: skip
     return RenderRequest(**(values | fields))
@@ -205,7 +222,7 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
         help="show each frame from the gaze its step started with, not the newest one read once "
         "the step is simulated (offline renders of recordings then match the live frames)",
     )
-    p.add_argument("--params", metavar="PRESET.json", help="model parameters (partial is fine)")
+    _add_preset_options(p, "'paper'")
     p.add_argument(
         "--scale",
         type=float,
@@ -289,6 +306,7 @@ def _configure_serve(p: argparse.ArgumentParser) -> None:
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
     from gazehdr.serve import serve
+    from gazehdr.sim.presets import DEFAULT_PRESET
 
     token = args.token or os.environ.get("GAZEHDR_TOKEN") or None
     return serve(
@@ -302,6 +320,7 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
         size=args.size,
         fit_viewport=not args.fixed_size,
         late_gaze=not args.no_late_gaze,
+        preset=args.preset or DEFAULT_PRESET,
         params_file=args.params,
         token=token,
         data_dir=_data_dir(args.data_dir),

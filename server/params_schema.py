@@ -10,11 +10,25 @@ import dataclasses
 import typing
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, create_model
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    create_model,
+)
 
 from gazehdr.sim import Params
 
-_STRICT: dict[type, Any] = {float: StrictInt | StrictFloat, int: StrictInt, str: StrictStr}
+_STRICT: dict[type, Any] = {
+    float: StrictInt | StrictFloat,
+    int: StrictInt,
+    str: StrictStr,
+    bool: StrictBool,
+}
 
 
 def _strict(kind: Any) -> Any:

@@ -39,6 +39,7 @@ from gazehdr.scenes.library import SceneLibrary
 from gazehdr.sim import Params
 from gazehdr.sim.layout import check_frame_size
 from gazehdr.sim.models import Models
+from gazehdr.sim.presets import DEFAULT_PRESET, load_params
 
 #: The animation `video` writes beside the frames.
 VIDEO_NAME = "render.apng"
@@ -223,7 +224,8 @@ class RenderRequest:
     backend: str = "opencl"
     afterimage: str | None = None
     acuity: str | None = None
-    params: str | None = None  # a parameter preset file (partial is fine)
+    preset: str | None = None  # a named preset (gazehdr.sim.presets); None: the log's, or paper
+    params: str | None = None  # a parameter file over the preset (partial is fine)
     data_dir: str | None = None  # where a recorded session's uploaded scenes are
     scale: float | None = None
     exr: bool = False
@@ -246,11 +248,8 @@ def render_request(
     given_models = r.afterimage is not None or r.acuity is not None
     models = Models(r.afterimage or "jacobs", r.acuity or "stochastic")  # checks the names
     params = None
-    if r.params:
-        try:
-            params = Params.load(r.params)
-        except (ValueError, TypeError) as e:
-            raise ValueError(f"parameter preset {r.params}: {e}") from None
+    if r.preset or r.params:
+        params = load_params(r.preset or DEFAULT_PRESET, r.params)
     log, changes = None, []
     if Path(r.gaze).suffix.lower() == ".jsonl":
         if not Path(r.gaze).exists():  # a named pipe is fine

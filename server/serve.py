@@ -22,9 +22,9 @@ from gazehdr.protocol import Encoding
 from gazehdr.scenes import builtin_names, open_scene
 from gazehdr.security import LOOPBACK_NAMES, WILDCARD_HOSTS, policy_for
 from gazehdr.session import GAZE_SOURCES, SessionSettings
-from gazehdr.sim import Params
 from gazehdr.sim.layout import check_frame_size
 from gazehdr.sim.models import Models
+from gazehdr.sim.presets import DEFAULT_PRESET, describe, load_params
 
 #: Largest WebSocket message a client may send (uvicorn closes with 1009 beyond it).
 WS_MAX_MESSAGE = 1024 * 1024
@@ -56,6 +56,7 @@ def build_config(
     layer: str | None = None,
     auth: bool = True,
     allow_hosts: tuple[str, ...] = (),
+    preset: str = DEFAULT_PRESET,
     experiment: object = None,
 ) -> ServerConfig:
     """Everything `serve` would run with, or a ValueError naming what is wrong."""
@@ -72,12 +73,7 @@ def build_config(
         )
     model = Models(afterimage, acuity)  # unknown names: a ValueError listing the choices
     right = Models.parse(split) if split else None  # the right pane's, in split view
-    params = Params()
-    if params_file:
-        try:
-            params = Params.load(params_file)
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"parameter preset {params_file}: {e}") from None
+    params = load_params(preset, params_file)
     loaded = {}
     if scene not in builtin_names():
         opened = open_scene(scene, scale=scale, layer=layer)  # fails now, with the file's error
@@ -255,7 +251,10 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     port = sock.getsockname()[1]
     shown = f"[{config.host}]" if ":" in config.host else config.host
     s = config.session
-    print(f"gazehdr: open http://{shown}:{port}/ (scene {s.scene}, gaze {s.gaze_source})")
+    print(
+        f"gazehdr: open http://{shown}:{port}/ (scene {s.scene}, gaze {s.gaze_source}, "
+        f"parameters {describe(s.params)})"
+    )
     for line in access_lines(config, f"http://{shown}:{port}"):
         print(f"gazehdr: {line}", flush=True)
     if config.experiment is not None:

@@ -79,6 +79,7 @@ from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import MAX_SIZE, MIN_SIZE
 from gazehdr.sim.models import ACUITY_MODELS, AFTERIMAGE_MODELS, Models
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change, param_info
+from gazehdr.sim.presets import PRESETS, describe, preset
 from gazehdr.warp import pack as pack_warp
 
 #: Tracks a session follows by name alone (a recording is `replay:NAME`, from the server's
@@ -98,6 +99,8 @@ SCENE_KINDS = {
     for name, k in KINDS.items()
 }
 PARAM_INFO_JSON = param_info()
+#: Every preset's whole parameters, for the panel's preset chooser.
+PRESET_VALUES = {name: preset(name).to_dict() for name in PRESETS}
 #: What a session tells its viewers: JSON notes, and binary scene maps (`SceneMap`).
 Note = dict[str, Any] | bytes
 Arrived = list[tuple[Control, float]]  # control messages and when each arrived
@@ -289,6 +292,8 @@ class Session:
             "encoding": self.settings.encoding.name,
             "device": self.sim.device,
             "params": self.params.to_dict(),
+            "preset": describe(self.params),
+            "presets": PRESET_VALUES,
             "defaults": Params().to_dict(),
             "sections": SECTIONS,
             "ours": sorted(OURS),

@@ -142,9 +142,16 @@ def test_side_panel_sends_controls(live_server, open_viewer) -> None:
     a1.fill("0.5")
     a1.press("Enter")
     viewer.wait("() => window.gazehdr.state.params.a1 === 0.5")
-    # The paper preset sends every default back.
-    page.click("text=Paper preset")
+    # The panel and the HUD name the live preset and what was changed over it.
+    viewer.wait("() => document.getElementById('preset-live').textContent === 'paper + a1'")
+    viewer.wait("() => /preset paper \\+ a1/.test(document.getElementById('hud').textContent)")
+    # A preset sets every parameter: ours, then the paper's (a1 back to its default).
+    page.select_option("#preset-select", "visible")
+    viewer.wait("() => window.gazehdr.state.params.bleach_display_gain === 32")
+    viewer.wait("() => /preset visible\\n/.test(document.getElementById('hud').textContent)")
+    page.select_option("#preset-select", "paper")
     viewer.wait("() => window.gazehdr.state.params.a1 === window.gazehdr.state.defaults.a1")
+    viewer.wait("() => window.gazehdr.state.preset === 'paper'")
     # A refused value: the server says why, the page shows it, nothing changes.
     a1.fill("-1")
     a1.press("Enter")

@@ -13,12 +13,21 @@ import math
 import numpy as np
 import pytest
 
-from gazehdr.figures.common import native_geometry
+from gazehdr.figures.afterimage import (
+    FIELD_GAZE,
+    afterimage_ratio,
+    mean_over,
+    square_rects,
+    squares_run,
+    surround_rects,
+)
+from gazehdr.figures.common import Context, hue_angle, native_geometry
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.baselines.ritschel import (
     hue_forward,
     hue_inverse,
     opponent,
+    opponent_chroma,
     orgb_to_rgb,
     rgb_to_orgb,
 )
@@ -69,8 +78,10 @@ def test_orgb_round_trip_float64() -> None:
     assert np.abs(orgb_to_rgb(rgb_to_orgb(rgb)) - rgb).max() < 1e-12
     orgb = np.concatenate([rng.uniform(0, 1, (1, 5000)), rng.uniform(-1, 1, (2, 5000))])
     assert np.abs(rgb_to_orgb(orgb_to_rgb(orgb)) - orgb).max() < 1e-12
-    # The opponent of the opponent is the colour itself (gamma coding included).
-    lin = rng.uniform(-0.2, 1.5, (3, 1000))
+    # The opponent is an involution in oRGB, for any colour and flight angle ...
+    assert np.abs(opponent_chroma(opponent_chroma(orgb, 0.7), -0.7) - orgb).max() < 1e-12
+    # ... and so through gamma coding where both colours lie in the gamut (near the grey axis).
+    lin = rng.uniform(0.3, 0.6, (3, 1000))
     assert np.abs(opponent(opponent(lin, 0.0, 0.455), 0.0, 0.455) - lin).max() < 1e-12
 
 
@@ -110,6 +121,57 @@ def test_kernel_orgb_round_trip(backend: str) -> None:
     assert (expect < 0.05).mean() > 0.05  # clamped negative chroma was among the cases
     assert np.abs(got - expect).max() < 2e-5 * max(1.0, expect.max())
     assert (s._backend.get("maps")[:3] == 1.0).all()
+
+
+def bleaching_add(backend: str, e_lms) -> np.ndarray:
+    """maps[3:6] for a uniform excess bleaching `e_lms` (L, M, S): in darkness r_inf = 0, and
+    with c_d = 0 (no recovery) and no diffusion r stays what it was set to, so e = r."""
+    s = sim(backend, Params(c_d=0.0, ritschel_N_sigma_deg=0.0))
+    s.step(0.0, gaze=GAZE)  # the first step settles the eye; the state is set after it
+    shape = s._backend.get("state").shape
+    s._backend.put("state", np.broadcast_to(np.asarray(e_lms, float)[:, None, None], shape))
+    s.step(1.0, gaze=GAZE)
+    return s._backend.get("maps")[3:].reshape(3, -1).astype(np.float64)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_blue_bleaching_leaves_the_orgb_yellow(backend: str) -> None:
+    """The opponent colour of a blue bleaching, by hand from oRGB's definition (Bratkova et al.
+    Eq. 1-2), gamma v = J^0.455, default strength 1.
+
+    (a) A bleaching whose linear RGB is (-0.05, 0, 0.4) (its LMS is >= 0; an S-dominated excess
+    has small negative components like this one, Fig. 9's squares leave -0.057 in R):
+      encoded: only what a display can show, max(J, 0)^γ = (0, 0, β), β = 0.4^γ;
+      oRGB: L' = 0.114 β, C1 = 0.5 (0 + 0) - β = -β, C2 = 0.866 (0 - 0) = 0: the angle is π,
+        which the hue map keeps: (L', C_yb, C_rg) = (0.114 β, -β, 0), pure blue;
+      opponent: (0.114 β, +β, 0), on the +C_yb (yellow) axis; angle 0, kept by the inverse map;
+      back: R' = G' = x, B' = y with 0.886 x + 0.114 y = 0.114 β and x - y = β: x = 0.228 β,
+        y = -0.772 β, outside the gamut;
+      into the gamut at the same luma and hue: R'G'B' - L' = (0.114, 0.114, -0.886) β shrunk by
+        s = L' / (L' - B') = 0.114 / 0.886: R' = G' = 0.114 β / 0.886, B' = 0;
+      decoded: R = G = 0.4 (0.114 / 0.886)^(1/γ) = 0.004414, B = 0: yellow, hue 60°.
+    (b) A bleaching of the S cone alone, e = (0, 0, 1): LMS_TO_RGB[:, 2] = (0.196, -0.207, 1.149)
+      (layout.py), encoded (0.476, 0, 1.065); C1 = 0.238 - 1.065 = -0.827, C2 = 0.866 × 0.476 =
+      0.412, angle 153.5°, mapped to 90° + 0.75 (153.5° - 60°) = 160.1°; the opponent is at
+      -19.9°: on the +C_yb (yellow) side, towards -C_rg (green); unmapped -13.3°, radius 0.924:
+      C1 = 0.899, C2 = -0.212, L' = 0.299 × 0.476 + 0.114 × 1.065 = 0.264; back R' = 0.209,
+      G' = 0.454, B' = -0.568; into the gamut (s = 0.264 / 0.832 = 0.317) R' = 0.246,
+      G' = 0.324, B' = 0; decoded (0.0460, 0.0840, 0): a green-leaning yellow, hue 87°, the
+      yellow-green that complements violet (the S cone's own colour).
+
+    Guards (each measured to fail, in the reference and in the kernel): the sign-preserving
+    gamma of the linear RGB (R' = -0.05^γ = -0.26 makes (a) a cyan-blue, its opponent red), the
+    per-channel clamp of the opponent in place of the gamut mapping ((a) R = G = 0.4 ×
+    0.228^(1/γ) = 0.0155; (b) green, 109°), both together (the former model), and (reference)
+    dropping the gamma or the inverse hue map. Tolerance: 1e-4 relative (float32 kernel);
+    (b) 2e-3, the hand derivation's three digits."""
+    blue = bleaching_add(backend, RGB_TO_LMS @ np.array([-0.05, 0.0, 0.4]))
+    yellow = 0.4 * (0.114 / 0.886) ** (1 / Params().gamma) * np.array([1.0, 1.0, 0.0])
+    assert np.abs(blue - yellow[:, None]).max() < 1e-4 * yellow.max()
+    s_only = bleaching_add(backend, [0.0, 0.0, 1.0])
+    assert np.abs(s_only - s_only[:, :1]).max() < 1e-6  # uniform
+    assert s_only[:, 0] == pytest.approx([0.0460, 0.0840, 0.0], rel=2e-3, abs=1e-6)
+    assert 60.0 < hue_angle(s_only[:, 0]) < 90.0
 
 
 # --- the kinetics of Listing 1 -------------------------------------------------------------------
@@ -237,6 +299,27 @@ def test_red_leaves_green_cyan_afterimage(backend: str) -> None:
 def test_blue_leaves_yellow_afterimage(backend: str) -> None:
     r, g, b = centre_add(flash_then(backend, (0.0, 0.0, 1e5), 0.3, False))
     assert r > 0.02 and g > 0.01 and b < 0.2 * min(r, g)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_fig9_blue_squares_leave_a_brighter_yellow(backend: str, tmp_path) -> None:
+    """Fig. 9's bottom row at 128×72 (Jacobs et al.: "the blue squares become yellow", and
+    Ritschel and Eisemann's afterimage is "strictly brighter than the background"): 3 s on blue
+    squares (6000 cd/m² in B) on 100 cd/m² grey, then 0.3 s on the grey beside them. Where the
+    squares were, the frame over the grey around it (linear RGB, `afterimage_ratio`) is >= 1 in
+    every channel and > 1 in R and G, with a hue of 30-90° (measured 38.8°, on both backends:
+    the S pigment saturates before M, so the excess leans to cyan and its opponent to orange).
+    Guards (each measured to fail): the sign-preserving gamma of the excess' RGB (hue 29°), the
+    per-channel clamp of the opponent in place of the gamut mapping (25°), both (6°, red)."""
+    ctx = Context(tmp_path, 128, 72, backend, 0)
+    run = squares_run(ctx, "ritschel")
+    colours = {
+        "afterimage_rgb": mean_over(run.after, square_rects(128, 72, FIELD_GAZE), 0.5),
+        "surround_rgb": mean_over(run.after, surround_rects(128, 72, FIELD_GAZE), 1.0),
+    }
+    ratio = afterimage_ratio(colours)
+    assert ratio.min() > 1.0 - 1e-6 and ratio[:2].min() > 1.02  # an overlay, brighter
+    assert 30.0 <= hue_angle(ratio) <= 90.0
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -75,7 +75,7 @@ def test_block_fields_named_after_params_carry_their_values() -> None:
     assert len(set(names)) == len(names)
     assert list(PARAMS_DTYPE.names) == names
     shared = [f for f in FIELDS if f.name in PARAMS_FIELDS]
-    derived = {"ln_K_m", "n_minus_m", "contrast_floor", "rgb2lms", "lms2rgb", "rho_i"}
+    derived = {"ln_K_m", "n_minus_m", "contrast_floor", "rgb2lms", "lms2rgb", "rho_i", "w_S_tone"}
     assert set(names) - set(PARAMS_FIELDS) == derived
     for f in shared:
         assert (f.ctype, f.count) == ANNOTATION_TYPES[PARAMS_FIELDS[f.name].type], f.name

@@ -163,9 +163,9 @@ export class Hud {
       lines.push('no frame yet');
     }
     lines.push(
-      info.split
+      (info.split
         ? `split · left ${modelLabel(info.model)} | right ${modelLabel(info.split)}`
-        : `model ${modelLabel(info.model)}`,
+        : `model ${modelLabel(info.model)}`) + ` · preset ${info.preset ?? '–'}`,
     );
     lines.push(`scene ${info.scene ?? '–'} · source ${info.gazeSource ?? '–'}`);
     lines.push(`tracker ${info.tracker}`);

@@ -452,6 +452,7 @@ function hudInfo(now) {
     scene: state.scene,
     model: state.model,
     split: state.split,
+    preset: state.preset,
     gazeSource: state.gaze_source,
     tracker: trackerStatus(state.gaze_source ?? ''),
   };

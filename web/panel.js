@@ -34,7 +34,7 @@ export class Panel {
     this.visible = false;
     this.layoutKey = null; // rebuild parameter inputs only when the set of names changes
     this.inputs = new Map(); // name -> {update(value)}
-    this.defaults = {};
+    this.presets = {};
     root.hidden = true;
     this.build();
   }
@@ -91,8 +91,14 @@ export class Panel {
     this.sourceSelect.addEventListener('change', () =>
       this.send(messages.gazeSource(this.sourceSelect.value)),
     );
-    const preset = el('button', { type: 'button', textContent: 'Paper preset' });
-    preset.addEventListener('click', () => this.send(messages.params({ ...this.defaults })));
+    // The presets (paper: the paper's values; visible: ours for a plain monitor); choosing one
+    // sets every parameter to its values. The live one is named beside: "paper + j1" after edits.
+    this.presetSelect = el('select', { id: 'preset-select', title: 'set every parameter to a preset' });
+    this.presetSelect.addEventListener('change', () => {
+      const values = this.presets[this.presetSelect.value];
+      if (values) this.send(messages.params({ ...values }));
+    });
+    this.presetLive = el('span', { id: 'preset-live', class: 'hint' });
     const reset = el('button', { type: 'button', textContent: 'Reset eye' });
     reset.addEventListener('click', () => this.send(messages.reset()));
 
@@ -128,7 +134,7 @@ export class Panel {
       el('div', { class: 'row split-models' }, this.splitAfterimageSelect, this.splitAcuitySelect),
       el('label', {}, 'gaze ', this.sourceSelect),
       el('div', { class: 'row' }, plain),
-      el('div', { class: 'row' }, preset, reset),
+      el('div', { class: 'row' }, el('label', {}, 'preset ', this.presetSelect), this.presetLive, reset),
       el('div', { class: 'row' }, this.fileInput),
       el('div', { class: 'row' }, this.uploadName, upload),
       this.params,
@@ -180,7 +186,10 @@ export class Panel {
     right(this.splitAcuitySelect, 'acuity');
     if (state.split !== undefined) this.splitBox.checked = state.split !== null;
     fillSelect(this.sourceSelect, state.gaze_sources, state.gaze_source);
-    this.defaults = state.defaults ?? {};
+    this.presets = state.presets ?? {};
+    const live = state.preset ?? '';
+    fillSelect(this.presetSelect, Object.keys(this.presets), live.split(' ')[0]);
+    this.presetLive.textContent = live.includes(' ') ? live : '';
     const params = state.params ?? {};
     const key = JSON.stringify([Object.keys(params).sort(), state.sections]);
     if (key !== this.layoutKey) {

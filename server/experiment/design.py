@@ -19,6 +19,7 @@ from typing import Any
 from gazehdr.experiment.columns import CONDITIONS
 from gazehdr.scenes.procedural import BUILTIN
 from gazehdr.sim import Params
+from gazehdr.sim.display import PAPER_DISPLAY, DisplayModel
 from gazehdr.sim.models import Models
 
 try:
@@ -118,7 +119,8 @@ class Design:
     tests: tuple[float, ...]
     conditions: dict[str, Condition]
     blocks: tuple[Block, ...]
-    display_white: float = 100.0  # cd/m^2 of the monitor's white, as the experimenter measured
+    #: The lab's monitor, as the experimenter measured it: its white (cd/m^2) and gamma.
+    display: DisplayModel = PAPER_DISPLAY
     fps: float = 60.0
     size: tuple[int, int] = (640, 360)
     fixation: tuple[float, float] = (0.5, 0.5)
@@ -344,7 +346,8 @@ class _Reader:
         self.done(stim, "stimulus.")
 
         display = self.table(data, "display")
-        white = self.number(display, "white", "display.", 100.0)
+        white = self.number(display, "white", "display.", PAPER_DISPLAY.white_cd_m2)
+        gamma = self.number(display, "gamma", "display.", PAPER_DISPLAY.gamma)
         fps = self.number(display, "fps", "display.", 60.0)
         size = self.pair(display, "size", "display.", (640, 360), int)
         if not all(8 <= s <= 4096 for s in size):
@@ -390,8 +393,9 @@ class _Reader:
         return Design(
             name=name, title=title, scene=scene, scene_options=options, at=float(at), on=on,
             off=off, scale=scale, standard=standard, tests=tests, conditions=conditions,
-            blocks=blocks, display_white=white, fps=fps, size=size, fixation=fixation,
-            keys=keys, texts=texts, exclusion_block=block, min_correct=float(min_correct),
+            blocks=blocks, display=DisplayModel(white, gamma), fps=fps, size=size,
+            fixation=fixation, keys=keys, texts=texts, exclusion_block=block,
+            min_correct=float(min_correct),
             render_seed=seed, palette=choices, palette_option=option, palette_scaled=scaled,
             palette_crop=crop, source=self.where,
         )  # fmt: skip

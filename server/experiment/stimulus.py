@@ -24,6 +24,7 @@ import numpy as np
 from gazehdr.experiment.design import Design, Look, make_scene
 from gazehdr.eye import Eye
 from gazehdr.sim import Params
+from gazehdr.sim.display import PAPER_DISPLAY
 from gazehdr.sim.layout import encode_output
 from gazehdr.sim.models import Models
 
@@ -58,7 +59,8 @@ class Timeline:
 class Clip:
     """Display values `v` (float16, H×W×3, the simulator's output) of every frame, the
     simulation time each frame starts at (from the first frame of the stimulus), and its phase;
-    `end` is when the last frame ends. `gamma` undoes v = J^gamma for scaling."""
+    `end` is when the last frame ends. `gamma` undoes v = J^gamma: J, linear light with 1 the
+    model's monitor's white (`PAPER_DISPLAY`)."""
 
     frames: np.ndarray
     times: np.ndarray
@@ -85,21 +87,24 @@ class Clip:
         return np.asarray(ratios)
 
     def shown(self, intensity: float, design: Design, like: Clip | None = None) -> np.ndarray:
-        """The frames at `intensity` (cd/m^2) on the design's monitor, as float16 `v`, each
-        stimulus frame scaled in linear light: `peak`, so that its brightest pixel has the
-        intensity; `mean`, so that its mean luminance is that of `like` (the standard's
+        """The frames at `intensity` (cd/m^2) on the design's monitor, as float16 `v` for it.
+        Each stimulus frame is scaled in linear light: `peak`, so that its brightest pixel has
+        the intensity; `mean`, so that its mean luminance is that of `like` (the standard's
         rendering: default this one) scaled to that peak: a manipulated test at the mean pixel
-        value of the standard's rendering at the same intensity. The black phase as rendered
-        (J = 1 is the monitor's white). Half floats, not 10-bit words: 4.2's stimuli sit in
-        the lowest 0.1 % of the monitor's light, where 10 bits would move a mean by several per
+        value of the standard's rendering at the same intensity. The black phase shows the
+        model's afterimage at the cd/m^2 it has on the model's monitor (`PAPER_DISPLAY`: J = 1
+        is 100 cd/m^2), so any lab's monitor, its white and gamma entered in the design, shows
+        the paper's luminances. Half floats, not 10-bit words: 4.2's stimuli sit in the
+        lowest 0.1 % of the monitor's light, where 10 bits would move a mean by several per
         cent; the page dithers them to the display's depth (Sec. 2.4)."""
-        v = self.frames.astype(np.float32)
+        J = np.power(self.frames.astype(np.float64), 1.0 / self.gamma)
+        cd_m2 = J * PAPER_DISPLAY.white_cd_m2  # what the model's monitor shows
         ratios = (like or self).mean_over_peak() if design.scale == "mean" else None
         for i, phase in enumerate(self.phases):
             if phase != "on":
                 continue
             Y = self.luminance(i)
-            want = intensity / design.display_white
+            want = intensity
             if ratios is None:
                 have = float(Y.max())
             else:
@@ -109,9 +114,8 @@ class Clip:
                     f"stimulus frame {i} is black: it cannot be scaled to {intensity:g} cd/m^2 "
                     "(its look shows no light while the flash is on)"
                 )
-            gain = (want / have) ** self.gamma  # (k J)^gamma = k^gamma v
-            v[i] = np.clip(v[i] * gain, 0.0, 1.0)
-        return encode_output(v, "float16")
+            cd_m2[i] = J[i] * (want / have)
+        return encode_output(design.display.values(cd_m2).astype(np.float32), "float16")
 
 
 _cache: OrderedDict[tuple[Any, ...], Clip] = OrderedDict()

@@ -72,23 +72,23 @@ FIGURES: tuple[Figure, ...] = (
         "Figure 4.",
         "The displayed value at the centre of the flash disc (the same runs as Fig. 4, one per "
         "intensity), eyes closed after the flash, every 0.05 s. Top: as the display shows it "
-        "(Eq. 12's bleaching term times our display gain, 32, which brings the 10⁷ row's start "
-        "to display white); bottom: each swatch scaled to full brightness, so only its hue "
-        "remains. The hues listed below are HSV hues (0° red, 60° yellow, 120° green, 180° "
-        "cyan, 300° magenta) at 0.05, 1, 2, 4 and 8 s, of the display values (as a figure is "
-        "seen) and of the light (linear RGB), named after the nearest of the RGB colour "
-        "wheel's twelve hues.",
+        "(Eq. 12's bleaching term as printed, j1 = 0.03 of display white at most; our "
+        "`visible` preset brings the 10⁷ row's start to display white); bottom: each swatch "
+        "scaled to full brightness, so only its hue remains. The hues listed below are HSV "
+        "hues (0° red, 60° yellow, 120° green, 180° cyan, 300° magenta) at 0.05, 1, 2, 4 and "
+        "8 s, of the display values (as a figure is seen) and of the light (linear RGB), "
+        "named after the nearest of the RGB colour wheel's twelve hues.",
         "Matches: weak flashes (10³, 10⁴) start and stay red to rose; from 10⁵ the afterimage "
         "starts green and the change between 10⁴ and 10⁵ is abrupt; the stronger the flash, "
-        "the nearer cyan it starts: 10⁵ 114°, 10⁶ 144°, 10⁷ 155° on the display (spring "
-        "green, 25° short of cyan). Differs: every row ends rose-pink, 339° on the display "
-        "(348° in light), where the caption says magenta (300°); Fig. 3's “pink or deep "
-        "purple” fits it better. That end is the hue of the first column of H, (1.14, 0.08, "
-        "0.30): the L cones' bleaching outlasts the others' (b2 smallest), and H and b2 are "
-        "Appendix A's. On the way, strong flashes pass through yellow (about 1 s) and red "
-        "(2 s) as the M cones' bleaching fades before the L cones', a phase the caption does "
-        "not name. The 10⁷ start is nearer green than cyan in light (146°): only the display's "
-        "gamma moves it toward cyan.",
+        "the nearer cyan it starts (the hues measured are below). Where the caption and the "
+        "equations disagree, this follows the equations (Eq. 7 with Appendix A's H and b2): "
+        "the 10⁷ flash starts spring green, short of cyan (H·ΔB of a white 10⁷ flash as it "
+        "ends has hue 151°, cyan is 180°; the display's gamma moves it a little toward cyan); "
+        "every row ends rose-pink, the hue of H's first column (1.14, 0.08, 0.30), 348° in "
+        "light, where the caption says magenta (300°), because the L cones' bleaching "
+        "outlasts the others' (b2 smallest); Fig. 3's “pink or deep purple” fits it better. "
+        "On the way, strong flashes pass through yellow and red as the M cones' bleaching "
+        "fades before the L cones', a phase the caption does not name.",
         afterimage.fig5,
     ),
     Figure(
@@ -117,9 +117,10 @@ FIGURES: tuple[Figure, ...] = (
         "every panel 4× brighter in linear light, to show the colours of the dim ones.",
         "Matches: Ritschel's afterimage of the neutral flash is neutral grey; Mikamo's runs "
         "through a sequence of hues and lasts longest; ours has a green centre with a red rim "
-        "and fades to red-rose, at first about as bright as the other two (Eq. 12's bleaching "
-        "term times our display gain, 32). Differs: we show one scene, not the paper's three "
-        "(two are Fairchild's photographs, which we do not ship).",
+        "and fades to red-rose, far dimmer than the other two (Eq. 12's bleaching term as "
+        "printed, j1 = 0.03 of display white: the second image shows every panel 4× "
+        "brighter). Differs: we show one scene, not the paper's three (two are Fairchild's "
+        "photographs, which we do not ship).",
         afterimage.fig6_7,
     ),
     Figure(
@@ -175,18 +176,15 @@ FIGURES: tuple[Figure, ...] = (
         "saturated hues at the grey's luminance (ours only); its last row shows each "
         "afterimage's change from the grey 5× larger.",
         "Matches the top row: ours is a dark spot on the book, Ritschel's a bright one. Bottom "
-        "row: matches in kind. Both afterimages are opponent to blue on the yellow-blue axis "
-        "(R + G > 2B in linear light); ours modulates the grey (darker in blue and green, "
-        "brighter in red) while Ritschel's is added on top (no channel darker, all brighter "
-        "or equal). Ours is the complement of the blue: yellow at the moment the gaze moves, "
-        "yellow-orange (about 33°) after 0.3 s, as the calcium relaxes; at the grey's "
-        "luminance the blue's afterimage is 48° and every hue of the circle lands within 15° "
-        "of its complement. Our calcium gain keeps each cone's strength (Eq. 11) but points "
-        "along the adapting light's cone contrast (ours, docs/model.md); per cone, as the "
-        "paper writes it, it compressed the blue's large S contrast far more than its small "
-        "L − M contrast and left salmon (11°). Differs: Ritschel's comes out red (about 6°), "
-        "not yellow. The stimulus and its luminances are ours (the paper's picture is not "
-        "given); a blue no brighter than the grey leaves Ritschel's model almost nothing.",
+        "row: both afterimages are opponent to blue, yellow (R + G > 2B in linear light; the "
+        "hues measured are below); ours modulates the grey while Ritschel's is added on top "
+        "(no channel darker, all brighter or equal). Our calcium gain keeps each cone's "
+        "strength (Eq. 11) but points along the adapting light's cone contrast (ours, on in "
+        "the paper preset, docs/model.md): per cone, as Eq. 11 is printed, it compresses the "
+        "blue's large S contrast far more than its small L − M contrast and leaves orange "
+        "(`gain_along_adapting_light = false`), where the caption and Sec. 2.2.3 say yellow. "
+        "The stimulus and its luminances are ours (the paper's picture is not given); a blue "
+        "no brighter than the grey leaves Ritschel's model almost nothing.",
         colour.fig9,
     ),
     Figure(

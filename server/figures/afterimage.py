@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gazehdr.figures.common import (
+    HUE_NAMES,
     LUMA,
     Context,
     Result,
@@ -301,10 +302,11 @@ def look_away(
     scene: np.ndarray,
     first: tuple[float, float],
     second: tuple[float, float],
+    params: Params | None = None,
 ) -> LookRun:
     """The gaze is set before the scene loads, so the load's reset settles the retina at the
     first fixation: moving there afterwards would itself leave an afterimage."""
-    sim = simulator(ctx, afterimage=model)
+    sim = simulator(ctx, params=params, afterimage=model)
     sim.start(scene, first)
     fixating = advance(sim, FIXATION_SECONDS, FIXATION_DT, gaze=first)
     after = advance(sim, AFTER_MOVE_SECONDS, LOOK_DT, gaze=second)
@@ -405,8 +407,7 @@ FIG9_MODELS = ("jacobs", "ritschel")
 #: at the adaptation floor A_min (100 cd/m^2). The blue is 433 cd/m^2 (6000 in its channel):
 #: bright enough for Ritschel's kinetics to bleach the S pigment well beyond the grey's level
 #: (S input ~ L_ref); a blue no brighter than the grey leaves their model almost nothing: its
-#: L pigment bleaches less than under the grey, M barely more, and the opponent colour of an S
-#: excess alone is negative in R and B and only faintly green, so little survives the clamp.
+#: L pigment bleaches less than under the grey and M barely more, so the excess is small.
 GREY_FIELD = 100.0
 BLUE = (0.0, 0.0, 6000.0)
 #: The fixation on the squares and then on the plain grey field (frame fractions): the
@@ -459,14 +460,19 @@ def mean_over(v: np.ndarray, rects, keep: float) -> np.ndarray:
     return np.mean([rect_mean(J, r, keep) for r in rects], axis=0)
 
 
-def squares_run(ctx: Context, model: str, colour: Sequence[float] | np.ndarray = BLUE) -> LookRun:
+def squares_run(
+    ctx: Context,
+    model: str,
+    colour: Sequence[float] | np.ndarray = BLUE,
+    params: Params | None = None,
+) -> LookRun:
     """The squares (blue: Fig. 9, bottom row), then the plain grey field."""
     w, h = ctx.width, ctx.height
     first, second = (
         (SQUARES_GAZE[0] * w, SQUARES_GAZE[1] * h),
         (FIELD_GAZE[0] * w, FIELD_GAZE[1] * h),
     )
-    return look_away(ctx, model, squares(w, h, colour), first, second)
+    return look_away(ctx, model, squares(w, h, colour), first, second, params)
 
 
 def _lamp_row(ctx: Context, res: Result) -> dict[str, float]:
@@ -544,6 +550,14 @@ def _squares_finding(model: str, colours: dict[str, np.ndarray]) -> str:
     )
 
 
+def _per_cone_hue(ctx: Context) -> float:
+    """The blue squares' afterimage hue (jacobs) with Eq. 11's gain per cone, as printed."""
+    w, h = ctx.width, ctx.height
+    run = squares_run(ctx, "jacobs", params=Params(gain_along_adapting_light=False))
+    grey = mean_over(run.after, surround_rects(w, h, FIELD_GAZE), 1.0)
+    return hue_angle(mean_over(run.after, square_rects(w, h, FIELD_GAZE), 0.5) / grey)
+
+
 def fig9(ctx: Context) -> Result:
     res = Result()
     ratios = _lamp_row(ctx, res)
@@ -557,6 +571,8 @@ def fig9(ctx: Context) -> Result:
         "squares_afterimage_hue_deg": {
             m: round(hue_angle(afterimage_ratio(d)), 1) for m, d in colours.items()
         },
+        # Eq. 11 per cone, as printed (not in the paper preset: docs/model.md)
+        "squares_afterimage_hue_deg_eq11_per_cone": round(_per_cone_hue(ctx), 1),
     }
     res.findings = [
         f"Lamp, {m}: the afterimage region has {r:.2f}x the luminance it has without the "
@@ -564,4 +580,11 @@ def fig9(ctx: Context) -> Result:
         for m, r in ratios.items()
     ]
     res.findings += [_squares_finding(m, c) for m, c in colours.items()]
+    per_cone = res.measures["squares_afterimage_hue_deg_eq11_per_cone"]
+    res.findings.append(
+        f"With Eq. 11's gain per cone, as printed (gain_along_adapting_light = false), the "
+        f"blue squares' afterimage (jacobs) has hue {per_cone:.0f}° "
+        f"({HUE_NAMES[round(per_cone / 30) % 12]}), "
+        f"{hue_difference(per_cone, BLUE_COMPLEMENT_DEG):.0f}° from the complement."
+    )
     return res

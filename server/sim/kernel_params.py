@@ -25,8 +25,8 @@ from gazehdr.sim.params import OURS, Params
 MAX_BANDS = 8  # the block's room for band thresholds; Params.bands may not exceed it
 
 #: Params annotation -> (C type, number of values); every field is 4 bytes, so neither side pads.
-ANNOTATION_TYPES = {"float": ("float", 1), "int": ("int", 1), "Vec3": ("float", 3),
-                    "Mat3": ("float", 9)}  # fmt: skip
+ANNOTATION_TYPES = {"float": ("float", 1), "int": ("int", 1), "bool": ("int", 1),
+                    "Vec3": ("float", 3), "Mat3": ("float", 9)}  # fmt: skip
 NUMPY_TYPES = {"float": "f4", "int": "i4"}
 
 
@@ -65,8 +65,11 @@ def plateau_m(p: Params) -> float:
 
 FIELDS: tuple[BlockField, ...] = (
     *map(from_params, ("gamma", "n", "a1", "a2", "b1", "b2", "c2", "j1", "j2", "m1", "m2",
-                       "w_P", "w_S", "k_s", "g", "A_min", "bleach_display_gain", "alpha_eps",
+                       "w_P", "w_S", "k_s", "g", "A_min", "bleach_display_gain",
+                       "bleach_equivalent_light", "gain_along_adapting_light", "alpha_eps",
                        "Y_min", "surround")),
+    BlockField("w_S_tone", "float", 3, Params.tone_scotopic_weights,
+               "Params.tone_scotopic_weights(): w_S, or w_P without the Purkinje shift"),
     BlockField("ln_K_m", "float", 1, lambda p: plateau_m(p) * math.log(p.plateau_K),
                "m ln K of the plateau (ours)"),
     BlockField("n_minus_m", "float", 1, lambda p: p.n - plateau_m(p), "n - m"),

@@ -79,12 +79,26 @@ class Params:
     map_blur_deg: float = 0.1  # sigma of the B, C map blur after 1 s; scales with sqrt(dt)
     fovea_sigma_deg: float = 10.0  # afterimage visibility fall-off (Sec. 2.4): fades by 20 deg
     retina_cell_deg: float = 0.1  # retinal state cell: afterimages are blurry, 6 arcmin is ample
-    # Display gain of Eq. 12's bleaching term, shown as a response to its equivalent light
-    # (reference.bleach_response). With j1 alone the afterimage of Fig. 4's flash (1e7 cd/m^2,
-    # 1/8 s) is 1.00x a 100 cd/m^2 grey, where Sec. 2.2.2 has it brighter. 32 puts that flash's
-    # afterimage in the dark at display white in its brightest channel, G, when the flash ends:
-    # 1 / (j1 e^(-c2/8) (H (1, 1, 0.37))_G) = 32.4 (docs/model.md, "Bleaching afterimages").
-    bleach_display_gain: float = 32.0
+    # Eq. 12 on the display. The paper's defaults (the `paper` preset) add the bleaching term
+    # as printed: display gain 1, no masking; they give Sec. 4.1's measured afterimages
+    # (2.2e-2 and 6.5e-2 cd/m^2 at j1 = 0.0003, 0.001 on a 100 cd/m^2 white). Ours, for a plain
+    # monitor (the `visible` preset): a gain of 32 puts the afterimage of Fig. 4's flash
+    # (1e7 cd/m^2, 1/8 s) in the dark at display white in its brightest channel, G, when the
+    # flash ends: 1 / (j1 e^(-c2/8) (H (1, 1, 0.37))_G) = 32.4; shown as the cone's response to
+    # its equivalent light (reference.bleach_response), a background as bright as that light
+    # masks it, as Sec. 2.2.2 says, and the lamp of Fig. 9 keeps its dark spot.
+    bleach_display_gain: float = 1.0
+    bleach_equivalent_light: bool = False
+    # Eq. 11's gains per cone, as one vector pointed along the cone contrast of the light the eye
+    # adapted to (reference.opponent_gain): ours, on in the `paper` preset because it gives what
+    # the paper reports (Fig. 9: blue squares leave yellow; per cone, Eq. 11 gives orange, 17
+    # deg) and equals Eq. 11 exactly for every neutral light (docs/model.md, "Adaptation
+    # colour"). False: Eq. 11 per cone, as printed.
+    gain_along_adapting_light: bool = True
+    # Eq. 13's Purkinje shift of the luminance fed to Eq. 1 (Sec. 2.3.1). False: the photopic
+    # luminance, while the hue shift, the acuity loss and the adaptation target stay mesopic
+    # (Sec. 4.2 leaves the Purkinje shift out of its stimuli).
+    purkinje: bool = True
     alpha_eps: float = 1e-3  # Eq. 11 guard: alpha = (1 - c_inf + eps) / (1 - c + eps)
     Y_min: float = 1e-6  # cd/m^2 floor inside log10; far below the scotopic range
     radiance_max: float = 1e10  # cd/m^2 cap on input; the sun's disc is about 1.6e9
@@ -212,8 +226,18 @@ class Params:
             raise ValueError("thompson_dog_ratio must be a finite number >= 1")
         if not 0 <= self.foveal_blind_spot <= 1:
             raise ValueError("foveal_blind_spot must lie in [0, 1]")
+        for name in SWITCHES:
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(
+                    f"parameter {name} must be true or false, got {getattr(self, name)!r}"
+                )
         if not math.isfinite(self.ritschel_flight_rate):
             raise ValueError("ritschel_flight_rate must be a finite number (rad/s)")
+
+    def tone_scotopic_weights(self) -> Vec3:
+        """The scotopic weights of the luminance fed to Eq. 1: w_S with the Purkinje shift
+        (Eq. 13), w_P without it (the blend is then the photopic luminance)."""
+        return self.w_S if self.purkinje else self.w_P
 
     def sigma_i(self, ppd: float) -> list[float]:
         """Acuity Gaussian bank in pixels of a frame with `ppd` pixels per degree."""
@@ -260,12 +284,13 @@ SECTIONS: dict[str, list[str]] = {
         "adaptation_sigma_deg",
     ],
     "2.2 Afterimages": [
-        "b1", "b2", "c1", "c2", "j1", "j2", "H", "bleach_display_gain", "alpha_eps",
-        "map_blur_deg", "fovea_sigma_deg", "retina_cell_deg", "surround", "surround_sigma_deg",
+        "b1", "b2", "c1", "c2", "j1", "j2", "H", "bleach_display_gain", "bleach_equivalent_light",
+        "gain_along_adapting_light", "alpha_eps", "map_blur_deg", "fovea_sigma_deg",
+        "retina_cell_deg", "surround", "surround_sigma_deg",
     ],
     "2.3 Mesopic vision": [
-        "m1", "m2", "w_P", "w_S", "k_s", "rho_sigma_deg", "sigma_0", "rho_step", "g", "bands",
-        "noise_cell_deg", "noise_rate_hz",
+        "m1", "m2", "w_P", "w_S", "purkinje", "k_s", "rho_sigma_deg", "sigma_0", "rho_step",
+        "g", "bands", "noise_cell_deg", "noise_rate_hz",
     ],
     "5 Discussion (off by default)": [
         "afterimage_boost", "afterimage_boost_s", "saccade_deg_s", "foveal_blind_spot",
@@ -292,7 +317,8 @@ OURS = frozenset(
     {
         "plateau_m_over_n", "plateau_K", "adaptation_sigma_deg", "rho_sigma_deg",
         "k_s", "noise_cell_deg", "noise_rate_hz", "map_blur_deg", "fovea_sigma_deg",
-        "retina_cell_deg", "bleach_display_gain", "alpha_eps", "Y_min", "radiance_max",
+        "retina_cell_deg", "bleach_display_gain", "bleach_equivalent_light",
+        "gain_along_adapting_light", "alpha_eps", "Y_min", "radiance_max",
         "geometry", "surround", "surround_sigma_deg", "tracker_accuracy_deg", "tracker_rate_hz",
         "afterimage_boost", "afterimage_boost_s", "saccade_deg_s", "foveal_blind_spot",
         "rod_free_radius_deg", "fixation_s",
@@ -303,6 +329,8 @@ OURS = frozenset(
         "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     }
 )  # fmt: skip
+#: The parameters that switch a part of the model on or off.
+SWITCHES = frozenset({"bleach_equivalent_light", "gain_along_adapting_light", "purkinje"})
 #: Parameters that name a file on the server. A change that comes over the network may keep
 #: their value or set the default (""), never a path: a viewer must not make the server read
 #: its files. Set them with `gazehdr serve --params PRESET.json`.
@@ -361,6 +389,13 @@ PARAM_INFO: dict[str, ParamInfo] = {
     "fovea_sigma_deg": ParamInfo("σ_fovea", _DEG, "afterimage visibility fall-off from the gaze"),
     "retina_cell_deg": ParamInfo("cell", _DEG, "size of a retina cell of the afterimage state"),
     "bleach_display_gain": ParamInfo("gain_B", "—", "display gain of Eq. 12's bleaching term"),
+    "bleach_equivalent_light": ParamInfo(
+        "I_x", "on/off", "Eq. 12's bleaching shown as its equivalent light (masked)"
+    ),
+    "gain_along_adapting_light": ParamInfo(
+        "α along u", "on/off", "Eq. 11's gains along the adapting light (off: per cone)"
+    ),
+    "purkinje": ParamInfo("Purkinje", "on/off", "Purkinje shift of the luminance into Eq. 1"),
     "alpha_eps": ParamInfo("ε_α", "—", "guard of Eq. 11's α against 0/0"),
     "Y_min": ParamInfo("Y_min", "cd/m²", "luminance floor inside logarithms"),
     "radiance_max": ParamInfo("Y_max", "cd/m²", "cap on input radiance (the sun: 1.6e9)"),

@@ -225,6 +225,13 @@ def linear_contrast(x: np.ndarray, x_inf: np.ndarray, p: Params) -> np.ndarray:
     return (x - x_inf) / np.maximum(x_inf, contrast_floor(p))
 
 
+def eq11_ln_gain(c: np.ndarray, c_inf: np.ndarray, p: Params) -> np.ndarray:
+    """ln alpha^j2 per cone, Eq. 11 guarded: alpha = (1 - c_inf + eps) / (1 - c + eps), so that
+    equilibrium gives exactly 1 and total darkness 1 instead of 0/0 (eps = alpha_eps, ours)."""
+    eps = p.alpha_eps
+    return p.j2 * (np.log(1.0 - c_inf + eps) - np.log(1.0 - c + eps))
+
+
 def opponent_gain(
     c: np.ndarray, c_inf: np.ndarray, p: Params, u: np.ndarray | None = None
 ) -> np.ndarray:
@@ -251,7 +258,7 @@ def opponent_gain(
     """
     eps, side = p.alpha_eps, None
     ln_R_now, ln_R_then = np.log(1.0 - c_inf + eps), np.log(1.0 - c + eps)
-    ln_gain = p.j2 * (ln_R_now - ln_R_then)  # ln alpha^j2, Eq. 11 (guarded)
+    ln_gain = eq11_ln_gain(c, c_inf, p)
     length = np.sqrt((ln_gain**2).sum(axis=0))
     if u is None:  # read back from the calcium: points against ln_gain, cone by cone
         ln_ratio = (ln_R_then - np.log(c + eps) - ln_R_now + np.log(c_inf + eps)) / p.n
@@ -264,6 +271,12 @@ def opponent_gain(
         cosine = -(ln_gain * u).sum(axis=0) / np.maximum(length, tiny)
         side = np.clip(cosine / AGREE_COS, -1.0, 1.0)
     return np.exp(-length * side * u)
+
+
+def bleach_term(B: np.ndarray, B_inf: np.ndarray, c: np.ndarray, p: Params) -> np.ndarray:
+    """Eq. 12's bleaching term per cone, g j1 (C / C_max) max(B - B_inf, 0), with the display
+    gain g = bleach_display_gain (1 in the paper's preset: the term as printed)."""
+    return p.bleach_display_gain * p.j1 * c * np.maximum(B - B_inf, 0.0)
 
 
 def bleach_response(
@@ -280,8 +293,7 @@ def bleach_response(
     (1 - (I / (I + I_x))^n), the last factor as -expm1(-n log1p(I_x / I)): nothing cancels
     when I_x << I (the kernel has its own log1pv and one_minus_exp_negv for float32).
     """
-    x = p.bleach_display_gain * p.j1 * c * np.maximum(B - B_inf, 0.0)
-    x = np.minimum(x, 1.0 - p.alpha_eps)  # a response below 1 (guarded like Eq. 11)
+    x = np.minimum(bleach_term(B, B_inf, c, p), 1.0 - p.alpha_eps)  # below 1, as Eq. 11's guard
     with np.errstate(divide="ignore"):
         ln_odds = np.log(x) - np.log1p(-x)
     I_x = np.exp((ln_sigma_n(p.A_min, p) + ln_odds) / p.n)  # R^-1(x) at A_min; 0 for x = 0
@@ -294,16 +306,23 @@ def bleach_response(
 
 def afterimage_maps(state, down, surround, A, gaze, lay: Layout, p: Params) -> np.ndarray:
     """The maps every afterimage model makes for `compose`: a multiplicative gain per cone
-    (here Eq. 11's, along the light of the linear state: `opponent_gain`) and an additive
-    linear-RGB term (here H times Eq. 12's bleaching term, as a response: `bleach_response`)."""
+    (here Eq. 11's, per cone or along the light of the linear state: `opponent_gain`) and an
+    additive linear-RGB term (here H times Eq. 12's bleaching term, as printed or as a response
+    to its equivalent light: `bleach_response`)."""
     I = retina_input(down, surround, gaze, lay)
     b1 = np.asarray(p.b1)[:, None, None]
     b2 = np.asarray(p.b2)[:, None, None]
     B_inf = b1 * I / (b1 * I + b2)  # Eq. 6
     c_inf = 1.0 - tone(I, A, p)  # Eq. 10 / C_max
     B, c = state[:3], state[3:6]
-    gain = opponent_gain(c, c_inf, p, linear_contrast(state[6:9], adapted_light(I, A, p), p))
-    bleach = bleach_response(I, B, B_inf, c, A, p)
+    if p.gain_along_adapting_light:
+        gain = opponent_gain(c, c_inf, p, linear_contrast(state[6:9], adapted_light(I, A, p), p))
+    else:
+        gain = np.exp(eq11_ln_gain(c, c_inf, p))
+    if p.bleach_equivalent_light:
+        bleach = bleach_response(I, B, B_inf, c, A, p)
+    else:
+        bleach = bleach_term(B, B_inf, c, p)
     return np.concatenate([gain, np.tensordot(np.asarray(p.H), bleach, axes=1)])
 
 
@@ -363,7 +382,7 @@ def compose_base(G, rho, A, eyes: float, lay: Layout, p: Params) -> np.ndarray:
     G = eyes * G
     rc = np.clip(bilinear(rho[None], X / lay.cell, Y / lay.cell)[0], 0.0, 1.0)
     yp = np.tensordot(np.asarray(p.w_P), G, axes=1)
-    ys = np.tensordot(np.asarray(p.w_S), G, axes=1)
+    ys = np.tensordot(np.asarray(p.tone_scotopic_weights()), G, axes=1)
     R = tone(rc * yp + (1 - rc) * ys, A, p)  # Purkinje: mesopic luminance into Eq. 1
     ratio = rc * G / np.maximum(yp, p.Y_min) + (1 - rc) * np.asarray(p.k_s)[:, None, None]
     return R * ratio

@@ -4,8 +4,9 @@ Per retina cell and cone (L, M, S), one "virtual chemical" r in [0, 1] follows E
 r' = c_a L (1 - r) - c_d r, integrated with the clamped explicit steps of Listing 1, each step
 followed by the diffusion blur. The input is the cone stimulus blurred once for micro-saccades.
 The afterimage is the opponent colour, in oRGB (Bratkova, Boulos, Shirley 2009), of the
-bleaching the current input does not explain, added to the display (positive afterimages only,
-as published). Our readings of what the paper leaves open are in docs/baselines/ritschel.md.
+bleaching the current input does not explain (its displayable part, gamma-encoded), brought into
+the display gamut at the same luma and oRGB hue and added to the display (positive afterimages
+only, as published). Our readings of what the paper leaves open are in docs/baselines/ritschel.md.
 
 The OpenCL stage (ritschel_cl.py, kernels/ritschel2012_afterimages.cl) mirrors this step by step.
 """
@@ -74,20 +75,39 @@ def orgb_to_rgb(orgb: np.ndarray) -> np.ndarray:
     return np.tensordot(RGB_FROM_ORGB, lcc, axes=1)
 
 
-def signed_power(x: np.ndarray, exponent: float) -> np.ndarray:
-    """sign(x) |x|^exponent: gamma coding that keeps the sign of out-of-gamut components."""
-    return np.sign(x) * np.power(np.abs(x), exponent)
+def encode(rgb: np.ndarray, gamma: float) -> np.ndarray:
+    """Linear RGB (3, ...) -> gamma-encoded R'G'B' = max(J, 0)^gamma, the display encoding that
+    oRGB takes. Only what a display can show has an encoding: negative components (a bleaching
+    in LMS need not be a colour inside the RGB gamut) are 0."""
+    return np.power(np.maximum(rgb, 0.0), gamma)
+
+
+def opponent_chroma(orgb: np.ndarray, flight: float) -> np.ndarray:
+    """The opponent of an oRGB colour (3, ...): both chroma axes negated (a half turn of the
+    oRGB hue), turned by the flight-of-colours angle `flight` (radians); luma kept."""
+    cos, sin = math.cos(flight), math.sin(flight)
+    c1 = -(cos * orgb[1] - sin * orgb[2])
+    c2 = -(sin * orgb[1] + cos * orgb[2])
+    return np.stack([orgb[0], c1, c2])
+
+
+def into_gamut(orgb: np.ndarray) -> np.ndarray:
+    """oRGB (3, ...) with luma L' >= 0 -> R'G'B' >= 0 of the same luma and oRGB hue: where a
+    component would be negative, the chroma is shrunk towards the grey (L', L', L') until the
+    smallest component is 0. The hue map keeps radii, so shrinking the chroma in oRGB is
+    shrinking R'G'B' - L' by the same factor s."""
+    rgb = orgb_to_rgb(orgb)
+    luma, low = orgb[0], rgb.min(axis=0)
+    s = np.where(low < 0.0, luma / np.maximum(luma - low, 1e-30), 1.0)  # guard: black, 0/0
+    return np.maximum(luma + s * (rgb - luma), 0.0)
 
 
 def opponent(rgb: np.ndarray, flight: float, gamma: float) -> np.ndarray:
-    """The opponent colour of linear RGB (3, ...) in oRGB: both chroma axes negated (a half
-    turn of the oRGB hue), turned on by the flight-of-colours angle `flight` (radians); luma
-    kept. Gamma coding with exponent `gamma` (v = J^gamma) around the oRGB transform."""
-    o = rgb_to_orgb(signed_power(rgb, gamma))
-    cos, sin = math.cos(flight), math.sin(flight)
-    c1 = -(cos * o[1] - sin * o[2])
-    c2 = -(sin * o[1] + cos * o[2])
-    return signed_power(orgb_to_rgb(np.stack([o[0], c1, c2])), 1.0 / gamma)
+    """The opponent colour of linear RGB (3, ...) in oRGB, as linear RGB >= 0: encoded
+    (`encode`, v = J^gamma), to oRGB, `opponent_chroma`, into the display gamut at the same
+    luma and hue (`into_gamut`), decoded."""
+    o = opponent_chroma(rgb_to_orgb(encode(rgb, gamma)), flight)
+    return np.power(into_gamut(o), 1.0 / gamma)
 
 
 # --- the model -----------------------------------------------------------------------------------
@@ -137,8 +157,7 @@ def afterimage_maps(r: np.ndarray, L: np.ndarray, flight: float, p: Params) -> n
     """maps[0:3] = 1 (no gain); maps[3:6] = strength × the opponent colour of the bleaching in
     excess of the current input's equilibrium, max(r - r_inf(L), 0), as linear RGB >= 0."""
     excess = np.maximum(r - r_inf(L, p), 0.0)
-    rgb = opponent(np.tensordot(LMS_TO_RGB, excess, axes=1), flight, p.gamma)
-    add = p.ritschel_strength * np.maximum(rgb, 0.0)
+    add = p.ritschel_strength * opponent(np.tensordot(LMS_TO_RGB, excess, axes=1), flight, p.gamma)
     return np.concatenate([np.ones_like(add), add])
 
 

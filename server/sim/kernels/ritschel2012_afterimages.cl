@@ -45,12 +45,6 @@ __kernel void ritschel_kinetics(__global const float *L, __global const float *r
 
 #define ABSV(x) MAX(x, -(x))
 
-// sign(x) |x|^e.
-inline floatv signed_powerv(floatv x, float e) {
-    floatv m = powv_pos(ABSV(x), e);
-    return x < 0.0f ? -m : m;
-}
-
 // atan2(y, x) in [-pi, pi], 0 at the origin: Cephes' atanf (S. L. Moshier) on min/max of
 // |x|, |y| in [0, 1], reduced by pi/4 above tan(pi/8); within a few ulp.
 inline floatv atan2_v(floatv y, floatv x) {
@@ -107,8 +101,10 @@ inline rgbv_t remap_huev(rgbv_t c, int dir) {
 
 // maps[0:3] = 1 (no gain); maps[3:6] = strength × the opponent colour in oRGB (chroma negated,
 // then turned by the flight-of-colours angle, cos_f / sin_f) of the bleaching in excess of the
-// current input's equilibrium, as linear RGB >= 0. `orgb` holds the R'G'B' -> oRGB matrix
-// (before the hue map), then its exact inverse.
+// current input's equilibrium, as linear RGB >= 0: encoded as max(J, 0)^gamma, and brought
+// into the gamut at the same luma and oRGB hue (R'G'B' - L' shrunk until no component is
+// negative) before decoding. `orgb` holds the R'G'B' -> oRGB matrix (before the hue map), then
+// its exact inverse.
 __kernel void ritschel_maps(__constant const params_t *P, __constant const float *orgb,
                             __global const float *L, __global const float *r,
                             __global float *maps, int n, float c_a, float c_d, float strength,
@@ -122,16 +118,19 @@ __kernel void ritschel_maps(__constant const params_t *P, __constant const float
     }
     rgbv_t x = matv_mul(P->lms2rgb, e[0], e[1], e[2]);
     float g = P->gamma;
-    x = matv_mul(orgb, signed_powerv(x.r, g), signed_powerv(x.g, g), signed_powerv(x.b, g));
+    x = matv_mul(orgb, powv_pos(x.r, g), powv_pos(x.g, g), powv_pos(x.b, g));  // 0 below 0
     x = remap_huev(x, 1);
     rgbv_t o = {x.r, -(cos_f * x.g - sin_f * x.b), -(sin_f * x.g + cos_f * x.b)};
     o = remap_huev(o, -1);
     x = matv_mul(orgb + 9, o.r, o.g, o.b);
+    // Into the gamut: the luma o.r >= 0 is kept, the chroma shrunk by s (the hue map keeps radii).
+    floatv low = MIN(MIN(x.r, x.g), x.b);
+    floatv s = low < 0.0f ? o.r / MAX(o.r - low, 1e-30f) : 1.0f;
     floatv add[3] = {x.r, x.g, x.b};
     int m = MIN(VEC, n - k);
     for (int c = 0; c < 3; ++c) {
         storev_part(maps + c * n + k, (floatv)(1.0f), m);
-        add[c] = strength * MAX(signed_powerv(add[c], 1.0f / g), 0.0f);
+        add[c] = strength * powv_pos(o.r + s * (add[c] - o.r), 1.0f / g);
         storev_part(maps + (3 + c) * n + k, add[c], m);
     }
 }

@@ -155,11 +155,12 @@ __kernel void retina_update(__constant const params_t *P, __global const float *
 #define AGREE_COS 0.5f
 
 // The maps of VEC cells (reference.afterimage_maps). Gain: Eq. 11's alpha^j2 per cone (guarded by
-// alpha_eps so darkness gives 1, not 0/0), its length kept but pointed along -u, u the linear
-// cone contrast of the light the eye adapted to (the state's x) against the light now, on the
-// side of Eq. 11's vector and fading where the two are near right angles (ours:
-// reference.opponent_gain, linear_contrast). Add: Eq. 12's bleaching term times the display gain, as the cone's
-// response to its equivalent light (ours: reference.bleach_response), to linear RGB through H.
+// alpha_eps so darkness gives 1, not 0/0); with gain_along_adapting_light its length kept but
+// pointed along -u, u the linear cone contrast of the light the eye adapted to (the state's x)
+// against the light now, on the side of Eq. 11's vector and fading where the two are near
+// right angles (ours: reference.opponent_gain, linear_contrast). Add: Eq. 12's bleaching term
+// times the display gain (reference.bleach_term); with bleach_equivalent_light, as the cone's
+// response to its equivalent light (ours: reference.bleach_response); to linear RGB through H.
 // The maps are only shown (compose, the warp), never fed back: the gain's logs and exps are
 // the display-precision ones (log_shownv, exp_shownv), within the maps' oracle tolerance.
 inline void mapsv(__constant const params_t *P, __global const float *down,
@@ -182,8 +183,11 @@ inline void mapsv(__constant const params_t *P, __global const float *down,
         u[c] = (st[6 + c] - x_inf) / MAX(x_inf, floor_x);  // reference.linear_contrast
         len_g += ln_gain[c] * ln_gain[c];
         u_max = MAX(u_max, ABSV(u[c]));
-        // Bleaching (Eq. 12) as a response x; its light R^-1(x) at A_min adds to the input.
+        // Eq. 12's bleaching term (reference.bleach_term)
         floatv x = P->bleach_display_gain * P->j1 * ca * MAX(st[c] - bleach_infv(P, c, In[c]), 0.0f);
+        bleach[c] = x;
+        if (!P->bleach_equivalent_light) continue;
+        // ... as a response x; its light R^-1(x) at A_min adds to the input.
         x = MIN(x, 1.0f - eps);
         bleach[c] = 0.0f;
         if (!anyv(x > 0.0f)) continue;  // no bleaching above equilibrium: the usual case
@@ -194,23 +198,26 @@ inline void mapsv(__constant const params_t *P, __global const float *down,
         floatv unmasked = one_minus_exp_negv(P->n * log1pv(ratio));
         bleach[c] = x > 0.0f ? (1.0f - R_now) * tonev(P, lsn, In[c] + I_x) * unmasked : 0.0f;
     }
-    // u / max |u| in [-1, 1], then its unit vector; the side (cosine / AGREE_COS, clamped)
-    floatv len_u = 0.0f, dot = 0.0f;
-    u_max = MAX(u_max, FLT_MIN);
-    for (int c = 0; c < 3; ++c) {
-        u[c] = u[c] / u_max;
-        len_u += u[c] * u[c];
+    if (P->gain_along_adapting_light) {
+        // u / max |u| in [-1, 1], then its unit vector; the side (cosine / AGREE_COS, clamped)
+        floatv len_u = 0.0f, dot = 0.0f;
+        u_max = MAX(u_max, FLT_MIN);
+        for (int c = 0; c < 3; ++c) {
+            u[c] = u[c] / u_max;
+            len_u += u[c] * u[c];
+        }
+        len_u = MAX(sqrtv(len_u), FLT_MIN);
+        for (int c = 0; c < 3; ++c) {
+            u[c] = u[c] / len_u;
+            dot -= ln_gain[c] * u[c];
+        }
+        len_g = sqrtv(len_g);
+        floatv side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
+        floatv scale = -len_g * side;
+        for (int c = 0; c < 3; ++c) ln_gain[c] = scale * u[c];
     }
-    len_u = MAX(sqrtv(len_u), FLT_MIN);
-    for (int c = 0; c < 3; ++c) {
-        u[c] = u[c] / len_u;
-        dot -= ln_gain[c] * u[c];
-    }
-    len_g = sqrtv(len_g);
-    floatv side = CLAMP(dot / MAX(len_g, FLT_MIN) / AGREE_COS, -1.0f, 1.0f);
-    floatv scale = -len_g * side;
     for (int c = 0; c < 3; ++c)
-        store_cellv(maps + c * plane + row, exp_shownv(scale * u[c]), j, grid_w);
+        store_cellv(maps + c * plane + row, exp_shownv(ln_gain[c]), j, grid_w);
     rgbv_t add = matv_mul(P->H, bleach[0], bleach[1], bleach[2]);  // LMS bleaching -> RGB
     store_cellv(maps + 3 * plane + row, add.r, j, grid_w);
     store_cellv(maps + 4 * plane + row, add.g, j, grid_w);

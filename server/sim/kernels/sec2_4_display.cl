@@ -19,7 +19,7 @@ HOT rgbv_t basev(__constant const params_t *P, __global const float *G,
     floatv g = eyes * loadv_row(G + plane + row, x, W);
     floatv b = eyes * loadv_row(G + 2 * plane + row, x, W);
     floatv rc = CLAMP(loadv_row(rho_full + row, x, W), 0.0f, 1.0f);
-    floatv yp = dotv(P->w_P, r, g, b), ys = dotv(P->w_S, r, g, b);
+    floatv yp = dotv(P->w_P, r, g, b), ys = dotv(P->w_S_tone, r, g, b);
     floatv I = rc * yp + (1.0f - rc) * ys;                              // Purkinje (Eq. 13)
     floatv R = tonev_shown(P, ln_sigma_n_of(P, A[0]), I);               // Eq. 1
     floatv ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);  // hue shift
