@@ -51,6 +51,7 @@ from gazehdr.scenes.library import (
 from gazehdr.security import install as install_guard
 from gazehdr.session import PRESET_VALUES, Session, SessionSettings
 from gazehdr.sim import Params
+from gazehdr.sim.layout import Layout
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
 from gazehdr.sim.presets import describe
 from gazehdr.viewer import default_web_dir, viewer_files
@@ -259,6 +260,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         try:
             check_remote_change(defaults["params"], values)
             params = Params.from_dict({**defaults["params"].to_dict(), **values})
+            Layout.for_frame(config.session.width, config.session.height, params)  # its work
         except (TypeError, ValueError) as e:
             raise HTTPException(422, f"parameters refused: {e}") from None
         defaults["params"] = params

@@ -20,9 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_LMS, contrast_floor
-from gazehdr.sim.params import OURS, Params
-
-MAX_BANDS = 8  # the block's room for band thresholds; Params.bands may not exceed it
+from gazehdr.sim.params import MAX_BANDS, OURS, Params
 
 #: Params annotation -> (C type, number of values); every field is 4 bytes, so neither side pads.
 ANNOTATION_TYPES = {"float": ("float", 1), "int": ("int", 1), "bool": ("int", 1),
@@ -93,8 +91,6 @@ PARAMS_DTYPE = np.dtype(
 
 def pack_params(p: Params) -> np.ndarray:
     """The block for `p` as one `PARAMS_DTYPE` record, the bytes the kernels read."""
-    if p.bands > MAX_BANDS:
-        raise ValueError(f"the OpenCL backend supports at most {MAX_BANDS} acuity bands")
     rec = np.zeros(1, PARAMS_DTYPE)
     for f in FIELDS:
         values = np.asarray(f.value(p)).ravel()

@@ -65,6 +65,37 @@ def check_frame_size(width: int, height: int) -> None:
             raise ValueError(f"{name} must be in [{MIN_SIZE}, {limit}], got {value}")
 
 
+#: The widest Gaussian any stage may run, in the pixels or cells it blurs (radius 3 sigma):
+#: `Params.WORK_BOUNDS` bound each value, this their combination with a frame's pixels per
+#: degree (a large frame of a small screen multiplies every size in degrees).
+MAX_BLUR_SIGMA = 128.0
+
+
+def check_work(params: Params, ppd: float, cell: int) -> None:
+    """Refuse parameters whose blurs at `ppd` (frame pixels per degree, retina cells of `cell`
+    pixels) would be wider than MAX_BLUR_SIGMA, naming the widest."""
+    scale = ppd / params.geometry.pixels_per_degree()
+    screen = {  # sigmas in frame pixels
+        "sigma_0": params.sigma_0 * 2 ** ((params.bands - 1) / 4) * scale,
+        "acuity_sigma_max_deg": params.acuity_sigma_max_deg * ppd,
+    }
+    cells = {  # sigmas in retina cells (the low-resolution maps)
+        name: getattr(params, name) * ppd / cell
+        for name in ("adaptation_sigma_deg", "rho_sigma_deg", "map_blur_deg",
+                     "surround_sigma_deg", "ritschel_saccade_sigma_deg", "ritschel_N_sigma_deg",
+                     "mikamo_lowpass_deg")
+    }  # fmt: skip
+    cells["rod_free_radius_deg"] = 2 * params.rod_free_radius_deg * ppd / cell
+    for unit, sigmas in (("px", screen), ("cells", cells)):
+        name, sigma = max(sigmas.items(), key=lambda kv: kv[1])
+        if sigma > MAX_BLUR_SIGMA:
+            raise ValueError(
+                f"parameter {name} gives a blur of sigma {sigma:.4g} {unit} at {ppd:.4g} px per "
+                f"degree, over the {MAX_BLUR_SIGMA:g} any stage may run; make it or the frame "
+                "smaller"
+            )
+
+
 @dataclass(frozen=True)
 class Layout:
     """Sizes of every map for one frame size, in pixels, derived from the viewing geometry.
@@ -87,6 +118,7 @@ class Layout:
         check_frame_size(width, height)
         ppd = params.geometry.pixels_per_degree(int(width))
         cell = max(1, round(params.retina_cell_deg * ppd))
+        check_work(params, ppd, cell)
         low_w, low_h = math.ceil(width / cell), math.ceil(height / cell)
         return cls(int(width), int(height), ppd, cell, low_w, low_h, 2 * low_w, 2 * low_h)
 

@@ -27,7 +27,7 @@ import numpy as np
 import pyopencl as cl
 
 from gazehdr.sim.cl_program import Launch, build_program, shared_context, vector_width
-from gazehdr.sim.kernel_params import MAX_BANDS, pack_params
+from gazehdr.sim.kernel_params import pack_params
 from gazehdr.sim.layout import (
     Layout,
     NoiseFrame,
@@ -40,7 +40,7 @@ from gazehdr.sim.layout import (
     settle_plan,
 )
 from gazehdr.sim.level_stack import LevelStack
-from gazehdr.sim.params import Params
+from gazehdr.sim.params import MAX_BANDS, Params
 
 KERNEL_FILES = (
     "common.cl",

@@ -18,6 +18,12 @@ Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
+#: The most pixels per degree a viewing geometry may give (a 4K phone at 30 cm gives ~250).
+MAX_PPD = 1024.0
+#: The kernels' room for acuity band thresholds (kernel_params: the parameter block).
+MAX_BANDS = 8
+
+
 @dataclass(frozen=True)
 class Geometry:
     """Viewing geometry: pixel sizes in the paper refer to this screen (about 64 px per degree)."""
@@ -26,6 +32,24 @@ class Geometry:
     screen_width_px: int = 1920
     screen_height_px: int = 1080
     viewing_distance_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("screen_width_px", "screen_height_px"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or not 16 <= value <= 16384:
+                raise ValueError(
+                    f"geometry {name} must be an integer in [16, 16384], got {value!r}"
+                )
+        for name, high in (("screen_diagonal_m", 20.0), ("viewing_distance_m", 100.0)):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and 0 < value <= high):
+                raise ValueError(f"geometry {name} must be in (0, {high:g}] m, got {value!r}")
+        ppd = self.pixels_per_degree()
+        if not 1.0 <= ppd <= MAX_PPD:
+            raise ValueError(
+                f"geometry gives {ppd:.3g} px per degree, outside [1, {MAX_PPD:g}]: sizes in "
+                "degrees become blurs and grids in pixels, so this bounds their work"
+            )
 
     def pixels_per_degree(self, width_px: int | None = None) -> float:
         """Pixels per degree for a frame of `width_px` showing the whole screen."""
@@ -205,12 +229,19 @@ class Params:
             raise ValueError(f"alpha_eps must be below 1, got {self.alpha_eps}")
         if not 0 < self.plateau_m_over_n < 1:
             raise ValueError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
-        if self.bands < 1:
-            raise ValueError("bands must be at least 1")
         if not 0 < self.acuity_cutoff_response < 1:
             raise ValueError("acuity_cutoff_response must lie in (0, 1)")
         if not (isinstance(self.ritschel_steps, int) and 1 <= self.ritschel_steps <= 64):
             raise ValueError("ritschel_steps must be an integer in [1, 64]")
+        if not isinstance(self.bands, int) or isinstance(self.bands, bool):
+            raise ValueError(f"bands must be an integer, got {self.bands!r}")
+        for name, (low, high, what) in WORK_BOUNDS.items():
+            value = getattr(self, name)
+            if not low <= value <= high:
+                raise ValueError(
+                    f"parameter {name} = {value:g} is outside [{low:g}, {high:g}] ({what}; the "
+                    "bounds keep the work of a step bounded)"
+                )
         if not 0 < self.mikamo_top_fraction <= 1:
             raise ValueError("mikamo_top_fraction must lie in (0, 1]")
         non_negative = (
@@ -329,6 +360,27 @@ OURS = frozenset(
         "thompson_dog_ratio", "thompson_dog_gain", "thompson_noise", "thompson_noise_hz",
     }
 )  # fmt: skip
+#: Bounds of the values that size the work of a step (a blur's radius, a grid's cells, a band
+#: count, key frames a second), each far outside what the paper and we use. `Params` refuses a
+#: value past one with the bound named, before anything is built; with the geometry's
+#: `MAX_PPD` and the largest frame they bound every blur (`layout.check_work`).
+WORK_BOUNDS: dict[str, tuple[float, float, str]] = {
+    "sigma_0": (0.0, 8.0, "px, the finest acuity blur; the widest is 3.4 times it"),
+    "bands": (1, MAX_BANDS, "acuity bands, the kernels' room"),
+    "adaptation_sigma_deg": (0.0, 10.0, "deg, the patch the eye adapts to"),
+    "rho_sigma_deg": (0.0, 5.0, "deg, the local average of Eq. 13"),
+    "map_blur_deg": (0.0, 2.0, "deg, the afterimage maps' blur after 1 s"),
+    "surround_sigma_deg": (0.0, 10.0, "deg, the blur of the frame's edge"),
+    "rod_free_radius_deg": (0.0, 5.0, "deg, the blind spot's fill blur"),
+    "retina_cell_deg": (0.02, 2.0, "deg, a retina cell: smaller cells, a larger grid"),
+    "noise_cell_deg": (0.05, 20.0, "deg, the acuity noise grid: smaller cells, a larger grid"),
+    "noise_rate_hz": (0.0, 240.0, "acuity noise key frames a second"),
+    "acuity_sigma_max_deg": (0.0, 2.0, "deg, the acuity baselines' largest blur"),
+    "ritschel_saccade_sigma_deg": (0.0, 2.0, "deg, Ritschel's micro-saccade blur"),
+    "ritschel_N_sigma_deg": (0.0, 2.0, "deg, Ritschel's diffusion blur after 1 s"),
+    "mikamo_lowpass_deg": (0.0, 5.0, "deg, Mikamo's low-pass"),
+    "thompson_noise_hz": (0.0, 1000.0, "Thompson's noise frames a second"),
+}  # fmt: skip
 #: The parameters that switch a part of the model on or off.
 SWITCHES = frozenset({"bleach_equivalent_light", "gain_along_adapting_light", "purkinje"})
 #: Parameters that name a file on the server. A change that comes over the network may keep
