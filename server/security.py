@@ -20,15 +20,18 @@ JSON `{"detail": reason}`, the one error shape of the API (`ERROR_SCHEMA`).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import ipaddress
 import json
 import math
 import os
+import re
 import secrets
+import tempfile
 import time
 from collections import OrderedDict
-from collections.abc import Awaitable, Callable, MutableMapping
+from collections.abc import Awaitable, Callable, Hashable, MutableMapping
 from dataclasses import dataclass
 from http.cookies import CookieError, SimpleCookie
 from pathlib import Path
@@ -53,9 +56,12 @@ PRIVATE_READS = ("/api/recordings", "/api/sessions", "/api/experiment")
 VIEWER_PAGES = ("/", "/index.html", "/experiment")
 COOKIE_PREFIX = "gazehdr-"
 SECRET_FILE = "viewer-secret"
-# Failed authentication, per client address: 10 at once, then one every 6 s (600 guesses an
-# hour) until it stops failing for a minute. A weak --token is still weak; this makes guessing
-# it slow, and a wrong cookie after a restart (the page reloads it) costs one.
+SECRET_BYTES = 32  # the secret's entropy: token_urlsafe(32), 43 characters
+SECRET_MIN_CHARS = 32  # fewer characters read back: truncated, refused
+_SECRET_CHARS = re.compile(r"[A-Za-z0-9_-]+")
+# Failed token attempts, per client (`throttle_key`) and way of trying: 10 at once, then one
+# every 6 s (600 guesses an hour) until it stops failing for a minute. A weak --token is still
+# weak; this makes guessing it slow.
 FAILURE_BURST = 10.0
 FAILURE_RATE = 1 / 6
 MAX_CLIENTS = 4096  # addresses remembered; the oldest is forgotten first
@@ -68,26 +74,27 @@ ERROR_SCHEMA = {
 
 
 class FailedLogins:
-    """Per client address, a `TokenBucket` of failed authentications: each failure takes a
-    token; an address with none left waits until the bucket refills. It reads no clock."""
+    """Per key (a client's `throttle_key` and the way it tried), a `TokenBucket` of failed
+    authentications: each failure takes a token; a key with none left waits until the bucket
+    refills. It reads no clock."""
 
     def __init__(
         self, rate: float = FAILURE_RATE, burst: float = FAILURE_BURST, limit: int = MAX_CLIENTS
     ) -> None:
         self.rate, self.burst, self.limit = rate, burst, limit
-        self.buckets: OrderedDict[str, TokenBucket] = OrderedDict()
+        self.buckets: OrderedDict[Hashable, TokenBucket] = OrderedDict()
 
-    def wait(self, client: str, now: float) -> float:
-        """Seconds `client` must wait before its next attempt counts; 0 if it may try now."""
-        bucket = self.buckets.get(client)
+    def wait(self, key: Hashable, now: float) -> float:
+        """Seconds `key` must wait before its next attempt counts; 0 if it may try now."""
+        bucket = self.buckets.get(key)
         if bucket is None or bucket.available(now) >= 1:
             return 0.0
         return (1 - bucket.level) / bucket.rate
 
-    def failed(self, client: str, now: float) -> None:
-        bucket = self.buckets.pop(client, None) or TokenBucket(self.rate, self.burst)
+    def failed(self, key: Hashable, now: float) -> None:
+        bucket = self.buckets.pop(key, None) or TokenBucket(self.rate, self.burst)
         bucket.admit(1, now)
-        self.buckets[client] = bucket  # most recent last
+        self.buckets[key] = bucket  # most recent last
         while len(self.buckets) > self.limit:
             self.buckets.popitem(last=False)
 
@@ -161,22 +168,50 @@ def policy_for(config: Any) -> Policy:
 def cookie_secret(data_dir: Path | None) -> str:
     """The viewer cookie's secret: kept in DATA_DIR/viewer-secret (readable by this user only),
     so that a restarted server still knows the viewers its predecessor let in; new per run
-    without a data directory. It is not the bearer token: a weak --token does not weaken it."""
+    without a data directory. It is not the bearer token: a weak --token does not weaken it.
+    The file is written whole under another name and linked into place, so that servers
+    starting at once agree on one secret and none reads a half-written one; what is read is
+    checked (`SecretError`): an empty, short or world-readable secret is never used."""
     if data_dir is None:
-        return secrets.token_urlsafe(32)
+        return secrets.token_urlsafe(SECRET_BYTES)
     path = Path(data_dir) / SECRET_FILE
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _write_secret(path)
+    return _read_secret(path)
+
+
+class SecretError(ValueError):
+    """The viewer secret on disk cannot be used; the message says why and what to do."""
+
+
+def _write_secret(path: Path) -> None:
+    """A new secret at `path`, unless another server put one there first (theirs stays)."""
+    fd, temporary = tempfile.mkstemp(prefix=f".{SECRET_FILE}.", dir=path.parent)  # mode 0600
     try:
-        return path.read_text(encoding="ascii").strip()
-    except FileNotFoundError:
-        pass
-    path.parent.mkdir(parents=True, exist_ok=True)
-    secret = secrets.token_urlsafe(32)
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    except FileExistsError:  # another server made it meanwhile: use that one
-        return path.read_text(encoding="ascii").strip()
-    with os.fdopen(fd, "w", encoding="ascii") as f:
-        f.write(secret + "\n")
+        with os.fdopen(fd, "w", encoding="ascii") as f:
+            f.write(secrets.token_urlsafe(SECRET_BYTES) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        with contextlib.suppress(FileExistsError):  # another server's stays
+            os.link(temporary, path)  # atomic, and fails if the name exists
+    finally:
+        os.unlink(temporary)
+
+
+def _read_secret(path: Path) -> str:
+    mode = path.stat().st_mode
+    if mode & 0o077:
+        raise SecretError(
+            f"{path} can be read by other users (mode {mode & 0o777:o}): whoever reads it can "
+            "sign in as a viewer; make it private (chmod 600) or delete it for a new one"
+        )
+    secret = path.read_text(encoding="ascii", errors="replace").strip()
+    if len(secret) < SECRET_MIN_CHARS or not _SECRET_CHARS.fullmatch(secret):
+        raise SecretError(
+            f"{path} holds no usable secret ({len(secret)} characters; a full disk or a crash "
+            f"while it was written?): delete it and start again to make a new one"
+        )
     return secret
 
 
@@ -284,48 +319,69 @@ class Guard:
         )
 
     def _authenticate(self, scope: Scope, headers: dict[str, str], websocket: bool) -> None:
+        """The bearer token, or the viewer's cookie. Wrong tokens are throttled per client
+        (`throttle_key`); cookies are not: the secret (256 bits) is not worth guessing, and a
+        viewer holding it is never refused because of others' failures."""
         client = (scope.get("client") or ("unknown", 0))[0]
-        now = self.clock()
-        wait = self.failures.wait(client, now)
-        if wait > 0:
-            raise Answer(
-                429,
-                f"too many failed authentications from {client}; wait {math.ceil(wait)} s",
-                {"retry-after": str(math.ceil(wait))},
-            )
         given = headers.get("authorization")
         cookie = _cookie(headers, self._cookie_name(scope, headers))
-        if given is not None:
-            kind, expected = "bearer token", f"Bearer {self.policy.token}"
-        elif cookie is not None:
-            kind, given, expected = "cookie", cookie, self.policy.cookie_secret
-        else:
+        if given is None and cookie is not None:
+            if cookie and secrets.compare_digest(
+                cookie.encode(), self.policy.cookie_secret.encode()
+            ):
+                return
+            raise Answer(
+                401,
+                "unauthorized: wrong cookie",
+                {"www-authenticate": 'Bearer realm="gazehdr", error="invalid_token"'},
+            )
+        if given is None:
             raise Answer(
                 401,
                 "unauthorized: missing bearer token"
                 + ("" if websocket else "; send Authorization: Bearer TOKEN (serve prints it)"),
                 {"www-authenticate": 'Bearer realm="gazehdr"'},
             )
-        if not secrets.compare_digest(given.encode(), expected.encode()):
-            self.failures.failed(client, now)
+        expected = f"Bearer {self.policy.token}"
+        key = (throttle_key(client), "token")
+        self._check_token(client, key, given, expected, "bearer token")
+
+    def _check_token(
+        self, client: str, key: tuple[str, str], given: str, expected: str, what: str
+    ) -> None:
+        """Compare a token attempt, unless its throttle says wait; count it if wrong."""
+        now = self.clock()
+        wait = self.failures.wait(key, now)
+        if wait > 0:
+            raise Answer(
+                429,
+                f"too many failed authentications from {client}; wait {math.ceil(wait)} s",
+                {"retry-after": str(math.ceil(wait))},
+            )
+        if not (given and secrets.compare_digest(given.encode(), expected.encode())):
+            self.failures.failed(key, now)
             raise Answer(
                 401,
-                f"unauthorized: wrong {kind}",
+                f"unauthorized: wrong {what}",
                 {"www-authenticate": 'Bearer realm="gazehdr", error="invalid_token"'},
             )
 
     def _viewer_cookie(self, scope: Scope, headers: dict[str, str]) -> list[tuple[bytes, bytes]]:
         """The viewer page gives the browser its credential: to a loopback client, or to one
-        that shows the token once (`/?token=TOKEN`, then redirected to drop it from the URL)."""
+        that shows the token once (`/?token=TOKEN`, then redirected to drop it from the URL).
+        A page of another site cannot make the browser try tokens here to lock the rightful
+        clients out: an embedded request (an image, a script, a fetch) is refused untried,
+        and a navigation from there counts against a throttle of its own, never the one of
+        the daemon's bearer token or of someone typing the address."""
         query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
         client = (scope.get("client") or ("", 0))[0]
         if "token" in query:
-            now = self.clock()
-            if self.failures.wait(client, now) > 0:
-                raise Answer(429, f"too many failed authentications from {client}")
-            if not secrets.compare_digest(query["token"][-1].encode(), self.policy.token.encode()):
-                self.failures.failed(client, now)
-                raise Answer(401, "unauthorized: wrong token in the address")
+            page = _from_another_page(headers, self.policy)
+            if page and headers.get("sec-fetch-mode", "navigate") != "navigate":
+                raise Answer(403, "a page of another site cannot sign in with the token")
+            key = (throttle_key(client), "page" if page else "token")
+            given = query["token"][-1]
+            self._check_token(client, key, given, self.policy.token, "token in the address")
             raise Answer(
                 303, "", {"location": scope["path"], "set-cookie": self._set_cookie(scope, headers)}
             )
@@ -344,6 +400,32 @@ class Guard:
     def _set_cookie(self, scope: Scope, headers: dict[str, str]) -> str:
         name = self._cookie_name(scope, headers)
         return f"{name}={self.policy.cookie_secret}; Path=/; HttpOnly; SameSite=Strict"
+
+
+def throttle_key(client: str) -> str:
+    """The clients that share a throttle: one per address, but all of loopback as one (a local
+    process may send from any of 127.0.0.0/8 and ::1) and an IPv6 address by its /64 (one host
+    has many), so that changing the source address does not buy more guesses."""
+    try:
+        ip = ipaddress.ip_address(client)
+    except ValueError:
+        return client
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        ip = ip.ipv4_mapped
+    if ip.is_loopback:
+        return "loopback"
+    if isinstance(ip, ipaddress.IPv6Address):
+        return str(ipaddress.ip_network(f"{ip}/64", strict=False))
+    return str(ip)
+
+
+def _from_another_page(headers: dict[str, str], policy: Policy) -> bool:
+    """Whether a browser sent this for a page of another origin: its fetch metadata says so
+    (`Sec-Fetch-Site`: cross-site, or same-site: another port of this host), or its Origin is
+    not this server's."""
+    if headers.get("sec-fetch-site") in ("cross-site", "same-site"):
+        return True
+    return not policy.origin_allowed(headers.get("origin"), headers.get("host"))
 
 
 def _loopback(client: str) -> bool:

@@ -126,7 +126,8 @@ def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicor
     """The one way we run uvicorn: the websockets library's sans-I/O core, which waits for the
     socket to drain before each send (a slow viewer then skips frames, see server/live.py).
     Per-message deflate is off: browsers ask for it, and zlib on megabytes of float16 noise
-    per frame cost more CPU than the simulation (bench-live: 3.9 fps with it at 1280×720)."""
+    per frame cost more CPU than the simulation (bench-live: 3.9 fps with it at 1280×720).
+    Proxy headers are off (docs/security.md)."""
     config = uvicorn.Config(
         app,
         host=host,
@@ -134,6 +135,9 @@ def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicor
         ws="websockets-sansio",
         ws_max_size=WS_MAX_MESSAGE,
         ws_per_message_deflate=False,
+        # A client's address is its socket's: X-Forwarded-For is not believed (uvicorn does
+        # from 127.0.0.1 by default), so no client picks the address its failures count against.
+        proxy_headers=False,
         access_log=False,
         log_level=log_level,
     )
