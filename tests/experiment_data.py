@@ -6,13 +6,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from gazehdr.experiment.observer import SimulatedObserver
+from gazehdr.experiment.observer import EchoObserver
 from gazehdr.experiment.recovery import synthetic_41_run
 
 
 def write_dataset(
     root: Path,
-    observers: dict[str, SimulatedObserver],
+    observers: dict[str, EchoObserver],
     excluded: frozenset[str] = frozenset(),
     task: str = "afterimage",
 ) -> Path:

@@ -1,5 +1,5 @@
 """`gazehdr experiment analyse` (issue 17, item 2): the psychometric fit, its bootstrap interval,
-degenerate data, the rank-sum test, the report, and PSE recovery from a simulated observer."""
+degenerate data, the rank-sum test, the report, and PSE recovery from the echo observer."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from gazehdr.cli import main
 from gazehdr.experiment import psychometric as pm
 from gazehdr.experiment.analysis import Settings, analyse, ranksum
 from gazehdr.experiment.dataset import ResultsError, load
-from gazehdr.experiment.observer import SimulatedObserver, cumulative_gaussian
+from gazehdr.experiment.observer import EchoObserver, cumulative_gaussian
 from gazehdr.experiment.recovery import headless_41_run, recover, synthetic_41_run
 from gazehdr.experiment.report import write_report
 from tests.experiment_data import write_dataset
@@ -30,7 +30,7 @@ def _levels(pse: float, sigma: float, lapse: float, n: int, seed: int, x=X41) ->
     return pm.Levels(np.asarray(x, float), np.full(len(x), float(n)), k.astype(float))
 
 
-def test_model_is_the_simulated_observers_and_is_half_at_the_pse_whatever_the_lapse():
+def test_model_is_the_echo_observers_and_is_half_at_the_pse_whatever_the_lapse():
     x = np.linspace(-0.4, 0.4, 17)
     for lapse in (0.0, 0.05, 0.3):
         assert np.allclose(
@@ -149,10 +149,10 @@ def test_ranksum_is_scipys_mann_whitney_with_matlabs_choice_of_method():
 
 def _dataset(tmp_path: Path) -> Path:
     observers = {
-        f"sub-{i:02d}": SimulatedObserver(pse={"control": 0.0, "manipulated": 0.05 * i}, seed=i)
+        f"sub-{i:02d}": EchoObserver(pse={"control": 0.0, "manipulated": 0.05 * i}, seed=i)
         for i in range(1, 5)
     }
-    observers["sub-x1"] = SimulatedObserver(pse={"manipulated": 0.2}, seed=9)
+    observers["sub-x1"] = EchoObserver(pse={"manipulated": 0.2}, seed=9)
     return write_dataset(tmp_path / "ds", observers, excluded=frozenset({"sub-x1"}), task="mesopic")
 
 
@@ -205,7 +205,7 @@ def test_reports_degenerate_observers_without_nan(tmp_path):
 
 def test_excluded_by_participants_tsv_or_by_the_training_rule(tmp_path):
     ds = _dataset(tmp_path)
-    bad = SimulatedObserver(pse={}, sigma=5.0, lapse=0.0, seed=3)  # guesses: fails training
+    bad = EchoObserver(pse={}, sigma=5.0, lapse=0.0, seed=3)  # guesses: fails training
     synthetic_41_run(11, bad, ds, task="mesopic", participant="sub-guess")
     observers = {o.participant: o for o in load([ds])}
     assert observers["sub-x1"].excluded and "participants.tsv" in observers["sub-x1"].exclusion
@@ -222,8 +222,8 @@ def test_each_task_reads_its_own_exclusion_when_an_observer_ran_two(tmp_path):
     and each task shows its own training score."""
     from gazehdr.experiment.runner import run_headless
 
-    good = SimulatedObserver({"manipulated": -0.05}, sigma=0.05, lapse=0.0, seed=1)
-    guesser = SimulatedObserver(sigma=50.0, lapse=0.0, seed=2)  # fails any training
+    good = EchoObserver({"manipulated": -0.05}, sigma=0.05, lapse=0.0, seed=1)
+    guesser = EchoObserver(sigma=50.0, lapse=0.0, seed=2)  # fails any training
     run_headless("4.1", good, tmp_path, seed=1, observer_id="o1")
     run_headless("4.2", guesser, tmp_path, seed=2, observer_id="o1")
     by_task = {o.task: o for o in load([tmp_path], training_criterion=0.0)}
@@ -275,9 +275,9 @@ def test_palette_choices_are_counted_per_flash_strength_and_shown_escaped(tmp_pa
 
 def test_recovery_intervals_hold_the_true_pse(tmp_path):
     """Sec. 4.1 run through the experiment's own trial code without a browser (the runner the
-    page's runs use), answered by the simulated observer, analysed as real results. Bounded and
+    page's runs use), answered by the echo observer, analysed as real results. Bounded and
     seeded; `gazehdr experiment recovery --runs 200` is the long run."""
-    truth = SimulatedObserver(pse={"control": 0.0, "manipulated": -0.05}, sigma=0.08, lapse=0.02)
+    truth = EchoObserver(pse={"control": 0.0, "manipulated": -0.05}, sigma=0.08, lapse=0.02)
     coverage = recover(headless_41_run, truth, 12, Settings(bootstrap=100, seed=1))
     assert {c.condition for c in coverage} == {"control", "manipulated"}
     assert all(c.runs == 12 for c in coverage)

@@ -1,5 +1,5 @@
 """The experiment's page in real headless Chromium against a real server (the fixtures of
-tests/browser.py): a simulated observer answers a short run by key presses, and the
+tests/browser.py): the echo observer answers a short run by key presses, and the
 results, participants and session log hold what happened; the API refuses a caller without the
 credential."""
 
@@ -19,7 +19,7 @@ import pytest
 
 from gazehdr.drivers.sessionlog import read_session_log
 from gazehdr.experiment.design import parse_design
-from gazehdr.experiment.observer import SimulatedObserver
+from gazehdr.experiment.observer import EchoObserver
 from gazehdr.experiment.schedule import schedule
 from gazehdr.experiment.service import ExperimentConfig
 from tests.browser import WAIT_MS, browser  # noqa: F401 -- the browser fixture
@@ -94,10 +94,10 @@ def test_the_experiment_api_needs_the_credential(live_server, tmp_path: Path) ->
         assert all(op["security"] == [{"bearer": []}, {"cookie": []}] for op in ops.values())
 
 
-def test_a_simulated_observer_answers_through_the_page(live_server, browser, tmp_path) -> None:  # noqa: F811
+def test_the_echo_observer_answers_through_the_page(live_server, browser, tmp_path) -> None:  # noqa: F811
     server = live_server(experiment=_config(tmp_path))
     trials = schedule(DESIGN, SEED)
-    observer = SimulatedObserver({"control": 0.05}, sigma=0.1, lapse=0.0, seed=3)
+    observer = EchoObserver({"control": 0.05}, sigma=0.1, lapse=0.0, seed=3)
     with experiment_page(browser, server.url, "web1") as page:
         pressed = []
         for trial in trials:

@@ -1,5 +1,5 @@
 """Trials through the simulator, headless: the durations measured from the frames' simulation
-times, what the clips show, a whole preset answered by a simulated observer, the training rule
+times, what the clips show, a whole preset answered by the echo observer, the training rule
 ending a run, the session log, the BIDS output under the official validator, and the CLI.
 Frames are tiny (48×27) on the NumPy reference backend: CI has two cores."""
 
@@ -17,7 +17,7 @@ from gazehdr.drivers.sessionlog import read_session_log
 from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.dataset import read_beh
 from gazehdr.experiment.design import load_design, parse_design
-from gazehdr.experiment.observer import SimulatedObserver
+from gazehdr.experiment.observer import EchoObserver
 from gazehdr.experiment.runner import ExperimentRun, Presented, RunError, run_headless
 from gazehdr.experiment.schedule import Trial, log_ratio
 from gazehdr.experiment.stimulus import PHASES, Clip, clip, palette_images
@@ -96,8 +96,8 @@ def test_mesopic_tests_match_the_control_mean_and_lose_colour() -> None:
     assert spread(b) < 0.8 * spread(a)
 
 
-def test_a_simulated_observer_runs_the_whole_afterimage_preset(tmp_path: Path) -> None:
-    observer = SimulatedObserver({"manipulated": 0.1}, sigma=0.05, lapse=0.0, seed=2)
+def test_the_echo_observer_runs_the_whole_afterimage_preset(tmp_path: Path) -> None:
+    observer = EchoObserver({"manipulated": 0.1}, sigma=0.05, lapse=0.0, seed=2)
     path = run_headless("4.1", observer, tmp_path, seed=7, size=SIZE, backend=BACKEND)
     assert path == tmp_path / "sub-sim/beh/sub-sim_task-afterimage_beh.tsv"
     got = rows(path)
@@ -133,7 +133,7 @@ def test_a_simulated_observer_runs_the_whole_afterimage_preset(tmp_path: Path) -
 
 
 def test_an_observer_who_guesses_is_excluded_after_training(tmp_path: Path) -> None:
-    guesser = SimulatedObserver(sigma=50.0, lapse=0.0, seed=1)
+    guesser = EchoObserver(sigma=50.0, lapse=0.0, seed=1)
     path = run_headless(TINY_LONG_TRAINING, guesser, tmp_path, seed=1, size=SIZE,
                         backend=BACKEND, observer_id="g1")  # fmt: skip
     got = rows(path)
@@ -191,33 +191,44 @@ def test_a_run_refuses_a_folder_that_is_not_a_dataset_and_an_existing_run(tmp_pa
     with pytest.raises(ValueError, match="not empty and not a BIDS dataset"):
         ExperimentRun(d, "s1", tmp_path, seed=0, size=SIZE, backend=BACKEND)
     out = tmp_path / "ds"
-    run_headless(d, SimulatedObserver(), out, size=SIZE, backend=BACKEND, observer_id="s1")
+    run_headless(d, EchoObserver(), out, size=SIZE, backend=BACKEND, observer_id="s1")
     with pytest.raises(FileExistsError, match="another run number"):
         ExperimentRun(d, "s1", out, seed=0, size=SIZE, backend=BACKEND)
     with pytest.raises(ValueError, match="letters and digits"):
         ExperimentRun(d, "s-1", out, seed=0, size=SIZE, backend=BACKEND)
-    second = run_headless(d, SimulatedObserver(), out, size=SIZE, backend=BACKEND,
+    second = run_headless(d, EchoObserver(), out, size=SIZE, backend=BACKEND,
                           observer_id="s1", run=2)  # fmt: skip
     assert second.name == "sub-s1_task-tiny_run-2_beh.tsv"
     validate(out)
 
 
 def test_the_command_line_runs_headless_and_names_bad_input(tmp_path: Path, capsys) -> None:
+    """`--headless` with the echo observer (its PSEs given, labelled as no prediction) and the
+    model observer (the default, refusing a PSE), and the errors of bad input. Guards: the
+    model observer accepting a PSE, the echo observer running without one, and the paper's
+    numbers printed beside a design that is not the paper's."""
     design = tmp_path / "tiny.toml"
     design.write_text(TINY)
     argv = ["experiment", "run", str(design), "--out", str(tmp_path / "ds"), "--headless",
             "--size", "48x27", "--backend", BACKEND, "--seed", "3"]  # fmt: skip
-    assert cli_main([*argv, "--simulated-observer", "control=0.05"]) == 0
-    printed = capsys.readouterr().out.strip()
-    assert printed.endswith("sub-sim_task-tiny_beh.tsv") and len(rows(Path(printed))) == 12
-    assert cli_main([*argv, "--run", "2"]) == 2
-    assert "--headless needs --simulated-observer" in capsys.readouterr().err
-    assert cli_main([*argv, "--run", "2", "--simulated-observer", "control"]) == 2
+    echo = [*argv, "--simulated-observer", "echo"]
+    assert cli_main([*echo, "--pse", "control=0.05"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].endswith("sub-sim_task-tiny_beh.tsv") and len(rows(Path(printed[0]))) == 12
+    assert "echo (PSEs given)" in "\n".join(printed) and "no prediction" in "\n".join(printed)
+    assert cli_main([*echo, "--run", "2"]) == 2
+    assert "echo needs --pse" in capsys.readouterr().err
+    assert cli_main([*echo, "--run", "2", "--pse", "control"]) == 2
     assert "'control': give CONDITION=PSE" in capsys.readouterr().err
-    palette = ["experiment", "run", "4.3", "--out", str(tmp_path / "p"), "--headless",
-               "--simulated-observer", "control=0"]  # fmt: skip
+    assert cli_main([*argv, "--run", "2", "--pse", "control=0.1"]) == 2
+    assert "the model observer takes no PSE" in capsys.readouterr().err
+    assert cli_main([*argv, "--run", "3", "--observers", "2"]) == 0  # the model observer
+    printed = capsys.readouterr().out
+    assert "sub-sim01_task-tiny_run-3_beh.tsv" in printed and "model prediction" in printed
+    assert "paper (" not in printed  # not one of the paper's designs
+    palette = ["experiment", "run", "4.3", "--out", str(tmp_path / "p"), "--headless"]
     assert cli_main(palette) == 2
-    assert "palette trials, which the simulated observer cannot answer" in capsys.readouterr().err
+    assert "palette trials, which a simulated observer cannot answer" in capsys.readouterr().err
 
 
 def test_palette_trials_record_the_options_picked(tmp_path: Path) -> None:
@@ -227,7 +238,7 @@ def test_palette_trials_record_the_options_picked(tmp_path: Path) -> None:
     paper's point: no colour contrast) and bright after a 1e7 cd/m^2 flash."""
     d = parse_design(PALETTE)
     picks = {1: ["H1"], 2: ["H1", "C1"]}
-    path = run_headless(d, SimulatedObserver(), tmp_path, size=SIZE, backend=BACKEND,
+    path = run_headless(d, EchoObserver(), tmp_path, size=SIZE, backend=BACKEND,
                         palette_chooser=lambda trial, labels: picks[trial.number])  # fmt: skip
     got = rows(path)
     assert [r["palette_choice"] for r in got] == ["H1", "H1,C1"]
@@ -244,7 +255,7 @@ def test_palette_trials_record_the_options_picked(tmp_path: Path) -> None:
     assert J[0].max() > 0.02 and spread[0] > 0.5 * J[0].max()
     assert J[1].max() > 0.1 and spread[1] < 0.01
     with pytest.raises(ValueError, match="palette_chooser"):
-        run_headless(d, SimulatedObserver(), tmp_path / "x", size=SIZE, backend=BACKEND)
+        run_headless(d, EchoObserver(), tmp_path / "x", size=SIZE, backend=BACKEND)
 
 
 def test_a_palette_trial_takes_only_known_options(tmp_path: Path) -> None:

@@ -19,7 +19,7 @@ import pytest
 from PIL import Image
 
 from gazehdr.cli import main
-from gazehdr.figures import FIGURES
+from gazehdr.figures import FIGURES, photos
 from gazehdr.sim import Params
 
 SMALL = ["--size", "128x72", "--quiet", "--seed", "3"]
@@ -109,6 +109,98 @@ def test_fig6_7_ritschel_stays_neutral_ours_and_mikamo_are_coloured(figs: tuple[
     ours = np.array(fig["spot_rgb_linear"]["jacobs"])
     assert ours[0, 1] > ours[0, 0]  # green first (10^7 cd/m^2 flash)
     assert ours[-1].sum() < 0.1 * ours[0].sum()  # faded by 8 s
+
+
+def test_fig7_photographs_peak_at_the_papers_maximum_radiances(figs: tuple[Path, dict]) -> None:
+    """Fig. 7's photographs are shown at 10^3.5 and 10^4.5 cd/m^2 peak, the factor applied
+    being the one recorded. Guards: `photos.radiance` scaling by the file's own maximum (before
+    it is fitted to the frame, which lowers the peak by 5 % here), or not at all."""
+    shown = figs[1]["6-7"]["photos"]
+    assert [p.key for p in photos.PHOTOS] == list(shown) == ["courtyard", "studio"]
+    for photo, peak_log in zip(photos.PHOTOS, (3.5, 4.5), strict=True):
+        fig = shown[photo.key]
+        assert fig["peak_cd_m2"] == pytest.approx(10**peak_log, rel=1e-4), photo.key
+        fitted = photos.radiance(photo, 128, 72)[0] / fig["scale_factor"]
+        assert (fitted @ np.array(Params().w_P)).max() * fig["scale_factor"] == pytest.approx(
+            10**peak_log, rel=1e-4
+        )
+        assert 100 < fig["scale_factor"] < 1000 and fig["bright_pixels"] > 10
+
+
+def test_fig7_photographs_ours_coloured_by_peak_ritschels_lamp_neutral(figs: tuple[Path, dict]):
+    """At 10^4.5 our lamp's afterimage starts with green (Fig. 5: "the first hint of green
+    around 10^4.5"), at 10^3.5 the courtyard's is red; Ritschel's afterimage of the white lamp
+    is grey. Guards: both photographs shown at one peak (PHOTOS' peak_log swapped or equal),
+    and the rows run with one model for both (PHOTO_MODELS = ("jacobs", "jacobs"))."""
+    shown = figs[1]["6-7"]["photos"]
+
+    def green_share(photo: str) -> float:
+        rgb = np.array(shown[photo]["peak_rgb_linear"]["jacobs"][0])  # 0.5 s after closing
+        return float(rgb[1] / rgb.sum())
+
+    assert green_share("studio") > green_share("courtyard") + 0.15
+    assert green_share("courtyard") < 0.25
+    lamp = shown["studio"]["bright_saturation"]
+    assert max(lamp["ritschel"]) < 0.1 and min(lamp["jacobs"]) > 0.3
+    assert set(figs[1]["6-7"]["images"]) >= {
+        "fig07_photo_afterimages.png",
+        "fig07_photo_afterimages_x4.png",
+    }
+
+
+def test_fig7_without_its_photographs_is_not_made(tmp_path: Path, monkeypatch, capsys) -> None:
+    """No photograph (an installation without the package data): Fig. 6-7 is "Not made", the
+    page and stderr name the missing file and how to get it, the command exits 1, no PNG.
+    Guards: `photos.load` quietly leaving the rows out or drawing a black photograph."""
+    monkeypatch.setattr(photos, "data_dir", lambda: tmp_path / "no-data")
+    out = tmp_path / "out"
+    assert main(["figures", "--out", str(out), "--only", "7", *SMALL]) == 1
+    err = capsys.readouterr().err
+    assert "Fig. 6-7 not made" in err and "courtyard.exr" in err and "reinstall gazehdr" in err
+    assert "apt-get install blender-data" in err
+    page = _section(out, "6-7")
+    assert "Not made" in page and "courtyard.exr" in page and "reinstall gazehdr" in page
+    assert not list(out.glob("*.png"))
+
+
+def test_the_shipped_photographs_are_small_licensed_and_packaged() -> None:
+    """Each photograph is a 256×144 EXR under 1 MB, named in data/README.md with its source
+    and CC0 licence, shipped by package-data and not ignored by git. Guards: a file left out
+    of the wheel (package-data) or of the repository (.gitignore's `*.exr`), or undocumented."""
+    from gazehdr.scenes.exr import read_exr
+    from tests.test_packaging import SETUPTOOLS
+
+    root = Path(__file__).resolve().parent.parent
+    readme = (photos.data_dir() / "README.md").read_text()
+    assert "CC0" in readme and str(photos.BLENDER_WORLDS) in readme and "blender-data" in readme
+    assert "*.exr" in SETUPTOOLS["package-data"]["gazehdr.figures.data"]
+    assert "gazehdr.figures.data" in SETUPTOOLS["packages"]
+    for photo in photos.PHOTOS:
+        path = photos.path(photo)
+        assert path.stat().st_size < 1 << 20
+        assert read_exr(path).rgb.shape == (144, 256, 3)
+        assert f"`{path.name}`" in readme and f"`{photo.source}`" in readme
+        if (root / ".git").exists():
+            rel = path.relative_to(root)
+            ignored = subprocess.run(["git", "check-ignore", "-q", str(rel)], cwd=root)
+            assert ignored.returncode == 1, f"git ignores {rel}"
+
+
+@pytest.mark.skipif(
+    not photos.BLENDER_WORLDS.is_dir(), reason="Debian's blender-data is not installed"
+)
+def test_the_shipped_photographs_are_made_again_from_blender_data(tmp_path: Path) -> None:
+    """`python -m gazehdr.figures.photos` makes the shipped files again, pixel for pixel, from
+    the installed blender-data (as data/README.md says). Guards: a view's parameters in PHOTOS
+    (yaw, pitch, field of view) or `make_views` changed without the files made again."""
+    from gazehdr.scenes.exr import read_exr
+
+    assert photos.main([str(photos.BLENDER_WORLDS), str(tmp_path)]) == 0
+    for photo in photos.PHOTOS:
+        made, shipped = (
+            read_exr(d / f"{photo.key}.exr").rgb for d in (tmp_path, photos.data_dir())
+        )
+        np.testing.assert_array_equal(made, shipped, err_msg=photo.key)
 
 
 def test_fig8_calcium_weakens_the_bleaching_afterimage(figs: tuple[Path, dict]) -> None:

@@ -175,10 +175,37 @@ async function play(trial, got) {
   });
 }
 
+/**
+ * Where each option goes when every label is a column letter and a row number (Fig. 15: A1 …
+ * H4): {columns, rows, at: label -> [column, row]} (1-based, columns and rows sorted), else
+ * null, and the options flow in the design's order.
+ */
+function paletteCells(labels) {
+  const parts = labels.map((l) => /^([A-Za-z]+)(\d+)$/.exec(l));
+  if (!parts.every(Boolean)) return null;
+  const columns = [...new Set(parts.map((p) => p[1]))].sort();
+  const rows = [...new Set(parts.map((p) => Number(p[2])))].sort((a, b) => a - b);
+  const at = new Map(parts.map((p) => [
+    p[0], [columns.indexOf(p[1]) + 1, rows.indexOf(Number(p[2])) + 1],
+  ]));
+  return { columns: columns.length, rows: rows.length, at };
+}
+
 /** Sec. 4.3: the observer clicks the options like the afterimage seen, then presses Enter. */
 async function pickFromPalette() {
   const grid = $('palette');
   if (!grid.childElementCount) {
+    const cells = paletteCells(design.palette);
+    // A column per letter, a row per number; each (square) image as large as the window's
+    // height and width allow for that many rows and columns, its caption and border included.
+    const side = cells && `min(calc((100vh - 4em) / ${cells.rows} - 2.6em), `
+      + `calc((100vw - 2em) / ${cells.columns} - 0.9em))`;
+    if (cells) {
+      Object.assign(grid.style, {
+        display: 'grid', placeContent: 'center',
+        gridTemplateColumns: `repeat(${cells.columns}, auto)`,
+      });
+    }
     for (const label of design.palette) {
       const option = document.createElement('figure');
       option.dataset.label = label;
@@ -188,6 +215,13 @@ async function pickFromPalette() {
       const caption = document.createElement('figcaption');
       caption.textContent = label;
       option.append(img, caption);
+      if (cells) {
+        const [column, row] = cells.at.get(label);
+        Object.assign(option.style, {
+          gridColumn: String(column), gridRow: String(row), width: 'auto',
+        });
+        Object.assign(img.style, { width: side, height: side });
+      }
       option.addEventListener('click', () => option.classList.toggle('picked'));
       grid.append(option);
     }

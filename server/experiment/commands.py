@@ -119,8 +119,8 @@ def run_analyse(args: argparse.Namespace) -> int:
 
 
 def add_recovery_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """`recovery`: how often the bootstrap interval holds a simulated observer's true PSE."""
-    what = "check that the analysis recovers a simulated observer's PSE (interval coverage)"
+    """`recovery`: how often the bootstrap interval holds the echo observer's given PSE."""
+    what = "check that the analysis recovers the PSE an echo observer is given (interval coverage)"
     p = sub.add_parser(
         "recovery",
         help=what,
@@ -155,12 +155,12 @@ def add_recovery_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentPar
 
 def run_recovery(args: argparse.Namespace) -> int:
     _need_extra()
-    from gazehdr.experiment.observer import SimulatedObserver
+    from gazehdr.experiment.observer import EchoObserver
     from gazehdr.experiment.recovery import RUNNERS, recover
 
     if args.runner not in RUNNERS:
         raise ValueError(f"unknown runner {args.runner!r}; choices: {', '.join(RUNNERS)}")
-    truth = SimulatedObserver(
+    truth = EchoObserver(
         pse={"control": args.pse_control, "manipulated": args.pse_manipulated},
         sigma=args.sigma,
         lapse=args.lapse,

@@ -16,7 +16,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from gazehdr.experiment import transforms
 from gazehdr.experiment.columns import CONDITIONS
+from gazehdr.experiment.transforms import NONE, Transform
 from gazehdr.scenes.procedural import BUILTIN
 from gazehdr.sim import Params
 from gazehdr.sim.display import PAPER_DISPLAY, DisplayModel
@@ -64,11 +66,13 @@ class Look:
 @dataclass(frozen=True)
 class Choice:
     """An option of the palette (Sec. 4.3, Fig. 15): the first frame of black after a flash of
-    `flash` cd/m^2, rendered with `look`."""
+    `flash` cd/m^2, rendered with `look`, then given the colour `transform`
+    (`gazehdr.experiment.transforms`: none, hue+D, hue-D, tint=H/S)."""
 
     label: str
     flash: float
     look: Look
+    transform: Transform = NONE
 
 
 @dataclass(frozen=True)
@@ -303,14 +307,19 @@ class _Reader:
         for i, spec in enumerate(value, 1):
             path = f"palette.choices[{i}]"
             if not isinstance(spec, dict):
-                raise self.fail(path, spec, "must be a table with label, flash, model")
+                raise self.fail(path, spec, "must be a table with label, flash, model, transform")
             spec = dict(spec)
             label = self.text(spec, "label", path + ".")
             if not _LABEL.fullmatch(label) or label in {c.label for c in choices}:
                 raise self.fail(path + ".label", label, "letters and digits, once each")
             flash = self.number(spec, "flash", path + ".")
+            name = spec.pop("transform", "none")
+            try:
+                transform = transforms.parse(name)
+            except ValueError as e:
+                raise self.fail(path + ".transform", name, str(e)) from None
             look = self.look(spec, path)
-            choices.append(Choice(label, flash, look))
+            choices.append(Choice(label, flash, look, transform))
         self.done(table, "palette.")
         return tuple(choices), option, tuple(scaled), crop
 

@@ -12,9 +12,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.collections import LineCollection
 
 from gazehdr.experiment import psychometric as pm
-from gazehdr.experiment.analysis import ConditionFit, ObserverResult, TaskResult
+from gazehdr.experiment.analysis import FITTED, ConditionFit, ObserverResult, TaskResult
 
 CONTROL = "#1f5fbf"  # blue, as the paper's control
 AFTERIMAGE = "#2a9d3a"  # green: Fig. 13's afterimage (4.1) manipulated curves
@@ -108,21 +109,50 @@ def observer_grid(task: TaskResult, columns: int = 4) -> bytes:
 
 
 def figure14(task: TaskResult) -> bytes:
-    """PSEs per condition, one dot per observer, the median as a box (Fig. 14); an unbounded
-    PSE is an arrowhead at the axis' end."""
+    """Fig. 14 as PNG bytes (`draw_figure14`)."""
+    return _png(draw_figure14(task))
+
+
+def interval_gid(condition: str) -> str:
+    """The gid of the LineCollection that draws a condition's PSE intervals in Fig. 14."""
+    return f"pse-intervals-{condition}"
+
+
+def draw_figure14(task: TaskResult):
+    """PSEs per condition, one dot per observer with its bootstrap interval as an error bar,
+    the median as a box (Fig. 14). An unbounded PSE is an arrowhead at the axis' end; an
+    interval end that reaches the PSE search bound (`ConditionFit.ci_open`: the data cannot
+    close it) ends in an arrowhead instead of a cap. Each condition's intervals are one
+    LineCollection (gid `interval_gid(condition)`), a segment per observer in the order of
+    its dots. The analysis gives the median no interval, so none is drawn."""
     palette = colours(task.task)
     fig, ax = plt.subplots(figsize=(6.4, 2.2))
     values = []
-    for row, condition in enumerate(("control", "manipulated")):
+    for row, condition in enumerate(FITTED):
         fits = [o.fits[condition] for o in task.included if condition in o.fits]
-        usable = [f.fit for f in fits if f.fit.usable and f.fit.rank_value is not None]
-        y = len(("control", "manipulated")) - 1 - row
+        usable = [f for f in fits if f.fit.usable and f.fit.rank_value is not None]
+        y = len(FITTED) - 1 - row
         jitter = np.linspace(-0.12, 0.12, len(usable)) if len(usable) > 1 else np.zeros(len(usable))
-        for fit, dy in zip(usable, jitter, strict=True):
+        segments = []
+        for f, dy in zip(usable, jitter, strict=True):
+            fit = f.fit
             assert fit.rank_value is not None
             mark = {"below_range": "<", "above_range": ">"}.get(fit.flag, "o")
             ax.plot(fit.rank_value, y + dy, marker=mark, color=palette[condition], alpha=0.8)
             values.append(fit.rank_value)
+            if f.ci is not None:
+                (lo, hi), opened = f.ci, f.ci_open
+                segments.append([(lo, y + dy), (hi, y + dy)])
+                for end, is_open, arrow in ((lo, opened[0], "<"), (hi, opened[1], ">")):
+                    ax.plot(end, y + dy, marker=arrow if is_open else "|", markersize=5,
+                            color=palette[condition], alpha=0.6)  # fmt: skip
+                values += [lo, hi]
+        if segments:
+            lines = LineCollection(
+                segments, colors=palette[condition], linewidths=1.2, alpha=0.6, zorder=1
+            )
+            lines.set_gid(interval_gid(condition))
+            ax.add_collection(lines)
         median = (
             task.group.median_control if condition == "control" else task.group.median_manipulated
         )
@@ -135,5 +165,8 @@ def figure14(task: TaskResult) -> bytes:
         lo, hi = min(*values, 0.0), max(*values, 0.0)
         pad = 0.08 * (hi - lo) if hi > lo else 0.1
         ax.set_xlim(lo - pad, hi + pad)
-    ax.set_xlabel("PSE (log10 relative intensity); box: median", fontsize=8)
-    return _png(fig)
+    ax.set_xlabel(
+        "PSE (log10 relative intensity); bars: intervals (arrowhead: open); box: median",
+        fontsize=8,
+    )
+    return fig

@@ -1,6 +1,6 @@
-"""PSE recovery: repeated seeded experiments answered by a SimulatedObserver of known PSE, slope
+"""PSE recovery: repeated seeded experiments answered by an EchoObserver of known PSE, slope
 and lapse, each analysed as a real result; the bootstrap interval must hold the true PSE in at
-least 90 % of them (issue 17). What runs the experiment is a callable, `run_once(seed, observer,
+least 90 % of them. What runs the experiment is a callable, `run_once(seed, observer,
 out_dir) -> beh.tsv`, so the same harness drives the real trial code's headless runner.
 
 `synthetic_41_run` is not an experiment runner: it writes a trial list with Sec. 4.1's counts,
@@ -22,9 +22,9 @@ from gazehdr.drivers.formats.bids.files import NA
 from gazehdr.experiment.analysis import Settings, analyse
 from gazehdr.experiment.columns import BEH_COLUMNS
 from gazehdr.experiment.dataset import load
-from gazehdr.experiment.observer import SimulatedObserver
+from gazehdr.experiment.observer import EchoObserver
 
-RunOnce = Callable[[int, SimulatedObserver, Path], Path]
+RunOnce = Callable[[int, EchoObserver, Path], Path]
 
 #: Sec. 4.1.1: standard 27 cd/m², five tests; 20 training trials at large differences.
 STANDARD = 27.0
@@ -42,7 +42,7 @@ FLASH, BLACK = 0.05, 2.5
 
 def synthetic_41_run(
     seed: int,
-    observer: SimulatedObserver,
+    observer: EchoObserver,
     out_dir: Path,
     *,
     task: str = "afterimage",
@@ -100,7 +100,7 @@ def synthetic_41_run(
     return path
 
 
-def headless_41_run(seed: int, observer: SimulatedObserver, out_dir: Path) -> Path:
+def headless_41_run(seed: int, observer: EchoObserver, out_dir: Path) -> Path:
     """Sec. 4.1's preset through the experiment's own trial code (`runner.run_headless`: the
     page's trial state machine, stimuli rendered by the simulator at 96×54), no browser."""
     from gazehdr.experiment.runner import run_headless  # the simulator: the server extra
@@ -130,7 +130,7 @@ class Coverage:
 
 def recover(
     run_once: RunOnce,
-    truth: SimulatedObserver,
+    truth: EchoObserver,
     runs: int,
     settings: Settings,
     work_dir: Path | None = None,

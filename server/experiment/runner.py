@@ -3,7 +3,9 @@
 `ExperimentRun.present()` renders the current trial's two intervals (clips, `stimulus`) on the
 run's simulation clock, `respond(key, ...)` records the answer and moves on; `finish()` writes
 the BIDS results. Each step is written to the run's session log as it happens (a crash keeps
-what was answered). `run_headless` answers with a `SimulatedObserver` through the same calls.
+what was answered). `run_headless` answers with a simulated observer through the same calls:
+the model observer (`observer.ModelObserver`) judges the frames each interval shows, the echo
+observer (`observer.EchoObserver`) answers from a PSE it is given.
 
 Trials are pre-rendered, not stepped live in a viewer's session: the paper showed the same
 pre-made videos to every observer with the gaze on a fixation target (Sec. 4.1.1), nothing in a
@@ -16,6 +18,8 @@ from __future__ import annotations
 
 import json
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,8 +31,9 @@ from gazehdr.drivers import sessionlog
 from gazehdr.drivers.formats.bids.files import LABEL, file_stem
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.experiment.bids import refuse_existing, start_dataset, write_results
+from gazehdr.experiment.brightness import Interval
 from gazehdr.experiment.design import Design, load_design
-from gazehdr.experiment.observer import SimulatedObserver
+from gazehdr.experiment.observer import Observer
 from gazehdr.experiment.schedule import Trial, excluded, schedule, training_score
 from gazehdr.experiment.stimulus import Clip, clip
 from gazehdr.sim import Params
@@ -62,13 +67,22 @@ class Presented:
             start += c.end
         return out
 
-    def frames(self, design: Design) -> Iterator[tuple[float, int, str, np.ndarray]]:
-        """`timeline()` with each frame's float16 `v`, made an interval at a time; `mean`
-        scaling matches the standard's rendering (interval 3 - test_interval)."""
-        times = iter(self.timeline())
+    def shown(self) -> list[tuple[Clip, float, Clip]]:
+        """(clip, intensity, the clip whose rendering `mean` scaling matches) per interval: the
+        standard's (interval 3 - test_interval)."""
         standard = self.clips[-1 if len(self.clips) == 1 else 2 - self.trial.test_interval]
-        for c, intensity in zip(self.clips, self.trial.intensities, strict=True):
-            for v in c.shown(intensity, design, like=standard):
+        return [(c, i, standard) for c, i in zip(self.clips, self.trial.intensities, strict=True)]
+
+    def intervals(self, design: Design) -> Iterator[Interval]:
+        """Each interval as the page shows it: float16 `v` for the design's monitor."""
+        for c, intensity, like in self.shown():
+            yield Interval(c.shown(intensity, design, like=like), c.times, c.end, design.display)
+
+    def frames(self, design: Design) -> Iterator[tuple[float, int, str, np.ndarray]]:
+        """`timeline()` with each frame's float16 `v`, made an interval at a time."""
+        times = iter(self.timeline())
+        for c, intensity, like in self.shown():
+            for v in c.shown(intensity, design, like=like):
                 yield (*next(times), v)
 
 
@@ -278,9 +292,39 @@ class ExperimentRun:
         return self.result
 
 
+_percepts: OrderedDict[tuple[Any, ...], tuple[Any, float]] = OrderedDict()
+_percepts_lock = threading.Lock()
+_PERCEPTS_KEPT = 256
+
+
+def percept(observer: Any, design: Design, c: Clip, intensity: float, like: Clip) -> float:
+    """`observer.perceive` of clip `c` shown at `intensity` (`mean` scaling matching `like`), made
+    from the frames the page gets (`Clip.shown`). A clip at an intensity is shown alike in every
+    trial, so each percept is computed once per process and observer model
+    (`observer.perception`) and kept; the frames are not."""
+    key = (id(c), id(like), float(intensity), design.scale, design.display,
+           observer.perception)  # fmt: skip
+    with _percepts_lock:
+        hit = _percepts.get(key)
+    if hit is None:
+        frames = c.shown(intensity, design, like=like)
+        value = observer.perceive(Interval(frames, c.times, c.end, design.display))
+        hit = ((c, like), value)  # the clips held: their ids are not reused meanwhile
+        with _percepts_lock:
+            _percepts[key] = hit
+            while len(_percepts) > _PERCEPTS_KEPT:
+                _percepts.popitem(last=False)
+    return hit[1]
+
+
+def percepts(shown: Presented, design: Design, observer: Any) -> tuple[float, ...]:
+    """`percept` of each interval of a trial as shown, in the order shown."""
+    return tuple(percept(observer, design, c, i, like) for c, i, like in shown.shown())
+
+
 def run_headless(
     design: Design | str | Path,
-    observer: SimulatedObserver,
+    observer: Observer,
     out_dir: str | Path,
     *,
     seed: int = 0,
@@ -292,19 +336,23 @@ def run_headless(
 ) -> Path:
     """Run `design` answered by `observer` through the same trial code as the page, without a
     browser; the path of the `_beh.tsv` written under `out_dir` (a BIDS dataset root).
-    Palette trials (Sec. 4.3) are answered by `palette_chooser(trial, labels)`."""
+    Each 2AFC trial is answered by `observer.answer(trial, percepts)`, where `percepts()` gives
+    `observer.perceive` of each interval's frames as shown (an observer that does not look,
+    the echo observer, never calls it, and no frames are made for it). Palette trials
+    (Sec. 4.3) are answered by `palette_chooser(trial, labels)`."""
     if not isinstance(design, Design):
         design = load_design(design)
     r = ExperimentRun(design, observer_id, out_dir, seed=seed, size=size, backend=backend,
                       run=run, source="simulated observer")  # fmt: skip
     while r.current is not None:
-        trial = r.present().trial
+        shown = r.present()
+        trial = shown.trial
         if trial.palette:
             if palette_chooser is None:
                 raise ValueError("palette trials need a palette_chooser: the observer answers 2AFC")
             r.respond(palette=palette_chooser(trial, [c.label for c in design.palette]))
             continue
-        chose = observer.chooses_test(trial.log_relative_intensity, trial.condition)
+        chose = observer.answer(trial, lambda shown=shown: percepts(shown, design, observer))
         interval = trial.test_interval if chose else 3 - trial.test_interval
         r.respond(design.keys[interval - 1])
     return r.finish()

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -142,17 +142,27 @@ def clip(design: Design, look: Look, size: tuple[int, int], backend: str) -> Cli
 def palette_images(design: Design, size: tuple[int, int], backend: str) -> list[np.ndarray]:
     """Each palette option's image (Fig. 15): the first frame of black after its flash, the
     afterimage's initial appearance, as display values, cropped to a square of `palette_crop`
-    frame heights around its brightest point. Not kept: its caller keeps them."""
+    frame heights around its brightest point, then given the option's colour transform (in
+    linear light, `gazehdr.experiment.transforms`). Each flash and look is rendered once, up
+    to that frame only (the frames after it cannot change it), however many options transform
+    it. Not kept: its caller keeps them."""
+    first_black = replace(design, off=design.dt)  # one frame of black: the one shown
+    rendered: dict[tuple[Any, ...], tuple[np.ndarray, float]] = {}
     images = []
     for choice in design.palette:
-        c = render_clip(design, design.flash_look(choice.look, choice.flash), size, backend)
-        i = c.phases.index("off")
-        Y = c.luminance(i)
-        y, x = np.unravel_index(np.argmax(Y), Y.shape)
-        h, w = c.frames.shape[1:3]
-        side = max(1, min(h, w, round(design.palette_crop * h)))
-        y0, x0 = min(max(y - side // 2, 0), h - side), min(max(x - side // 2, 0), w - side)
-        images.append(c.frames[i, y0 : y0 + side, x0 : x0 + side].astype(np.float32))
+        look = design.flash_look(choice.look, choice.flash)
+        if look.key() not in rendered:
+            c = render_clip(first_black, look, size, backend)
+            i = c.phases.index("off")
+            Y = c.luminance(i)
+            y, x = np.unravel_index(np.argmax(Y), Y.shape)
+            h, w = c.frames.shape[1:3]
+            side = max(1, min(h, w, round(design.palette_crop * h)))
+            y0, x0 = min(max(y - side // 2, 0), h - side), min(max(x - side // 2, 0), w - side)
+            crop = c.frames[i, y0 : y0 + side, x0 : x0 + side].astype(np.float32)
+            rendered[look.key()] = crop, c.gamma
+        crop, gamma = rendered[look.key()]
+        images.append(choice.transform.apply(crop, gamma))
     return images
 
 

@@ -114,13 +114,28 @@ FIGURES: tuple[Figure, ...] = (
         "the frames at t = 0.5 … 8 s are shown (steps of 0.1 s for the first second, then "
         "0.25 s). Panels are the part of the frame around the flash, enlarged. As in Fig. 6, "
         "Mikamo's column t shows its simulated time 2t. The second image is the same with "
-        "every panel 4× brighter in linear light, to show the colours of the dim ones.",
+        "every panel 4× brighter in linear light, to show the colours of the dim ones. "
+        "The third and fourth images are Fig. 7's top rows: two HDR photographs in place of "
+        "the paper's Fairchild photographs (which we cannot ship), views cut from the CC0 world "
+        "HDRIs by Greg Zaal (HDRI Haven) that Debian's blender-data ships "
+        "(server/figures/data/README.md): a sunlit courtyard scaled so that its brightest "
+        "pixel is 10^3.5 cd/m² and a studio lamp scaled to 10^4.5 cd/m², the paper's "
+        "maximum radiances (each the file's values times 10^peak / its brightest pixel's "
+        "luminance in the frame, about 300×; the factor is listed below). The eye settles on "
+        "the photograph, its gaze held (the courtyard's centre, the lamp), sees it 2 frames "
+        "more (the first panel), then the eyes close; ours and Ritschel's, whole frames, "
+        "again also 4× brighter. Should the photographs be missing from an installation, "
+        "the figure is not made and says which file is missing.",
         "Matches: Ritschel's afterimage of the neutral flash is neutral grey; Mikamo's runs "
         "through a sequence of hues and lasts longest; ours has a green centre with a red rim "
         "and fades to red-rose, far dimmer than the other two (Eq. 12's bleaching term as "
         "printed, j1 = 0.03 of display white: the second image shows every panel 4× "
-        "brighter). Differs: we show one scene, not the paper's three (two are Fairchild's "
-        "photographs, which we do not ship).",
+        "brighter). The photographs' rows match Fig. 5 at their peaks: at 10^3.5 ours is red "
+        "to rose throughout, at 10^4.5 the lamp's centre starts with a hint of green inside a "
+        "red rim; Ritschel's is a negative of the courtyard's colours and a neutral grey for "
+        "the white lamp. Differs: our photographs are not the paper's (two Fairchild "
+        "photographs, which we cannot ship), and the paper does not say how long its scenes "
+        "were seen or where the gaze was held.",
         afterimage.fig6_7,
     ),
     Figure(
