@@ -39,6 +39,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from gazehdr.drivers.ratelimit import TokenBucket
+from gazehdr.viewer import default_web_dir
 
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
@@ -49,10 +50,18 @@ ASGIApp = Callable[[Scope, Receive, Send], Awaitable[None]]
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "::1")
 WILDCARD_HOSTS = ("0.0.0.0", "::", "")
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
-#: GET routes whose answers are private: recordings hold people's gaze; sessions' ids let one
-#: join (and watch the gaze of) a running session; an experiment's runs hold an observer's
-#: trials and answers.
-PRIVATE_READS = ("/api/recordings", "/api/sessions", "/api/experiment")
+#: The routes anyone may read (GET, HEAD, OPTIONS), on purpose; with the viewer's static files,
+#: nothing else: every other route, a new one too, needs a credential until it is listed here
+#: (docs/security.md, "Adding a route"). Private, so not here: recordings (people's gaze),
+#: sessions (their ids let one join and watch a session's gaze), an experiment's runs (an
+#: observer's trials and answers) and its palette images.
+PUBLIC_READS = (
+    "/", "/index.html", "/experiment",  # the viewer's and the experiment's pages
+    "/api/health", "/metrics",  # for monitors: counts, no gaze
+    "/api/scenes", "/api/scenes/{name}", "/api/params",  # what a viewer shows and offers
+    "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc",  # the API's description
+)  # fmt: skip
+_PUBLIC = [re.compile(re.sub(r"\\\{\w+\\\}", "[^/]+", re.escape(p))) for p in PUBLIC_READS]
 VIEWER_PAGES = ("/", "/index.html", "/experiment")
 COOKIE_PREFIX = "gazehdr-"
 SECRET_FILE = "viewer-secret"
@@ -109,6 +118,7 @@ class Policy:
     hosts: frozenset[str]
     any_ip: bool  # bound to a wildcard address: any IP literal is a Host of this server
     origins: frozenset[str]
+    public_files: frozenset[str] = frozenset()  # the viewer's static files, as "/main.js"
 
     def host_allowed(self, host: str | None) -> bool:
         name = host_name(host)
@@ -162,7 +172,15 @@ def policy_for(config: Any) -> Policy:
         hosts=frozenset(hosts),
         any_ip=config.host in WILDCARD_HOSTS,
         origins=frozenset(o.rstrip("/") for o in config.allow_origins),
+        public_files=static_files(config.web_dir or default_web_dir()),
     )
+
+
+def static_files(web_dir: Path) -> frozenset[str]:
+    """The viewer's files that anyone may read: what the web folder serves (its pages, scripts
+    and styles), as URL paths."""
+    kinds = (".html", ".js", ".css", ".png", ".svg", ".ico")
+    return frozenset(f"/{f.name}" for f in Path(web_dir).iterdir() if f.suffix in kinds)
 
 
 def cookie_secret(data_dir: Path | None) -> str:
@@ -215,11 +233,14 @@ def _read_secret(path: Path) -> str:
     return secret
 
 
-def needs_credential(method: str, path: str, websocket: bool = False) -> bool:
-    """The one rule: WebSockets, every method that changes state, and private reads."""
+def needs_credential(
+    method: str, path: str, websocket: bool = False, files: frozenset[str] = frozenset()
+) -> bool:
+    """The one rule: a credential for everything but reading what is public on purpose, a
+    route of PUBLIC_READS or one of the viewer's static `files` (paths as "/main.js")."""
     if websocket or method not in SAFE_METHODS:
         return True
-    return any(path == p or path.startswith(p + "/") for p in PRIVATE_READS)
+    return path not in files and not any(p.fullmatch(path) for p in _PUBLIC)
 
 
 def _headers(scope: Scope) -> dict[str, str]:
@@ -283,7 +304,7 @@ class Guard:
             raise self._options(allowed, origin, host, headers)
         if not websocket and method not in allowed:
             raise Answer(405, f"{method} is not allowed here", {"allow": ", ".join(allowed)})
-        private = needs_credential(method, path, websocket)
+        private = needs_credential(method, path, websocket, self.policy.public_files)
         if (private or method not in SAFE_METHODS) and not self.policy.origin_allowed(origin, host):
             raise Answer(403, f"origin {origin} is not allowed")
         extra: list[tuple[bytes, bytes]] = []
@@ -546,9 +567,10 @@ def describe(schema: dict[str, Any], policy: Policy) -> dict[str, Any]:
             responses["421"] = error("the Host is not a name of this server")
             responses["405"] = error("method not allowed (the Allow header lists those that are)")
             write = method.upper() not in SAFE_METHODS
-            if needs_credential(method.upper(), path) or write:
+            private = needs_credential(method.upper(), path, files=policy.public_files)
+            if private or write:
                 responses["403"] = error("a browser page of another origin")
-            if policy.auth and needs_credential(method.upper(), path):
+            if policy.auth and private:
                 op["security"] = [{"bearer": []}, {"cookie": []}]
                 responses["401"] = error("missing or wrong credential")
                 responses["429"] = error("too many failed authentications from this address")

@@ -50,7 +50,8 @@ def request(
         got = {k.lower(): v for k, v in answer.getheaders()}
     finally:
         conn.close()
-    return answer.status, got, json.loads(raw) if "json" in got.get("content-type", "") else raw
+    parsed = raw and "json" in got.get("content-type", "")  # not a HEAD's empty body
+    return answer.status, got, json.loads(raw) if parsed else raw
 
 
 def writes(server: Any) -> list[tuple[str, str]]:
@@ -317,3 +318,49 @@ def test_websocket_routes_are_all_guarded(live_server) -> None:
     server = live_server()
     paths = {r.path for r in server.app.router.routes if isinstance(r, APIWebSocketRoute)}
     assert paths == {"/ws/view", "/ws/gaze"}
+
+
+def test_every_route_is_public_on_purpose_or_needs_the_credential(live_server, tmp_path) -> None:
+    """Every route the app has, experiment included, HTTP (every method) and WebSocket: a
+    route of PUBLIC_READS (GET, HEAD) answers without a credential, every other one refuses
+    (401, 4401). Read from the app's routes: a route added to neither list fails here. Guards
+    reads public by default (a new GET route was public unless someone listed it as private)."""
+    from fastapi.routing import APIWebSocketRoute as SocketRoute
+    from starlette.routing import Route
+
+    from gazehdr.experiment.design import load_design
+    from gazehdr.experiment.service import ExperimentConfig
+    from gazehdr.security import PUBLIC_READS
+
+    design = load_design("4.1")
+    server = live_server(token="tok", experiment=ExperimentConfig(
+        design, tmp_path / "results", (64, 36), "reference", 1))  # fmt: skip
+    # a read someone adds later and lists nowhere: it needs the credential
+    server.app.add_api_route("/api/added-later", lambda: {"gaze": "private"}, methods=["GET"])
+    concrete = {"{name:path}": "x", "{name}": "flash", "{rid}": "1", "{label}": "H1"}
+    checked, sockets = 0, []
+    for route in server.app.router.routes:
+        if isinstance(route, SocketRoute):
+            sockets.append(route.path)
+            continue
+        if not isinstance(route, Route):
+            continue  # the static files' mount: the viewer's files, checked below
+        path = route.path
+        for key, value in concrete.items():
+            path = path.replace(key, value)
+        for method in sorted(route.methods):
+            body = None if method in ("GET", "HEAD") else body_for(method, path)
+            status = request(server, method, path, body)[0]
+            public = method in ("GET", "HEAD") and route.path in PUBLIC_READS
+            assert (status != 401) if public else (status == 401), (method, route.path, status)
+            checked += 1
+    assert checked >= 20 and {"/ws/view", "/ws/gaze"} <= set(sockets)
+    for path in ("/experiment", "/main.js", "/experiment.js", "/style.css"):
+        assert request(server, "GET", path)[0] == 200, path
+    assert request(server, "GET", "/not-a-file.js")[0] == 401  # nothing else is public
+
+    async def refused() -> None:
+        for path in sockets:
+            assert (await ws_close(server.ws_url + path))[0] == 4401, path
+
+    asyncio.run(refused())
