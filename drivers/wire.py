@@ -134,6 +134,15 @@ def load_typed_json(data: str | bytes, limit: int) -> dict[str, Any]:
     return msg
 
 
+def excerpt(value: object, limit: int = 40) -> str:
+    """`value` as an error message quotes what a client sent: its repr, cut to `limit`
+    characters and saying how long it was, so that an error is never as long as its input."""
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}… ({len(text)} characters)"
+
+
 def as_float(value: int | float) -> float:
     """A JSON number as a float; an integer too large for one is ±inf (json gives any size
     of integer, and float() of a huge one raises OverflowError)."""
@@ -180,7 +189,7 @@ def parse(data: str | bytes) -> Message:
     kind = msg["type"]
     if kind == "hello":
         if msg.get("protocol") != PROTOCOL:
-            raise WireError(f"hello: protocol {msg.get('protocol')!r}; this server speaks 1")
+            raise WireError(f"hello: protocol {excerpt(msg.get('protocol'))}; this server speaks 1")
         tracker, screen = msg.get("tracker", ""), msg.get("screen", {})
         if not isinstance(tracker, str) or not isinstance(screen, dict):
             raise WireError("hello: 'tracker' is a string and 'screen' an object")
@@ -213,7 +222,7 @@ def parse(data: str | bytes) -> Message:
         if "server_ns" in msg:  # what tells a request from the server's reply (the schema's rule)
             raise WireError("echo: a request has no 'server_ns'; that is the server's reply")
         return Echo(_int(msg, "t0", "echo"))
-    raise WireError(f"unknown message type {kind!r}; known: hello, samples, event, echo")
+    raise WireError(f"unknown message type {excerpt(kind)}; known: hello, samples, event, echo")
 
 
 def parse_reply(data: str | bytes) -> Reply:
@@ -225,7 +234,9 @@ def parse_reply(data: str | bytes) -> Reply:
     kind = msg["type"]
     if kind == "welcome":
         if msg.get("protocol") != PROTOCOL:
-            raise WireError(f"welcome: protocol {msg.get('protocol')!r}; this daemon speaks 1")
+            raise WireError(
+                f"welcome: protocol {excerpt(msg.get('protocol'))}; this daemon speaks 1"
+            )
         return Welcome(PROTOCOL)
     if kind == "echo":
         return EchoReply(_int(msg, "t0", "echo"), _int(msg, "server_ns", "echo"))
@@ -234,7 +245,7 @@ def parse_reply(data: str | bytes) -> Reply:
         if not isinstance(text, str):
             raise WireError("error: 'message' must be a string")
         return Notice(text)
-    raise WireError(f"unknown reply type {kind!r}; known: welcome, echo, error")
+    raise WireError(f"unknown reply type {excerpt(kind)}; known: welcome, echo, error")
 
 
 def dumps(message: Message | Reply) -> str:

@@ -9,10 +9,14 @@ with exactly the settings they need.
 from __future__ import annotations
 
 import asyncio
+import collections
+import concurrent.futures
 import contextlib
 import dataclasses
+import functools
 import logging
 import secrets
+import time
 from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,11 +28,13 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
+from gazehdr.fair_share import VIEW_BURST, VIEW_RATE, ConnectionShare, error_text
 from gazehdr.gaze_link import GazeLink
 from gazehdr.live import LiveSession, SessionHub, TooManySessionsError, Viewer
 from gazehdr.metrics import Metrics
 from gazehdr.params_schema import ParamsChange, changed
 from gazehdr.protocol import (
+    WORK_CONTROLS,
     Ack,
     EncodingChoice,
     KeyframeRequest,
@@ -41,15 +47,17 @@ from gazehdr.recordings import MAX_UPLOAD_BYTES as MAX_RECORDING_BYTES
 from gazehdr.recordings import RecordingLibrary
 from gazehdr.scenes import Scene
 from gazehdr.scenes.exr import SceneError
+from gazehdr.scenes.level import session_frames
 from gazehdr.scenes.library import (
     MAX_UPLOAD_BYTES,
     NoSuchSceneError,
+    SceneBusyError,
     SceneExistsError,
     SceneLibrary,
     check_name,
 )
 from gazehdr.security import install as install_guard
-from gazehdr.session import PRESET_VALUES, Session, SessionSettings
+from gazehdr.session import PRESET_VALUES, SIZE_STEP, Session, SessionSettings, fit_size
 from gazehdr.sim import Params
 from gazehdr.sim.layout import Layout
 from gazehdr.sim.params import OURS, SECTIONS, check_remote_change
@@ -65,6 +73,7 @@ Name = Annotated[
     str,
     PathParam(
         description="letters, digits, '_', '.', '-'; up to 64; no '..', no final '.'",
+        max_length=64,  # refused before anything quotes it: an error never echoes a long name
         json_schema_extra={"pattern": r"^(?!.*\.\.)(?!.*\.$)[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"},
     ),
 ]
@@ -117,7 +126,10 @@ def create_app(config: ServerConfig) -> FastAPI:
     web_dir = config.web_dir or default_web_dir()
     viewer_files(web_dir)  # a server whose viewer would answer 404 does not start
     metrics = Metrics()
-    scenes = SceneLibrary(config.data_dir, config.scenes)
+    # A scene is kept at its level for the frames sessions can have (gazehdr.scenes.level).
+    budget = (config.session.width, config.session.height)
+    frames = session_frames(budget, fit_size, SIZE_STEP)
+    scenes = SceneLibrary(config.data_dir, config.scenes, frames=frames)
     recordings = RecordingLibrary(config.data_dir)
     hub = SessionHub(
         config.session,
@@ -134,6 +146,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
         await hub.close()
+        scene_work.close()
 
     app = FastAPI(
         title="gazehdr",
@@ -144,6 +157,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     app.state.metrics = metrics
     app.state.config = config
     uploads = app.state.uploads = UploadSlots(config.max_uploads)
+    scene_work = app.state.scene_work = SceneWork()
 
     # --- REST ---------------------------------------------------------------------------------
 
@@ -182,33 +196,43 @@ def create_app(config: ServerConfig) -> FastAPI:
         with uploads.take():
             chunks = await _upload_body(name, request, config.max_upload_bytes)
             try:
-                await asyncio.to_thread(scenes.store, name, chunks, overwrite=overwrite)
+                await scene_work.run(request, scenes.store, name, chunks, overwrite=overwrite)
             except SceneExistsError as e:
                 raise HTTPException(409, str(e)) from None
+            except SceneBusyError as e:
+                raise HTTPException(503, str(e), headers={"Retry-After": "1"}) from None
             except SceneError as e:
                 raise HTTPException(422, str(e)) from None
         hub.broadcast({"type": "scenes", "scenes": scenes.names()})
         return {"name": name}
 
-    @app.get("/api/scenes/{name}", responses={404: {"description": "no such scene"}})
-    async def describe_scene(name: Name) -> dict[str, Any]:
+    @app.get(
+        "/api/scenes/{name}",
+        responses={
+            404: {"description": "no such scene"},
+            503: {"description": "as many scene requests as the server handles are running"},
+        },
+    )
+    async def describe_scene(name: Name, request: Request) -> dict[str, Any]:
         """A scene's format, size, layers and scale (cd/m² per unit) with its source."""
-        return await _scene_call(scenes.describe, name)
+        return await _scene_call(scene_work, request, scenes.describe, name)
 
     @app.patch(
         "/api/scenes/{name}",
         responses={
             400: {"description": "the body is not JSON"},
             404: {"description": "no such scene"},
+            503: {"description": "as many scene requests as the server handles are running"},
         },
     )
     async def configure_scene(
         name: Name,
+        request: Request,
         values: dict[str, Any] = Body(...),  # noqa: B008
     ) -> dict[str, Any]:
         """Set a scene's `scale` (cd/m² per unit), estimate `kind` or EXR `layer` (null: the
         default); every session showing it changes at once."""
-        return await _scene_call(scenes.configure, name, values)
+        return await _scene_call(scene_work, request, scenes.configure, name, values)
 
     @app.get("/api/recordings")
     async def list_recordings() -> dict[str, list[str]]:
@@ -319,7 +343,11 @@ def create_app(config: ServerConfig) -> FastAPI:
             await ws.close()
 
     async def _receive_controls(ws: WebSocket, live: LiveSession, viewer: Viewer) -> None:
+        share = ConnectionShare(VIEW_RATE, VIEW_BURST)  # this viewer's share (fair_share)
         while True:
+            while (wait := share.admit(time.monotonic())) > 0:
+                metrics.messages_held.inc()
+                await asyncio.sleep(wait)  # not reading: the socket holds the sender back
             message = await ws.receive()
             if message["type"] == "websocket.disconnect":
                 return
@@ -328,6 +356,10 @@ def create_app(config: ServerConfig) -> FastAPI:
                 if text is None:
                     raise ProtocolError("binary messages are not accepted; send JSON text")
                 control = parse_control(text)
+                if isinstance(control, WORK_CONTROLS):
+                    while (wait := share.work(time.monotonic())) > 0:
+                        metrics.messages_held.inc()
+                        await asyncio.sleep(wait)
                 if isinstance(control, Ack):
                     viewer.ack()
                     continue
@@ -346,7 +378,10 @@ def create_app(config: ServerConfig) -> FastAPI:
                 live.submit(control)
             except ProtocolError as e:
                 metrics.protocol_errors.inc()
-                viewer.mailbox.put(None, [{"type": "error", "message": str(e), "in": e.in_type}])
+                left_out = share.error(time.monotonic())
+                if left_out is not None:
+                    note = {"type": "error", "message": error_text(str(e), left_out)}
+                    viewer.mailbox.put(None, [{**note, "in": e.in_type}])
 
     # --- /ws/gaze -----------------------------------------------------------------------------
 
@@ -394,12 +429,62 @@ async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": "; ".join(said) or "invalid request"}, status_code=422)
 
 
-async def _scene_call(call: Callable[..., dict[str, Any]], name: str, *args: Any) -> dict[str, Any]:
-    """A scene library call off the event loop; an unknown name is 404, bad input 422."""
+async def _scene_call(
+    work: SceneWork, request: Request, call: Callable[..., dict[str, Any]], name: str, *args: Any
+) -> dict[str, Any]:
+    """A scene library call on the scene threads; an unknown name is 404, bad input 422, no
+    decode slot free 503."""
     try:
-        return await asyncio.to_thread(call, name, *args)
+        return await work.run(request, call, name, *args)
+    except SceneBusyError as e:
+        raise HTTPException(503, str(e), headers={"Retry-After": "1"}) from None
     except SceneError as e:
         raise HTTPException(404 if isinstance(e, NoSuchSceneError) else 422, str(e)) from None
+
+
+class SceneWork:
+    """The scene routes' library calls (PUT, GET, PATCH /api/scenes/NAME: any of them may
+    decode a file) on threads of their own, so the threads that start sessions never wait
+    behind them. At most `limit` calls are in flight (running or queued) and at most
+    `per_client` for one client address; one more is refused with 503 rather than queued. A
+    call counts until its thread is done with it, even when its client has gone. Decoding
+    itself is bounded by the library (`gazehdr.scenes.library.DecodeSlots`)."""
+
+    def __init__(self, threads: int = 6, limit: int = 32, per_client: int = 8) -> None:
+        self.pool = concurrent.futures.ThreadPoolExecutor(threads, "gazehdr-scenes")
+        self.limit, self.per_client = limit, per_client
+        self.busy = 0
+        self.clients: collections.Counter[str] = collections.Counter()
+
+    async def run(self, request: Request, call: Callable[..., Any], *args: Any, **kw: Any) -> Any:
+        client = request.client.host if request.client else "?"
+        if self.busy >= self.limit or self.clients[client] >= self.per_client:
+            raise HTTPException(
+                503,
+                f"the server handles {self.limit} scene requests at once, {self.per_client} "
+                "from one client (its limits); try again shortly",
+                headers={"Retry-After": "1"},
+            )
+        self.busy += 1  # taken on the event loop, with no await since the check
+        self.clients[client] += 1
+        loop = asyncio.get_running_loop()
+
+        def done(_: concurrent.futures.Future[Any]) -> None:
+            with contextlib.suppress(RuntimeError):  # the loop closed: the server has stopped
+                loop.call_soon_threadsafe(self._release, client)
+
+        future = self.pool.submit(functools.partial(call, *args, **kw))
+        future.add_done_callback(done)
+        return await asyncio.wrap_future(future)
+
+    def _release(self, client: str) -> None:
+        self.busy -= 1
+        self.clients[client] -= 1
+        if self.clients[client] <= 0:
+            del self.clients[client]
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 class UploadSlots:

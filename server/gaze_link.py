@@ -13,6 +13,7 @@ from fastapi import WebSocket, WebSocketDisconnect
 
 from gazehdr.drivers import wire
 from gazehdr.drivers.ratelimit import TokenBucket
+from gazehdr.fair_share import DAEMON_BURST, DAEMON_RATE, ConnectionShare, error_text
 from gazehdr.gaze import TrackerFeed
 from gazehdr.live import SessionHub
 from gazehdr.metrics import Counter, Metrics
@@ -92,7 +93,11 @@ class GazeLink:
         self.hold_s = 0.0  # how long to stop reading, after a message that went over a limit
 
     async def run(self) -> None:
+        share = ConnectionShare(DAEMON_RATE, DAEMON_BURST)  # every message, parsed or not
         while True:
+            while (wait := share.admit(time.monotonic())) > 0:
+                self.metrics.messages_held.inc()
+                await asyncio.sleep(wait)  # not reading: the socket holds the daemon back
             message = await self.ws.receive()
             if message["type"] == "websocket.disconnect":
                 return
@@ -103,7 +108,8 @@ class GazeLink:
                 reply = self.handle(wire.parse(text), time.monotonic())
             except wire.WireError as e:
                 self.metrics.protocol_errors.inc()
-                reply = wire.Notice(str(e))
+                left_out = share.error(time.monotonic())
+                reply = None if left_out is None else wire.Notice(error_text(str(e), left_out))
             if reply:
                 try:
                     await self.ws.send_text(wire.dumps(reply))

@@ -108,6 +108,10 @@ class Metrics:
         self.protocol_errors = Counter(
             "gazehdr_protocol_errors_total", "Messages refused as malformed or invalid."
         )
+        self.messages_held = Counter(
+            "gazehdr_messages_held_total",
+            "Messages of /ws/view and /ws/gaze read only after their connection's share refilled.",
+        )
 
     def render(self) -> str:
         lines: list[str] = []

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from gazehdr import warp
-from gazehdr.drivers.wire import as_float, load_typed_json
+from gazehdr.drivers.wire import as_float, excerpt, load_typed_json
 from gazehdr.sim.layout import encode_output
 
 MAGIC = b"GZHF"
@@ -316,6 +316,10 @@ Control = (
     Viewport | Gaze | Eyes | Choose | ModelChange | ParamChange | SceneSettings | SceneMaps
     | Warp | Reset | Ack | EncodingChoice | KeyframeRequest
 )  # fmt: skip
+#: The controls that make a session (or a viewer's encoder) do work: a reset settles the retina,
+#: the others rebuild the eye, load a scene or start a keyframe. `fair_share` paces them.
+WORK_CONTROLS = (Reset, ParamChange, ModelChange, Choose, SceneSettings, Viewport,
+                 EncodingChoice, KeyframeRequest)  # fmt: skip
 SCENE_SETTINGS = {"scale": ((int, float), "a number"), "kind": (str, "a string"),
                   "layer": (str, "a string")}  # fmt: skip
 CHOICES = ("scene", "gaze_source")
@@ -424,4 +428,4 @@ def parse_control(data: str | bytes) -> Control:
         "viewport, gaze, eyes, scene, model, gaze_source, params, scene_settings, scene_maps, "
         "warp, reset, ack, encoding, keyframe"
     )
-    raise ProtocolError(f"unknown message type {kind!r}; known: {known}", kind)
+    raise ProtocolError(f"unknown message type {excerpt(kind)}; known: {known}", kind[:40])

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import ipaddress
 import math
 import secrets
 import socket
@@ -197,8 +199,47 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-def access_lines(config: ServerConfig, url: str) -> list[str]:
-    """What `serve` says about who may do what (docs/security.md)."""
+def local_host(host: str) -> str:
+    """The address this machine's own browser opens: the bound one, or loopback for a
+    wildcard (0.0.0.0 is no address a browser can open)."""
+    if host in WILDCARD_HOSTS:
+        return "::1" if host == "::" else "127.0.0.1"
+    return host
+
+
+def reachable_hosts(host: str) -> list[str]:
+    """The addresses another machine opens: the bound one, or for a wildcard every address of
+    this machine's that is not loopback (its hostname's, and the one it routes from), as IP
+    literals, which a wildcard-bound server answers to (a name would need --allow-host)."""
+    if host not in WILDCARD_HOSTS:
+        return [host]
+    found: list[str] = []
+    families = (socket.AF_INET,) if host in ("0.0.0.0", "") else (socket.AF_INET, socket.AF_INET6)
+    candidates: list[str] = []
+    with contextlib.suppress(OSError):
+        for family, *_, address in socket.getaddrinfo(socket.gethostname(), None):
+            if family in families:
+                candidates.append(str(address[0]))
+    for family, probe in ((socket.AF_INET, "192.0.2.1"), (socket.AF_INET6, "2001:db8::1")):
+        if family not in families:
+            continue
+        with contextlib.suppress(OSError), socket.socket(family, socket.SOCK_DGRAM) as udp:
+            udp.connect((probe, 9))  # no packet is sent: this only asks for the route
+            candidates.append(str(udp.getsockname()[0]))
+    for name in candidates:
+        ip = ipaddress.ip_address(name.split("%")[0])
+        if not (ip.is_loopback or ip.is_link_local or ip.is_unspecified) and name not in found:
+            found.append(name)
+    return found or [local_host(host)]
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host else host
+
+
+def access_lines(config: ServerConfig, urls: list[str]) -> list[str]:
+    """What `serve` says about who may do what (docs/security.md); `urls` are the server's
+    addresses for other machines."""
     hosts = ", ".join(sorted(policy_for(config).hosts))
     lines = [f"requests must name this server as one of: {hosts}"]
     if config.host in WILDCARD_HOSTS:
@@ -214,7 +255,8 @@ def access_lines(config: ServerConfig, url: str) -> list[str]:
         return lines
     lines.append(f"token (gaze daemon; scripts: Authorization: Bearer TOKEN): {config.token}")
     if config.host not in LOOPBACK_NAMES:
-        lines.append(f"from another machine, open the viewer once as {url}/?token={config.token}")
+        shown = " or ".join(f"{url}/?token={config.token}" for url in urls)
+        lines.append(f"from another machine, open the viewer once as {shown}")
     return lines
 
 
@@ -253,14 +295,16 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     server = uvicorn_server(create_app(config), config.host, config.port)
     sock = bind(config.host, config.port)
     port = sock.getsockname()[1]
-    shown = f"[{config.host}]" if ":" in config.host else config.host
+    urls = [f"http://{_url_host(h)}:{port}" for h in reachable_hosts(config.host)]
+    here = f"http://{_url_host(local_host(config.host))}:{port}"
     s = config.session
     print(
-        f"gazehdr: open http://{shown}:{port}/ (scene {s.scene}, gaze {s.gaze_source}, "
+        f"gazehdr: open {here}/ (scene {s.scene}, gaze {s.gaze_source}, "
         f"parameters {describe(s.params)})"
     )
-    for line in access_lines(config, f"http://{shown}:{port}"):
+    for line in access_lines(config, urls):
         print(f"gazehdr: {line}", flush=True)
+    shown = _url_host(local_host(config.host))
     if config.experiment is not None:
         e = config.experiment
         print(f"gazehdr: experiment {e.design.name!r} at http://{shown}:{port}/experiment, "

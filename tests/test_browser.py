@@ -575,3 +575,24 @@ def test_viewer_reconnects(live_server, open_viewer) -> None:
         assert viewer.js("() => window.gazehdr.connection.status") == "open"
     finally:
         proxy.close()
+
+
+def test_a_page_without_the_credential_says_how_to_get_in_and_stops(
+    live_server, open_viewer
+) -> None:
+    """A page whose credential is gone (its cookie cleared, as a browser on another machine
+    that did not open the address with ?token= never had one) reconnects, is refused (4401),
+    says how to get in and stops connecting: no retry can mend a 4401. Guards the refusal's
+    end of the retries (the page retried forever, "preparing the simulation")."""
+    srv = live_server(token="tok")
+    viewer = open_viewer(srv.url, 640, 400)
+    page = viewer.page
+    page.context.clear_cookies()
+    page.evaluate("() => window.gazehdr.connection.drop()")
+    viewer.wait("() => window.gazehdr.connection.status === 'refused'")
+    said = page.evaluate("() => document.getElementById('toasts').textContent")
+    assert "not authorized (4401)" in said and "?token=" in said
+    attempts = page.evaluate("() => window.gazehdr.connection.attempt")
+    page.wait_for_timeout(2500)  # longer than the first back-offs
+    assert page.evaluate("() => window.gazehdr.connection.attempt") == attempts
+    assert page.evaluate("() => window.gazehdr.connection.ws") is None

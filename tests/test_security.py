@@ -6,6 +6,7 @@ checked by schemathesis."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import http.client
 import json
 import os
@@ -255,7 +256,7 @@ def test_no_auth_opens_writes_but_still_checks_host_and_origin(live_server) -> N
     assert request(server, "GET", "/api/recordings")[0] == 200
     assert request(server, "GET", "/api/health", host=f"{FOREIGN}:{server.port}")[0] == 421
     assert request(server, "PUT", "/api/params", b"{}", origin=f"http://{FOREIGN}")[0] == 403
-    said = " ".join(access_lines(server.config, server.url))
+    said = " ".join(access_lines(server.config, [server.url]))
     assert "NO CREDENTIAL" in said and "read recordings" in said and "tok" not in said
     spec = request(server, "GET", "/openapi.json")[2]
     assert all("security" not in op for ops in spec["paths"].values() for op in ops.values())
@@ -364,3 +365,21 @@ def test_every_route_is_public_on_purpose_or_needs_the_credential(live_server, t
             assert (await ws_close(server.ws_url + path))[0] == 4401, path
 
     asyncio.run(refused())
+
+
+def test_a_wildcard_server_prints_addresses_another_machine_can_open(live_server) -> None:
+    """`serve --host 0.0.0.0` names this machine's addresses (IP literals, which a wildcard-
+    bound server answers to), never 0.0.0.0, and for itself the loopback address. Guards the
+    wildcard printed as is (http://0.0.0.0:PORT/?token=..., which no browser elsewhere opens)."""
+    import ipaddress
+
+    from gazehdr.serve import local_host, reachable_hosts
+
+    hosts = reachable_hosts("0.0.0.0")
+    assert hosts and all(ipaddress.ip_address(h).version == 4 for h in hosts)
+    assert "0.0.0.0" not in hosts and local_host("0.0.0.0") == "127.0.0.1"
+    assert reachable_hosts("192.0.2.7") == ["192.0.2.7"]
+    server = live_server(token="tok")
+    config = dataclasses.replace(server.config, host="0.0.0.0")
+    said = access_lines(config, [f"http://{h}:8000" for h in hosts])
+    assert f"http://{hosts[0]}:8000/?token=tok" in said[-1] and "0.0.0.0" not in said[-1]

@@ -109,9 +109,14 @@ class Connection {
     if (ws !== this.ws) return;
     this.ws = null;
     // Refusals of gazehdr.security (docs/security.md): 4000 + the HTTP status, with a reason.
-    if (ev.code === 4403) toast('the server refused this page’s origin (4403)');
-    if (ev.code === 4401) toast(`not authorized (4401): open the address gazehdr serve printed, with ?token=`);
-    if (ev.code === 4421) toast(`the server does not answer to this name (4421): ${ev.reason}`);
+    // Those that no retry can mend stop the page, saying how to get in.
+    const refusal = REFUSALS[ev.code];
+    if (refusal) {
+      this.status = 'refused';
+      this.refusal = refusal(ev.reason);
+      toast(this.refusal, 15000);
+      return;
+    }
     if (ev.code === 4429) toast(`too many failed authentications (4429): ${ev.reason}`);
     // Opened but closed before hello: the server refused the session (it restarted and no
     // longer knows it). Start a fresh one next time. A failed connect keeps it: a blip.
@@ -146,6 +151,15 @@ class Connection {
     return this.ws ? 'reconnecting' : `reconnecting in ${s.toFixed(1)} s`;
   }
 }
+
+/** Refusals that retrying does not mend, and what to do instead (the page stops retrying). */
+const REFUSALS = {
+  4401: () =>
+    'not authorized (4401): this browser has no credential for this server. Open the address ' +
+    '`gazehdr serve` printed for other machines, ending in /?token=…, once; then reload.',
+  4403: () => 'the server refused this page’s origin (4403): open the viewer from the server’s own address.',
+  4421: (reason) => `the server does not answer to this name (4421): ${reason}`,
+};
 
 const conn = new Connection();
 const send = (msg) => conn.send(msg);
@@ -183,7 +197,8 @@ function showStatus(now) {
   let text = '';
   if (!lastHeader) {
     const s = ((now - (conn.openedAt ?? now)) / 1000).toFixed(1);
-    if (!conn.opened) text = `connecting to the server… ${conn.describe(now)}`;
+    if (conn.status === 'refused') text = conn.refusal;
+    else if (!conn.opened) text = `connecting to the server… ${conn.describe(now)}`;
     else if (!conn.helloSeen) text = `the server is preparing the simulation (it builds its kernels on first use)… ${s} s`;
     else text = `waiting for the first frame… ${s} s`;
   }

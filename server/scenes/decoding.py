@@ -37,6 +37,17 @@ class Decoded:
     layers: tuple[str, ...] = ("",)  # the file's RGB (or Y) layers; "" is the unnamed one
     layer: str = ""
     notes: tuple[str, ...] = ()  # what was done to the values on the way (header facts)
+    #: The file's width and height when `rgb` is a reduced level of it (`gazehdr.scenes.level`);
+    #: None: `rgb` is the file's size.
+    size: tuple[int, int] | None = None
+    #: The estimate's statistic over the file's pixels (`estimate.median_log10_luminance`),
+    #: when it was taken before `rgb` was reduced; None: taken from `rgb` when needed.
+    median_log10: float | None = None
+
+    @property
+    def file_size(self) -> tuple[int, int]:
+        """The file's width and height (not the level's)."""
+        return self.size or (self.rgb.shape[1], self.rgb.shape[0])
 
 
 def check_size(path: Path, width: int, height: int, total: int, max_pixels: int) -> None:

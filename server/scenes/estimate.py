@@ -96,7 +96,11 @@ def median_log10_luminance(rgb: np.ndarray) -> float:
 
 def estimate(rgb: np.ndarray, kind: str) -> Estimate:
     """The scale that puts the median luminance of `rgb` at `kind`'s metered luminance."""
-    median = median_log10_luminance(rgb)
+    return estimate_from(median_log10_luminance(rgb), kind)
+
+
+def estimate_from(median: float, kind: str) -> Estimate:
+    """`estimate` of an image whose statistic (`median_log10_luminance`) is `median`."""
     target = kind_luminance(check_kind(kind))
     scale = target / 10.0**median
     k = KINDS[kind]

@@ -7,13 +7,19 @@ as decoded and its scale (cd/m^2 per unit) with where the scale came from, in th
 2. `file`: the file's standard `whiteLuminance` (EXR), the luminance of RGB = (1, 1, 1);
 3. `estimate`: `gazehdr.scenes.estimate`'s rule, for a file that states no unit.
 
-`set_scale` changes it without reading the file again.
+`set_scale` changes it without reading the file again. The file's description (`file_info`:
+format, size, layers, notes, whiteLuminance and the estimate's statistic) is all a scale and
+`describe` need, so an upload's description is kept apart from its pixels
+(`gazehdr.scenes.library`), and a scene opened from a reduced level of a file
+(`gazehdr.scenes.level`) describes and scales as the file does.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,10 +27,11 @@ from typing import Any
 import numpy as np
 
 from gazehdr.scenes.decoding import MAX_PIXELS, Decoded, SceneError, read_head
-from gazehdr.scenes.estimate import check_kind, estimate, guess_kind
+from gazehdr.scenes.estimate import check_kind, estimate_from, guess_kind, median_log10_luminance
 from gazehdr.scenes.exr import MAGIC as EXR_MAGIC
 from gazehdr.scenes.exr import read_exr
 from gazehdr.scenes.hdr import is_pfm, is_rgbe, read_pfm, read_rgbe
+from gazehdr.scenes.level import level_size, reduce
 
 #: File name suffixes of the formats, for uploads and the file picker.
 SUFFIXES = {"exr": ".exr", "hdr": ".hdr", "pfm": ".pfm"}
@@ -120,15 +127,24 @@ class ImageScene:
         self.scale = self._scale(check_scale(scale), kind)
         self._pixels = None
 
+    def keep_level(self, frames: Iterable[tuple[int, int]]) -> None:
+        """Keep no more of the pixels than frames of sizes `frames` show (its level,
+        `gazehdr.scenes.level`), as an upload opened in the decode worker is: for a scene
+        decoded in the server's own process (a file named at start). Its description and
+        scale stay the file's."""
+        d = self.decoded
+        size = level_size(d.rgb.shape[1], d.rgb.shape[0], frames)
+        if size is None:
+            return
+        median = median_of(d)
+        self.decoded = dataclasses.replace(
+            d, rgb=reduce(d.rgb, size), size=d.file_size, median_log10=median
+        )
+        self._pixels = None
+
     def _scale(self, scale: float | None, kind: str | None) -> Scale:
-        if scale is not None:
-            return Scale(scale, "user", "given by the user")
-        white = self.decoded.white_luminance
-        if white is not None and kind is None:
-            return Scale(white, "file", "the file's whiteLuminance")
-        kind = check_kind(kind) if kind is not None else guess_kind(self.name)
-        guess = estimate(self.decoded.rgb, kind)
-        return Scale(guess.scale, "estimate", guess.note, guess.kind)
+        d = self.decoded
+        return choose_scale(self.name, d.white_luminance, lambda: median_of(d), scale, kind)
 
     @property
     def pixels(self) -> np.ndarray:
@@ -138,13 +154,8 @@ class ImageScene:
         return self._pixels
 
     def describe(self) -> dict[str, Any]:
-        """What the viewer and `gazehdr scenes` show of it."""
-        h, w = self.decoded.rgb.shape[:2]
-        d = self.decoded
-        return {
-            "format": d.format, "width": w, "height": h, "layers": list(d.layers),
-            "layer": d.layer, "notes": list(d.notes), **describe_scale(self.scale),
-        }  # fmt: skip
+        """What the viewer and `gazehdr scenes` show of it (of the file, not of a level)."""
+        return {**_file_fields(self.decoded), **describe_scale(self.scale)}
 
     def render(self, t: float, width: int, height: int) -> np.ndarray:
         """The pixels whatever `t`, `width`, `height`: the simulator fits them. The same
@@ -156,6 +167,55 @@ class ImageScene:
 
     def next_change(self, t: float) -> float | None:
         return None
+
+
+def median_of(decoded: Decoded) -> float:
+    """The estimate's statistic of the file `decoded` came from."""
+    if decoded.median_log10 is not None:
+        return decoded.median_log10
+    return median_log10_luminance(decoded.rgb)
+
+
+def choose_scale(
+    name: str,
+    white: float | None,
+    median: Callable[[], float],
+    scale: float | None,
+    kind: str | None,
+) -> Scale:
+    """The scale in force (module docstring): the user's, the file's `white`, or an estimate
+    of `kind` (default: from the scene's `name`) from the statistic `median()` gives."""
+    if scale is not None:
+        return Scale(scale, "user", "given by the user")
+    if white is not None and kind is None:
+        return Scale(white, "file", "the file's whiteLuminance")
+    kind = check_kind(kind) if kind is not None else guess_kind(name)
+    guess = estimate_from(median(), kind)
+    return Scale(guess.scale, "estimate", guess.note, guess.kind)
+
+
+def file_info(decoded: Decoded) -> dict[str, Any]:
+    """What a scale and a description need of a decoded file, as JSON values."""
+    return {
+        **_file_fields(decoded), "white_luminance": decoded.white_luminance,
+        "median_log10": median_of(decoded),
+    }  # fmt: skip
+
+
+def _file_fields(decoded: Decoded) -> dict[str, Any]:
+    w, h = decoded.file_size
+    return {
+        "format": decoded.format, "width": w, "height": h, "layers": list(decoded.layers),
+        "layer": decoded.layer, "notes": list(decoded.notes),
+    }  # fmt: skip
+
+
+def describe_file(info: dict[str, Any]) -> dict[str, Any]:
+    """The file's part of a description (`ImageScene.describe`), from its `file_info`."""
+    return {
+        "format": info["format"], "width": info["width"], "height": info["height"],
+        "layers": list(info["layers"]), "layer": info["layer"], "notes": list(info["notes"]),
+    }  # fmt: skip
 
 
 def describe_scale(scale: Scale) -> dict[str, Any]:

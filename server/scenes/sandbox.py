@@ -2,13 +2,16 @@
 
 An upload is decoded by C++ (OpenEXR) and our Python around it; a file made to crash it
 (a segfault, an abort) or to make it allocate without end would otherwise take the server, and
-every session, down with it. `check_upload` and `open_upload` decode in a child process of a
+every session, down with it. `check_upload` and `open_level` decode in a child process of a
 `forkserver` (started once, with the decoders imported, so a child costs a fork, not an
 interpreter start) under an address-space limit (`RLIMIT_AS`) and a time limit. The child says
-what happened over a pipe; an upload opened for a session comes back as a temporary `.npy` file
-(read once, then deleted) rather than pickled through the pipe. What went wrong is a
-`SceneError` the user reads: the decoder crashed (signal ...), ran out of memory (limit N MiB),
-or took longer than N s.
+what happened over a pipe: the file's description (`image.file_info`: format, size, layers,
+notes, whiteLuminance, and the estimate's statistic over all its pixels), and, for a scene
+opened for a session, its pixels reduced in the child to their level for the server's frames
+(`gazehdr.scenes.level`), as a temporary `.npy` file (read once, then deleted) rather than
+pickled through the pipe. The server never holds a file's pixels at more than that size. What
+went wrong is a `SceneError` the user reads: the decoder crashed (signal ...), ran out of memory
+(limit N MiB), or took longer than N s.
 
 Test hook: with GAZEHDR_TEST_DECODE_FAULTS=1 in the server's environment, a file whose bytes
 hold `GAZEHDR-FAULT:abort` (or `:segv`, `:alloc`, `:hang`; e.g. appended to a valid EXR) does
@@ -23,7 +26,7 @@ import os
 import resource
 import signal
 import tempfile
-from dataclasses import asdict
+from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -31,41 +34,74 @@ from typing import Any
 import numpy as np
 
 from gazehdr.scenes.decoding import Decoded, SceneError
-from gazehdr.scenes.image import ImageScene, decode, identity
+from gazehdr.scenes.image import ImageScene, decode, file_info, identity
+from gazehdr.scenes.level import ANY_FRAME, level_size, reduce
 
 #: Address space a decode may add to the worker's (its interpreter and libraries come first):
 #: the largest image allowed (64 Mi pixels, 768 MiB as float32 RGB) with room for the
-#: decoder's own copies.
+#: decoder's own copies and the estimate's statistic.
 MEMORY_MIB = 3072
 TIME_S = float(os.environ.get("GAZEHDR_DECODE_TIME_S", "60"))
 FAULT_ENV = "GAZEHDR_TEST_DECODE_FAULTS"
+Frames = Sequence[tuple[int, int]]
 _context = multiprocessing.get_context("forkserver")
 _context.set_forkserver_preload(["gazehdr.scenes.sandbox"])
 
 
-def check_upload(path: Path) -> None:
-    """Open `path` as a scene (decode and scale it) in a worker; SceneError if it fails."""
-    _run(path, None, None, memory_mib=MEMORY_MIB, time_s=TIME_S)
+def check_upload(path: Path, layer: str | None = None) -> dict[str, Any]:
+    """Decode `path` (its `layer`) in a worker: its description (`image.file_info`), or a
+    SceneError saying why it is no scene."""
+    answer = _run(path, layer, None, (), memory_mib=MEMORY_MIB, time_s=TIME_S)
+    return answer["info"]
+
+
+def open_level(path: Path, layer: str | None = None, frames: Frames = ANY_FRAME) -> Decoded:
+    """`path` decoded in a worker and reduced there to its level for `frames`
+    (`gazehdr.scenes.level`): `size` and `median_log10` say what the file itself is."""
+    answer = _run(path, layer, tempfile.gettempdir(), frames, memory_mib=MEMORY_MIB, time_s=TIME_S)
+    info, npy = answer["info"], answer["npy"]
+    try:
+        rgb = np.load(npy)
+    finally:
+        os.unlink(npy)
+    reduced = rgb.shape[:2] != (info["height"], info["width"])
+    return Decoded(
+        rgb, info["format"], info["white_luminance"], tuple(info["layers"]), info["layer"],
+        tuple(info["notes"]), size=(info["width"], info["height"]) if reduced else None,
+        median_log10=info["median_log10"],
+    )  # fmt: skip
 
 
 def open_upload(
-    path: Path, scale: float | None, *, layer: str | None = None, kind: str | None = None
+    path: Path,
+    scale: float | None,
+    *,
+    layer: str | None = None,
+    kind: str | None = None,
+    frames: Frames = ANY_FRAME,
 ) -> ImageScene:
-    """`ImageScene.open(path, ...)` with the decoding done in a worker."""
-    decoded = _run(path, layer, tempfile.gettempdir(), memory_mib=MEMORY_MIB, time_s=TIME_S)
-    assert decoded is not None
-    scene = ImageScene(path.stem, decoded, scale, kind)
+    """`ImageScene.open(path, ...)` with the decoding (and the reduction to the level for
+    `frames`) done in a worker."""
+    scene = ImageScene(path.stem, open_level(path, layer, frames), scale, kind)
     scene.source = identity(path)
     return scene
 
 
 def _run(
-    path: Path, layer: str | None, out_dir: str | None, *, memory_mib: int, time_s: float
-) -> Decoded | None:
+    path: Path,
+    layer: str | None,
+    out_dir: str | None,
+    frames: Frames,
+    *,
+    memory_mib: int,
+    time_s: float,
+) -> dict[str, Any]:
     """Decode in a child; its answer, or a SceneError saying how it failed."""
     receive, send = _context.Pipe(duplex=False)
     child = _context.Process(
-        target=_worker, args=(send, str(path), layer, out_dir, memory_mib), daemon=True
+        target=_worker,
+        args=(send, str(path), layer, out_dir, [tuple(f) for f in frames], memory_mib),
+        daemon=True,
     )
     child.start()
     send.close()
@@ -90,35 +126,37 @@ def _run(
         raise SceneError(value)
     if status == "memory":
         raise SceneError(f"{path}: decoding ran out of memory (limit {memory_mib} MiB)")
-    if value is None:
-        return None
-    npy = value.pop("npy")
-    try:
-        rgb = np.load(npy)
-    finally:
-        os.unlink(npy)
-    return Decoded(rgb=rgb, **value)
+    return value
 
 
 def _worker(
-    send: Connection, path: str, layer: str | None, out_dir: str | None, memory_mib: int
+    send: Connection,
+    path: str,
+    layer: str | None,
+    out_dir: str | None,
+    frames: list[tuple[int, int]],
+    memory_mib: int,
 ) -> None:
-    """In the child: limits on, decode, answer ("ok", None | fields), ("error", message) or
-    ("memory", None)."""
+    """In the child: limits on, decode, answer ("ok", {"info": ..., "npy": ...}),
+    ("error", message) or ("memory", None)."""
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crash leaves no core file behind
     limit = _address_space() + memory_mib * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     try:
         _test_fault(Path(path))
-        answer: tuple[str, Any] = ("ok", None)
-        if out_dir is None:  # a check: the file opens as a scene, scale and all
-            ImageScene.open(path, layer=layer)
-        else:
-            fields = asdict(decode(Path(path), layer))
+        decoded = decode(Path(path), layer)
+        info = file_info(decoded)  # the statistic over every pixel, before any reduction
+        answer: tuple[str, Any] = ("ok", {"info": info})
+        if out_dir is not None:  # opened for a session: the level, through a file
+            rgb = decoded.rgb
+            del decoded
+            size = level_size(info["width"], info["height"], frames)
+            if size is not None:
+                rgb = reduce(rgb, size)
             fd, npy = tempfile.mkstemp(suffix=".npy", dir=out_dir)
             with os.fdopen(fd, "wb") as f:
-                np.save(f, fields.pop("rgb"))
-            answer = ("ok", {**fields, "npy": npy})
+                np.save(f, rgb)
+            answer = ("ok", {"info": info, "npy": npy})
     except SceneError as e:
         answer = ("error", str(e))
     except MemoryError:
