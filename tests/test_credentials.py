@@ -149,3 +149,63 @@ def test_a_page_cannot_lock_out_the_viewer_or_the_daemon(live_server) -> None:
     assert typed[0] == 303 and typed[1]["set-cookie"].startswith(cookie)
     # the right token from the page's navigation waits with its guesses (no oracle)
     assert request(server, "GET", "/?token=tok", **NAVIGATED)[0] == 429
+
+
+# --- what a mutation audit left alive: each test names its mutant ------------------------------
+
+
+def _guard(server) -> Guard:
+    return Guard(None, policy_for(server.config), lambda path: ["GET", "HEAD", "PUT"])
+
+
+def _scope(path: str, client: str) -> dict:
+    return {"type": "http", "path": path, "method": "GET", "headers": [], "query_string": b"",
+            "client": (client, 40000), "server": ("127.0.0.1", 8000)}  # fmt: skip
+
+
+def test_a_loopback_bound_server_refuses_an_ip_literal_host(live_server) -> None:
+    """An IP literal is a Host of a wildcard-bound server only: bound to 127.0.0.1, a request
+    naming 192.0.2.1 (a rebinding page could use any address) is refused. Mutant: any IP
+    literal accepted whatever the binding (`any_ip` ignored)."""
+    server = live_server(token="tok")
+    for host in ("192.0.2.1", "[2001:db8::1]", f"10.0.0.1:{server.port}"):
+        assert request(server, "GET", "/api/health", host=host)[0] == 421, host
+    assert request(server, "GET", "/api/health", host=f"127.0.0.1:{server.port}")[0] == 200
+
+
+def test_an_origin_on_another_port_of_this_host_is_foreign(live_server) -> None:
+    """SameSite ignores ports, so a page served from another port of this machine gets the
+    viewer's cookie sent with its requests; its Origin, which names that port, is refused.
+    Mutant: Origin compared by host name only."""
+    server = live_server(token="tok")
+    cookie = request(server, "GET", "/")[1]["set-cookie"].split(";")[0]
+    other = f"http://127.0.0.1:{server.port + 1 if server.port < 65535 else server.port - 1}"
+    status, _, answer = request(server, "PUT", "/api/params", b"{}", origin=other, cookie=cookie,
+                                **{"content-type": "application/json"})  # fmt: skip
+    assert status == 403 and "origin" in answer["detail"]
+    same = request(server, "PUT", "/api/params", b"{}", origin=server.url, cookie=cookie,
+                   **{"content-type": "application/json"})  # fmt: skip
+    assert same[0] == 200
+
+
+def test_the_cookie_is_never_handed_to_a_client_on_the_network(live_server) -> None:
+    """The viewer page gives its cookie to a loopback client only (or after the token): a
+    client on the network that loads `/` gets the page and no cookie. Mutant: the loopback
+    check dropped from _viewer_cookie."""
+    server = live_server(token="tok")
+    guard = _guard(server)
+    headers = {"host": f"127.0.0.1:{server.port}"}
+    assert guard.check(_scope("/", "192.0.2.9"), headers, websocket=False) is None
+    given = guard.check(_scope("/", "127.0.0.1"), headers, websocket=False)
+    assert given and given[0][0] == b"set-cookie"
+
+
+def test_typed_token_guesses_in_the_address_are_throttled(live_server) -> None:
+    """`/?token=` guesses typed into the address bar (no page of another site) count like
+    bearer guesses: 10, then 429 whatever the guess. Mutant: the token in the address not
+    throttled (a failure not counted, or the wait not checked)."""
+    server = live_server(token="tok")
+    typed = {"sec-fetch-site": "none", "sec-fetch-mode": "navigate"}
+    answers = [request(server, "GET", f"/?token=guess{i}", **typed)[0] for i in range(12)]
+    assert answers == [401] * int(FAILURE_BURST) + [429] * (12 - int(FAILURE_BURST))
+    assert request(server, "GET", "/?token=tok", **typed)[0] == 429  # no oracle
