@@ -344,16 +344,16 @@ def _serve(args: argparse.Namespace, extra: list[str]) -> int:
 
 def _bench(args: argparse.Namespace, extra: list[str]) -> int:
     try:
-        bench = importlib.import_module("gazehdr.bench")
+        bench = importlib.import_module("gazehdr.bench.pipeline")
     except ModuleNotFoundError as e:
-        if e.name == "gazehdr.bench":
+        if e.name in ("gazehdr.bench", "gazehdr.bench.pipeline"):
             raise UsageError("the bench command is not part of this installation") from None
         raise UsageError(f"bench needs the module {e.name!r}: install gazehdr[bench]") from None
     return int(bench.main(extra) or 0)
 
 
 def _bench_live(args: argparse.Namespace, extra: list[str]) -> int:
-    from gazehdr.bench_live import main as bench_live
+    from gazehdr.bench.live import main as bench_live
 
     return bench_live(extra)
 

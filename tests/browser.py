@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from gazehdr.bench_live import CHROMIUM, CHROMIUM_ARGS, serve_web
+from gazehdr.bench.live import CHROMIUM, CHROMIUM_ARGS, serve_web
 
 WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 #: The frame header of docs/protocol.md, written out again here so that the test checks the
@@ -153,7 +153,7 @@ def open_viewer(browser: Any) -> Iterator[Any]:
 
 
 def serve_checkout_web(page: Any, origin: str = "http://viewer.test") -> str:
-    """web/ of this checkout, served from disk (`gazehdr.bench_live.serve_web`)."""
+    """web/ of this checkout, served from disk (`gazehdr.bench.live.serve_web`)."""
     return serve_web(page, origin, WEB_DIR)
 
 

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from gazehdr.bench import main
+from gazehdr.bench.pipeline import main
 from gazehdr.sim.models import each_beside_default
 
 
@@ -44,7 +44,7 @@ def test_bench_live_measures_a_client_in_this_process_and_in_its_own(capsys) -> 
     """`gazehdr bench-live` with plain WebSocket clients, in the server's process and in one of
     their own, with the late gaze on and off: a row each, with frames delivered and latencies
     (a real server on loopback; 1 s each, so figures only, nothing timed is asserted)."""
-    from gazehdr import bench_live
+    from gazehdr.bench import live as bench_live
 
     argv = ["--sizes", "96x54", "--encodings", "rgb10a2", "--clients", "socket,process"]
     argv += ["--seconds", "1", "--warmup", "0.5", "--fps", "30", "--late-gaze", "on,off"]

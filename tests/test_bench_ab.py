@@ -1,4 +1,4 @@
-"""`python -m gazehdr.bench_ab`: the installed kernels against a changed copy, in one process."""
+"""`python -m gazehdr.bench.ab`: the installed kernels against a changed copy, in one process."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import pyopencl as cl
 import pytest
 
-from gazehdr.bench_ab import main
+from gazehdr.bench.ab import main
 
 KERNELS = resources.files("gazehdr.sim") / "kernels"
 

@@ -347,8 +347,8 @@ def test_cli_help_names_every_model_and_scene_format(capsys: pytest.CaptureFixtu
 
 def test_cli_passes_bench_arguments_through(monkeypatch: pytest.MonkeyPatch) -> None:
     seen: list[list[str]] = []
-    fake = types.ModuleType("gazehdr.bench")
+    fake = types.ModuleType("gazehdr.bench.pipeline")
     fake.main = lambda argv: seen.append(argv) or 3  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "gazehdr.bench", fake)
+    monkeypatch.setitem(sys.modules, "gazehdr.bench.pipeline", fake)
     assert main(["bench", "--frames", "5", "--help"]) == 3
     assert seen == [["--frames", "5", "--help"]]

@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from gazehdr import roofline
-from gazehdr.bench import main
+from gazehdr.bench import roofline
+from gazehdr.bench.pipeline import main
 from gazehdr.scenes import open_scene
 from gazehdr.sim import Simulator
 
@@ -155,7 +155,7 @@ def test_a_launch_the_timer_reads_as_zero_counts_one_nanosecond() -> None:
     """Rates divide by launch times; a coarse device timer can give a short kernel start == end."""
     from types import SimpleNamespace
 
-    from gazehdr.roofline import _event_s
+    from gazehdr.bench.roofline import _event_s
 
     assert _event_s(SimpleNamespace(profile=SimpleNamespace(start=7, end=7))) == 1e-9
     assert _event_s(SimpleNamespace(profile=SimpleNamespace(start=0, end=2500))) == 2.5e-6

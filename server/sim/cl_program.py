@@ -72,7 +72,7 @@ def _build_program(files: tuple[str, ...], options: tuple[str, ...]) -> cl.Progr
 
 def kernel_source(files: tuple[str, ...], changed: Path | None = None) -> str:
     """The program text of `kernels/` files: `params_t` first, then the files in order; a file
-    that the folder `changed` holds is read from there instead (gazehdr.bench_ab)."""
+    that the folder `changed` holds is read from there instead (gazehdr.bench.ab)."""
     pkg = resources.files("gazehdr.sim") / "kernels"
     texts = [
         (changed / n if changed is not None and (changed / n).is_file() else pkg / n).read_text()
@@ -123,7 +123,7 @@ class Launch:
     a flush or a blocking call, else only a while later (0.6 ms for a lone kernel here): a
     step's first kernels waited until the host had enqueued them all (about 1 ms of Python at
     1280x720). Flushed at each launch, bench-live made 1.02-1.14x the frames at 1280x720 and
-    1.03-1.04x at 1920x1080 (docs/cli.md, eighth pass). Its by-value arguments are packed as
+    1.03-1.04x at 1920x1080 (docs/performance.md). Its by-value arguments are packed as
     the kernel declares them (`_declare_scalars`). Called as a `cl.Kernel` is:
     `launch(queue, global_size, local_size, *args)`."""
 
@@ -152,7 +152,7 @@ def _declare_scalars(kernel: cl.Kernel) -> None:
     (built with -cl-kernel-arg-info): a launch then packs them at once, where pyopencl first
     tries each argument as a memory object and falls back through a C++ exception. Setting
     compose's 15 arguments took 85-91 us that way, 2 us declared, on the step's thread with
-    the GIL held (docs/cli.md, ninth pass). A kernel without argument info, or with a
+    the GIL held (docs/performance.md). A kernel without argument info, or with a
     by-value type not in _SCALARS, is launched as pyopencl does by default."""
     info, private = cl.kernel_arg_info, cl.kernel_arg_address_qualifier.PRIVATE
     dtypes: list[Any] = []

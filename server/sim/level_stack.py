@@ -4,7 +4,7 @@ Eq. 14 telescopes to one Gaussian level of the scene per pixel: level d - 1 wher
 dropped. The tiled bank (kernel acuity_bank) blurs every frame as far as each tile needs. For a
 scene that stays the levels are the same every frame, so they are made once, one level a frame,
 and each frame then only picks every pixel's level (kernel acuity_pick): whole live step 0.92×
-at 1280×720 and 0.89× at 1920×1080 (docs/cli.md, "A fourth pass").
+at 1280×720 and 0.89× at 1920×1080 (docs/performance.md, "Acuity").
 """
 
 from __future__ import annotations

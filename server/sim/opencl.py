@@ -95,7 +95,7 @@ class OpenCLBackend:
         self.device_name = self.ctx.devices[0].name.strip()
         #: The device's memory is the host's (PoCL on the CPU): compose writes into a frame's
         #: message itself (`compose`'s `out`, CL_MEM_USE_HOST_PTR; mapping it copies nothing)
-        #: instead of being read back into it: 1.05x the frames at 720p (docs/cli.md, ninth).
+        #: instead of being read back into it: 1.05x the frames at 720p (docs/performance.md).
         self.shares_host_memory = bool(self.ctx.devices[0].host_unified_memory)
         self.vec = vector_width()  # pixels per work-item, fixed for this backend's programs
         self.k = self.kernels(KERNEL_FILES)

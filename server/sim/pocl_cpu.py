@@ -124,7 +124,7 @@ def pin_pocl_workers() -> None:
     (sockets, the step's host side) preempt the workers; unpinned, the scheduler then moves
     them between cores and they lose their caches. Measured with bench-live at 1280x720
     (uncapped, socket client, nine pairs of runs in turn): 1.02-1.19x the frames pinned, 1.10
-    at the median (docs/cli.md, eighth pass). POCL_AFFINITY=0 leaves them unpinned. Not in a
+    at the median (docs/performance.md). POCL_AFFINITY=0 leaves them unpinned. Not in a
     process held to some of the cores (taskset, a cpuset): PoCL pins to cores 0..n-1 whatever
     the process may use, and would take a core the process was kept off."""
     if "POCL_AFFINITY" in os.environ:

@@ -38,7 +38,7 @@ HOT floatv map_at(__global const float *ra, __global const float *rb, int c0, le
 }
 
 // Inlined into its three kernels: compose_rgb10 0.87-0.94× as long at VEC 16, 0.90-0.93× at 8,
-// 0.94-0.97× built for znver3 (AVX2), against a call (docs/cli.md, seventh pass).
+// 0.94-0.97× built for znver3 (AVX2), against a call (docs/performance.md, "Compose").
 HOT rgbv_t composev(__constant const params_t *P, __global const float *G,
                        __global const float *rho_full, __global const float *maps,
                        __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
@@ -58,7 +58,7 @@ HOT rgbv_t composev(__constant const params_t *P, __global const float *G,
     if (LAST(o) <= VEC - 2 && c0 >= 0 && c0 + VEC - 1 < grid_w) {
         // The VEC positions are less than a column apart (cell >= 2 at VEC 16; 1280x720 has
         // cell 4): columns c0 .. c0 + VEC - 1 serve them. 0.8× the time of compose_rgb10 with
-        // a broadcast FMA per column at VEC 16 (docs/cli.md, seventh pass).
+        // a broadcast FMA per column at VEC 16 (docs/performance.md, "Compose").
         __global const float *ra = maps + ty.a * grid_w, *rb = maps + ty.b * grid_w;
         floatv w_out = 1.0f - (ty.wa + ty.wb) * (tx.wa + tx.wb);  // off the grid: equilibrium
 #define MIX(c) map_at(ra + (c) * gp, rb + (c) * gp, c0, ty, o, tx)

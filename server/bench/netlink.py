@@ -39,13 +39,13 @@ def shaping_commands(mbit: float, delay_ms: float = 0.0) -> list[str]:
 
 
 def run_capped(mbit: float, delay_ms: float, argv: list[str]) -> int:
-    """Run `python -m gazehdr.bench_live argv` in a new network namespace over the capped
+    """Run `python -m gazehdr.bench.live argv` in a new network namespace over the capped
     loopback; its exit status. Raises RuntimeError when the namespace cannot be made."""
     for tool in ("unshare", "tc", "ip"):
         if shutil.which(tool) is None:
             raise RuntimeError(f"--link-mbit needs {tool} (util-linux / iproute2)")
     setup = " && ".join(shaping_commands(mbit, delay_ms))
-    child = shlex.join([sys.executable, "-m", "gazehdr.bench_live", *argv])
+    child = shlex.join([sys.executable, "-m", "gazehdr.bench.live", *argv])
     ns = ["unshare", "--net"] if os.geteuid() == 0 else ["unshare", "-rn"]
     env = {**os.environ, INSIDE: f"{mbit} Mbit/s, {delay_ms} ms delay"}
     done = subprocess.run([*ns, "sh", "-c", f"{setup} && exec {child}"], env=env, check=False)

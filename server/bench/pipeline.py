@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from gazehdr import roofline
+from gazehdr.bench import roofline
 from gazehdr.drivers.cli_args import size_list_arg
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.layout import (

@@ -1,6 +1,6 @@
 """Kernel A/B: the installed kernels against a changed copy, launch by launch in one process.
 
-    python -m gazehdr.bench_ab DIR [--kernels compose_rgb10,retina_update] [--size 1280x720]
+    python -m gazehdr.bench.ab DIR [--kernels compose_rgb10,retina_update] [--size 1280x720]
                                [--reps 40] [--scene lamp]
 
 DIR holds the kernel files (`kernels/*.cl`) as changed; files it lacks come from the installed
@@ -35,7 +35,7 @@ def build(ctx: cl.Context, kernel_dir: Path | None) -> cl.Program:
 
 def record_launches(size: tuple[int, int], scene_name: str) -> tuple[cl.Context, dict]:
     """Step a simulator on a profiling queue; each kernel's last launch, by kernel name."""
-    from gazehdr.roofline import to_steady_acuity
+    from gazehdr.bench.roofline import to_steady_acuity
     from gazehdr.scenes import open_scene
     from gazehdr.sim import Simulator
 
@@ -89,7 +89,7 @@ def compare(kernel_dir: Path, names: list[str], size, reps: int, scene: str) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gazehdr.bench_ab", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m gazehdr.bench.ab", description=__doc__)
     parser.add_argument("kernel_dir", type=Path, help="folder with the changed kernel files")
     parser.add_argument("--kernels", default=DEFAULT_KERNELS)
     parser.add_argument("--size", type=screen_size_arg, default="1280x720")

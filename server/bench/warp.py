@@ -1,5 +1,5 @@
 """What the late gaze warp costs: bytes per frame and server ms per step, plain frames against
-warp layers, side by side in one run (`python -m gazehdr.bench_warp --size 1280x720`); with
+warp layers, side by side in one run (`python -m gazehdr.bench.warp --size 1280x720`); with
 `--browser`, the viewer's upload and draw in headless Chromium too (SwiftShader: a CPU's
 figures, not a GPU's).
 
@@ -97,7 +97,7 @@ def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> di
     Chromium, plain against warp; Chromium as tests/browser.py starts it."""
     from playwright.sync_api import sync_playwright
 
-    from gazehdr.bench_live import CHROMIUM, CHROMIUM_ARGS, serve_web
+    from gazehdr.bench.live import CHROMIUM, CHROMIUM_ARGS, serve_web
 
     settings = SessionSettings(
         width=size[0], height=size[1], scene="flash", encoding=encoding, fit_viewport=False
@@ -119,7 +119,7 @@ def measure_browser(size: tuple[int, int], encoding: Encoding, draws: int) -> di
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m gazehdr.bench_warp", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m gazehdr.bench.warp", description=__doc__)
     parser.add_argument("--size", type=screen_size_arg, default="1280x720")
     parser.add_argument("--encoding", default="rgb10a2", choices=("f16", "rgb10a2"))
     parser.add_argument("--rounds", type=int, default=20)

@@ -13,7 +13,7 @@ browser does).
 `av1` (gazehdr.video) is a viewer's choice: the session simulates `rgb10a2`, the page opens with
 `?encoding=av1`, the socket client asks for it, acks each frame as the page does and decodes
 every packet (dav1d, as Chromium); frames per second count decoded pictures. `--link-mbit`
-runs the whole benchmark over a capped link (gazehdr.netlink: a network namespace whose
+runs the whole benchmark over a capped link (gazehdr.bench.netlink: a network namespace whose
 loopback `tc` shapes), so the raw encodings and `av1` are compared over the same link.
 """
 
@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from gazehdr import netlink
+from gazehdr.bench import netlink
 from gazehdr.drivers.cli_args import size_list_arg
 from gazehdr.protocol import RAW, Encoding, split_frame
 
@@ -373,5 +373,5 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":  # what gazehdr.netlink runs in its namespace
+if __name__ == "__main__":  # what gazehdr.bench.netlink runs in its namespace
     raise SystemExit(main())
