@@ -1,4 +1,4 @@
-"""Server memory over sessions, measured on a real `gazehdr serve` process (issue 15, item 5).
+"""Server memory over sessions, measured on a real `gazehdr serve` process.
 
     .venv/bin/python tests/session_memory.py [--sessions 8] [--viewers 30] [--size 640x360]
 

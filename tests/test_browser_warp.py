@@ -112,10 +112,9 @@ def test_warp_shader_warps_each_pane_in_split_view(browser) -> None:
 # (640×352 cells at this size): 3 MB, and Playwright's driver gets every WebSocket frame a page
 # receives, base64 in JSON. At the live_server's 20 fps that is 80 MB/s through the driver, more
 # than it keeps up with on 2 cores: its backlog grew until the page's answers to the test never
-# came (the test hung, most often late in the full suite). At 5 fps it still hung, twice in a
-# row, once stop 22 took away PoCL's compile for each new gaze (0.2 s each), which had held
-# the warp frames back. The warp itself runs at the display's rate, whatever the session's.
-# (At 2 fps a step ends exactly on the flash's start at 1 s, which Eye.step used to miss.)
+# came. At 5 fps it still does: nothing (such as a kernel compile for each new gaze) holds the
+# warp frames back. The warp itself runs at the display's rate, whatever the session's. (At
+# 2 fps a step ends exactly on the flash's start at 1 s, which Eye.step handles.)
 WARP_FPS = 2.0
 
 

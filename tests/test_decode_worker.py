@@ -1,4 +1,4 @@
-"""Uploads are decoded in a worker process (gazehdr.scenes.sandbox; issue 15, item 6): a decoder
+"""Uploads are decoded in a worker process (gazehdr.scenes.sandbox): a decoder
 that crashes, runs out of memory or hangs costs that request only, with a clear 4xx, and the
 server goes on serving. Against a real `gazehdr serve` process, through the real upload route;
 the crash is the worker's test hook (GAZEHDR_TEST_DECODE_FAULTS), honoured in the worker only."""

@@ -1,4 +1,4 @@
-"""`gazehdr experiment analyse` (issue 17, item 2): the psychometric fit, its bootstrap interval,
+"""`gazehdr experiment analyse`: the psychometric fit, its bootstrap interval,
 degenerate data, the rank-sum test, the report, and PSE recovery from the echo observer."""
 
 from __future__ import annotations

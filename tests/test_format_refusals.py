@@ -1,7 +1,6 @@
 """Files that are not what their names claim, through `gazehdr import`: each refused with one
-line that says what the file is not and why (issue 12: "a file that is not what it claims gets
-a clear error naming what was wrong"), not with an error about a part of the format the file
-never had."""
+line that says what the file is not and why, not with an error about a part of the format the
+file never had."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Limits under concurrency, and memory given back (issue 15, item 5), against a real uvicorn.
+"""Limits under concurrency, and memory given back, against a real uvicorn.
 
 The server's resident memory over sessions is measured by `tests/session_memory.py` on a real
 `gazehdr serve` process (too noisy for an assertion here: the test process holds pytest, the

@@ -461,7 +461,7 @@ def test_deterministic(backend: str) -> None:
 def test_letterbox_bars_are_not_part_of_the_top_fraction() -> None:
     """A wide image letterboxed in a pane: 80 % of the cells are black bars. The mask's top 5 %
     is of the scene's light, so only the lamp (5 % of the image) can leave an afterimage; with
-    the bars counted the whole wall did, an olive blob over the bars (issue 14)."""
+    the bars counted the whole wall did, an olive blob over the bars."""
     from gazehdr.sim.baselines.mikamo import scene_stats
 
     yp = np.zeros((50, 40))
@@ -474,7 +474,7 @@ def test_letterbox_bars_are_not_part_of_the_top_fraction() -> None:
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_no_olive_blob_in_a_letterboxed_split_pane(backend: str, tmp_path: Path) -> None:
-    """End to end, issue 14's olive blob: split view (gazehdr.eye.Eye, as a session runs it)
+    """End to end, the olive blob: split view (gazehdr.eye.Eye, as a session runs it)
     with mikamo in the right pane, on a wide image file letterboxed in the 64×48 pane (fitted
     to 64×16: two thirds of the pane are black bars). The image is a wall at 1000 cd/m² with
     a lamp at 3000 cd/m² over its left 10 %: the lamp is the image's top 5 %, the wall is not.
