@@ -376,8 +376,8 @@ WORK_BOUNDS: dict[str, tuple[float, float, str]] = {
     "noise_cell_deg": (0.05, 20.0, "deg, the acuity noise grid: smaller cells, a larger grid"),
     "noise_rate_hz": (0.0, 240.0, "acuity noise key frames a second"),
     "acuity_sigma_max_deg": (0.0, 2.0, "deg, the acuity baselines' largest blur"),
-    "ritschel_saccade_sigma_deg": (0.0, 2.0, "deg, Ritschel's micro-saccade blur"),
-    "ritschel_N_sigma_deg": (0.0, 2.0, "deg, Ritschel's diffusion blur after 1 s"),
+    "ritschel_saccade_sigma_deg": (0.0, 5.0, "deg, Ritschel's micro-saccade blur"),
+    "ritschel_N_sigma_deg": (0.0, 5.0, "deg, Ritschel's diffusion blur after 1 s"),
     "mikamo_lowpass_deg": (0.0, 5.0, "deg, Mikamo's low-pass"),
     "thompson_noise_hz": (0.0, 1000.0, "Thompson's noise frames a second"),
 }  # fmt: skip
