@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from gazehdr import __version__
 from gazehdr.drivers import registry
 from gazehdr.drivers.cli_args import OneLineParser, screen_size_arg
 
@@ -173,6 +174,12 @@ def _render_request(args: argparse.Namespace, **fields: object) -> object:
 
 def _render(args: argparse.Namespace, extra: list[str]) -> int:
     if args.logs or args.batch:  # many logs, as Dask tasks (docs/cli.md, "Batch rendering")
+        try:
+            import dask.distributed  # noqa: F401 -- imported where it runs; here only checked
+        except ModuleNotFoundError as e:
+            raise UsageError(
+                f"render --logs/--batch needs {e.name}: pip install 'gazehdr[batch]'"
+            ) from None
         from gazehdr import batch
 
         return batch.main(args, _render_request, parser_defaults=_render_defaults())
@@ -578,6 +585,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Gaze-adaptive HDR display: simulates adaptation, afterimages and mesopic "
         "vision (Jacobs et al. 2015) on an ordinary monitor.",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, command in COMMANDS.items():
         p = sub.add_parser(

@@ -305,3 +305,19 @@ def test_a_killed_worker_loses_only_its_job_which_a_rerun_completes(
     assert again.rendered == [held_job.id] and not again.failed
     assert sorted(again.skipped) == sorted(result.rendered)
     assert outputs(out / held_job.id) == serial(held_job, tmp_path / "serial")
+
+
+def test_without_the_batch_extra_render_logs_names_the_extra(tmp_path: Path) -> None:
+    """`render --logs` where Dask is not installed: one line naming the extra to install and
+    the usage error's status, not a traceback. Guards the check before the batch module runs
+    (a raw ModuleNotFoundError came out of a worker's setup)."""
+    import subprocess
+    import sys
+
+    blocked = (
+        "import sys; sys.modules['dask'] = None; from gazehdr.cli import main; "
+        f"sys.exit(main(['render', '--logs', 'x.jsonl', '--out', {str(tmp_path)!r}]))"
+    )
+    run = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True)
+    assert run.returncode == 2, run.stderr
+    assert "pip install 'gazehdr[batch]'" in run.stderr and "Traceback" not in run.stderr
