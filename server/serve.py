@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import ipaddress
 import math
+import os
 import secrets
 import socket
 import sys
@@ -13,6 +14,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import uvicorn
 
 from gazehdr import heap
@@ -20,10 +22,11 @@ from gazehdr.app import ServerConfig, create_app
 from gazehdr.drivers import registry
 from gazehdr.drivers.daemon import run_daemon
 from gazehdr.gaze import is_tracker_source
-from gazehdr.protocol import Encoding
+from gazehdr.protocol import SIM_OUTPUT, Encoding
 from gazehdr.scenes import builtin_names, open_scene
 from gazehdr.security import LOOPBACK_NAMES, WILDCARD_HOSTS, policy_for
 from gazehdr.session import GAZE_SOURCES, SessionSettings
+from gazehdr.sim import Simulator
 from gazehdr.sim.layout import check_frame_size
 from gazehdr.sim.models import Models
 from gazehdr.sim.presets import DEFAULT_PRESET, describe, load_params
@@ -199,6 +202,31 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+def kernel_cache_dir() -> str:
+    """Where PoCL keeps the kernels it built: `POCL_CACHE_DIR`, else the user's cache folder.
+    Entries are keyed by the kernels' source, build options and device, so they outlive an
+    upgrade of gazehdr that leaves the kernels as they were, and never serve stale ones."""
+    if os.environ.get("POCL_CACHE_DIR"):
+        return os.environ["POCL_CACHE_DIR"]
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "pocl", "kcache")
+
+
+def build_kernels(settings: SessionSettings) -> float:
+    """Build (or load from the cache) the kernels of a session as new viewers get it, before
+    the address is printed, so that the first viewer sees a picture at once instead of a page
+    waiting for a build: two steps of its model at its frame size. Seconds taken."""
+    started = time.monotonic()
+    sim = Simulator(
+        settings.width, settings.height, params=settings.params, backend=settings.backend,
+        seed=settings.seed, afterimage=settings.model.afterimage, acuity=settings.model.acuity,
+    )  # fmt: skip
+    sim.load_scene(np.zeros((settings.height, settings.width, 3), np.float32))
+    for _ in range(2):  # the first step settles, the second is a live one
+        sim.step(1.0 / settings.fps, output=SIM_OUTPUT.get(settings.encoding, "float16"))
+    return time.monotonic() - started
+
+
 def local_host(host: str) -> str:
     """The address this machine's own browser opens: the bound one, or loopback for a
     wildcard (0.0.0.0 is no address a browser can open)."""
@@ -292,8 +320,15 @@ def serve(*, trackers: tuple[str, ...] = (), **options) -> int:
     for spec in trackers:
         check_tracker_spec(spec)
     heap.limit_arenas()  # before any session's thread: memory goes back when sessions end
-    server = uvicorn_server(create_app(config), config.host, config.port)
-    sock = bind(config.host, config.port)
+    sock = bind(config.host, config.port)  # a port in use fails now, not after the build
+    app = create_app(config)  # and a viewer with a file missing
+    print(
+        "gazehdr: building the simulation's kernels (the first start on a machine takes up to a "
+        f"minute; they are kept in {kernel_cache_dir()})…",
+        flush=True,
+    )
+    print(f"gazehdr: kernels ready in {build_kernels(config.session):.1f} s", flush=True)
+    server = uvicorn_server(app, config.host, config.port)
     port = sock.getsockname()[1]
     urls = [f"http://{_url_host(h)}:{port}" for h in reachable_hosts(config.host)]
     here = f"http://{_url_host(local_host(config.host))}:{port}"

@@ -154,6 +154,31 @@ def test_gazehdr_package_itself_imports_nothing() -> None:
     assert _graph()["gazehdr"] == set()
 
 
+def test_the_version_is_the_distributions_and_gazehdr_version_prints_it(capsys) -> None:
+    """`gazehdr.__version__` from the package metadata, a message when gazehdr is not
+    installed, and `gazehdr --version`."""
+    import importlib.metadata
+
+    import gazehdr
+    from gazehdr.cli import main
+
+    assert gazehdr.__version__ == importlib.metadata.version("gazehdr")
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out == f"gazehdr {gazehdr.__version__}\n"
+    not_installed = (
+        "import importlib.metadata as m\n"
+        "def missing(name): raise m.PackageNotFoundError(name)\n"
+        "m.version = missing\n"
+        "import gazehdr\n"
+        "print(gazehdr.__version__)"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", not_installed], capture_output=True, text=True, check=True
+    )
+    assert run.stdout == gazehdr.NOT_INSTALLED + "\n"
+    assert gazehdr.NOT_INSTALLED.startswith("unknown (") and "not installed" in run.stdout
+
+
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     """Strongly connected components with more than one module (Tarjan)."""
     index: dict[str, int] = {}
@@ -377,3 +402,29 @@ def test_installed_server_serves_the_viewer_and_frames(installed: Path, elsewher
     finally:
         process.terminate()
         process.wait(timeout=30)
+
+
+def test_serve_builds_its_kernels_before_it_prints_the_address(tmp_path: Path) -> None:
+    """The first viewer gets a picture at once: `serve` builds the kernels of a session as new
+    viewers get it, saying so and where they are kept, before it prints the address. Guards
+    the build moved after the address (the page then waited up to a minute, saying only that
+    the server was preparing)."""
+    env = {**os.environ, "GAZEHDR_DATA_DIR": str(tmp_path / "d"), "PYTHONUNBUFFERED": "1"}
+    server = subprocess.Popen(
+        [sys.executable, "-m", "gazehdr", "serve", "--port", "0", "--size", "64x36"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+    )  # fmt: skip
+    try:
+        assert server.stdout is not None
+        lines = []
+        for line in server.stdout:
+            lines.append(line)
+            if "open http" in line:
+                break
+        said = "".join(lines)
+        assert "building the simulation's kernels" in said and "kernels ready in" in said
+        assert said.index("kernels ready in") < said.index("open http"), said
+        assert "pocl" in said  # where they are kept
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
