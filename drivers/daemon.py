@@ -16,8 +16,9 @@ resending, the clock offset); this module is the I/O around it, on one asyncio l
   rounds, sending what the core returns and then its echo, every `flush_interval` or sooner
   when the core says a round is due; a reader task feeds the server's replies to the core with
   the time they came;
-- a lost connection is retried with exponential back-off (`backoff`); a refused token (close
-  code 4401) is fatal: `UnauthorizedError`, no retry.
+- a lost connection, welcomed or not yet, is told to the core (`connection_lost`) and retried
+  with exponential back-off (`backoff`); a refused token (close code 4401) is fatal:
+  `UnauthorizedError`, no retry.
 
 `run_daemon(source, server_url, token, ...)` runs until the source ends (and the buffer is
 delivered, or `drain_timeout` passes) or `Daemon.stop()` is called. The command line is
@@ -39,7 +40,7 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from gazehdr.drivers import wire
-from gazehdr.drivers.delivery import DaemonError, DaemonStats, Delivery, is_event
+from gazehdr.drivers.delivery import DaemonError, DaemonStats, Delivery, State, is_event
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog import ClockInfo, SessionHeader, SessionLogWriter
 from gazehdr.drivers.sources import SourceInfo, fixation_places_of, records_of
@@ -156,7 +157,11 @@ class Daemon:
         self._writer: SessionLogWriter | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None  # set when the core says a round is due
-        self.connected = False
+
+    @property
+    def connected(self) -> bool:
+        """Whether a connection is open (welcomed): the core's state says."""
+        return self.core.state is State.OPEN
 
     @property
     def backlog(self) -> int:
@@ -294,7 +299,6 @@ class Daemon:
 
         delay = self.backoff[0]
         while not self._drained() and not self._draining_too_long():
-            welcomed = False
             try:
                 async with connect(
                     self.url,
@@ -306,7 +310,6 @@ class Daemon:
                     compression=None,
                 ) as ws:
                     await self._hello(ws)
-                    welcomed = True
                     delay = self.backoff[0]
                     await self._session(ws)
             except UnauthorizedError:
@@ -324,8 +327,8 @@ class Daemon:
                 if isinstance(e, _ClosedError) and e.code == CLOSE_UNAUTHORIZED:
                     raise UnauthorizedError(self._refused(e.reason)) from None
             finally:
-                if welcomed:
-                    self._connection_lost()
+                if self.core.state in (State.CONNECTING, State.OPEN):  # hello was given
+                    self.core.connection_lost()
             if self._drained() or self._draining_too_long():
                 break
             log.info(
@@ -360,7 +363,6 @@ class Daemon:
         except ConnectionClosed as e:
             raise self._closed(e) from None
         self.core.connected()
-        self.connected = True
         log.info("connected to %s as %r", self.url, self.info.name)
         self._outputs()  # the note of what was dropped while disconnected
 
@@ -369,10 +371,6 @@ class Daemon:
         if rcvd is not None:
             return _ClosedError(rcvd.code, rcvd.reason)
         return _ClosedError(None, "")
-
-    def _connection_lost(self) -> None:
-        self.connected = False
-        self.core.connection_lost()
 
     async def _session(self, ws: Any) -> None:
         from websockets.exceptions import ConnectionClosed

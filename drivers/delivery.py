@@ -11,6 +11,18 @@ gave is sent). Its outputs: wire texts to send, whether a round is due before `f
 has passed (`send_due`), the records for the session log (`records_to_write`), warnings for the
 daemon to log (`warnings`), and the counts in `stats` (`DaemonStats`).
 
+Its connection side has a named state (`State`), and a call its state does not allow raises
+`InvalidStateError` before anything changes, so nothing buffered or counted is lost:
+
+    IDLE --hello()--> CONNECTING --connected()--> OPEN --connection_lost()--> IDLE
+                      CONNECTING --connection_lost()--> IDLE     (never welcomed: nothing counted)
+    IDLE, CONNECTING, OPEN --finish()--> CLOSED
+
+`welcome` reads replies in CONNECTING; `send`, `echo` and `receive` need OPEN. The back-off
+between a lost connection and the next `hello` is the daemon's. The source's side (`add`,
+`end_of_source`) is taken in every state: records join the buffer until the source ends or
+the daemon finishes, and are not taken after (a source thread's last records may come late).
+
 - every sample is recorded and goes through the fixation detector; samples and events join the
   send buffer in the order they were emitted;
 - the server follows fixation events, so each one sent carries a position. A replayed
@@ -47,6 +59,7 @@ daemon to log (`warnings`), and the counts in `stats` (`DaemonStats`).
 
 from __future__ import annotations
 
+import enum
 import math
 import re
 from collections import deque
@@ -61,6 +74,7 @@ from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog import EVENT_KINDS, ClockUpdate, Note
 from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.states import InvalidStateError
 
 SERVER_RATE_HZ = 2000.0  # gazehdr.gaze_link.GAZE_RATE_HZ, kept equal by tests/test_server.py
 DEFAULT_RATE_HZ = 1900.0  # what the daemon sends at most: below the limit, with margin
@@ -75,6 +89,30 @@ _WIRE_TIMES = range(2**63)  # what a wire `t` may be (gazehdr.drivers.wire._int)
 
 class DaemonError(RuntimeError):
     """The daemon cannot go on; the text says why."""
+
+
+class State(enum.Enum):
+    """Where `Delivery` is in a connection's life (the module docstring has the diagram)."""
+
+    IDLE = "idle"  # no connection: before the first, and from a lost one to the next hello
+    CONNECTING = "connecting"  # hello given, the server's welcome awaited
+    OPEN = "open"  # welcomed: sending rounds, echoes, the server's replies
+    CLOSED = "closed"  # finished: what was never delivered is counted; nothing more is sent
+
+
+_WHEN = {  # what each connection-side method needs, said in InvalidStateError's text
+    "hello": ((State.IDLE,), "a connection starts from IDLE (after connection_lost)"),
+    "welcome": ((State.CONNECTING,), "only after hello(), before connected()"),
+    "connected": ((State.CONNECTING,), "only after hello(), once welcome() said so"),
+    "connection_lost": (
+        (State.CONNECTING, State.OPEN),
+        "only while a connection is CONNECTING or OPEN",
+    ),
+    "receive": ((State.OPEN,), "replies are read only while OPEN (after connected())"),
+    "send": ((State.OPEN,), "rounds run only while OPEN (after connected())"),
+    "echo": ((State.OPEN,), "echoes are sent only while OPEN (after connected())"),
+    "finish": ((State.IDLE, State.CONNECTING, State.OPEN), "the delivery has finished already"),
+}
 
 
 # --- clock offset ---------------------------------------------------------------------------
@@ -223,6 +261,7 @@ class Delivery:
 
     `places` is what `fixation_places_of(source)` says (None: the source does not say); the
     other options are `Daemon`'s. Times are nanoseconds on the daemon's monotonic clock.
+    `state` is where it is in a connection's life (`State`).
     """
 
     def __init__(
@@ -263,7 +302,8 @@ class Delivery:
             if detector is not None and not self._sends_own_events
             else None
         )
-        self.accepting = True  # until the source ends (or the daemon does)
+        self.state = State.IDLE
+        self._source_ended = False
         self._unsent: deque[Any] = deque()
         self._retry: deque[Any] = deque()
         self._inflight: deque[tuple[int, Any]] = deque()
@@ -281,7 +321,18 @@ class Delivery:
         self._to_record: list[Any] = []
         self._warnings: list[str] = []
 
+    def _expect(self, method: str) -> None:
+        """Refuse `method` (InvalidStateError) unless the state allows it; before any change."""
+        allowed, why = _WHEN[method]
+        if self.state not in allowed:
+            raise InvalidStateError("Delivery", method, self.state, why)
+
     # --- outputs ---------------------------------------------------------------------------------
+
+    @property
+    def accepting(self) -> bool:
+        """Whether the source's records are taken: until the source ends or the daemon does."""
+        return not self._source_ended and self.state is not State.CLOSED
 
     def records_to_write(self) -> list[Any]:
         """The session log's records since the last call, in order (samples, events, notes,
@@ -337,10 +388,13 @@ class Delivery:
             self._to_record.append(record)
 
     def end_of_source(self) -> None:
-        """The source gave its last record: the detector's last events join, nothing more does."""
-        if self.detector is not None and self.accepting:
+        """The source gave its last record: the detector's last events join, nothing more does.
+        Again, or after `finish`: nothing changes."""
+        if not self.accepting:
+            return
+        if self.detector is not None:
             self._detected(self.detector.flush())
-        self.accepting = False
+        self._source_ended = True
         self._wake = True
 
     def _follows(self, event: Any) -> bool:
@@ -402,8 +456,10 @@ class Delivery:
 
     def finish(self) -> None:
         """The daemon ends: nothing more is taken in, and what was never delivered is counted
-        (it is in the session log, when one is written)."""
-        self.accepting = False
+        (it is in the session log, when one is written). CLOSED from then on; InvalidStateError
+        when it is already."""
+        self._expect("finish")
+        self.state = State.CLOSED
         for item in (*self._retry, *(i for _, i in self._inflight), *self._unsent):
             if isinstance(item, GazeSample):
                 self.stats.samples_undelivered += 1
@@ -425,15 +481,20 @@ class Delivery:
 
     def hello(self) -> str:
         """The first message of a connection: the protocol, the tracker, its screen and, when
-        known, its accuracy."""
+        known, its accuracy. IDLE → CONNECTING."""
+        self._expect("hello")
         screen = {k: float(v) for k, v in asdict(self.info.geometry).items()}
         if self.info.accuracy_deg is not None:
             screen[wire.ACCURACY] = float(self.info.accuracy_deg)
-        return wire.dumps(wire.Hello(wire.PROTOCOL, self.info.name, screen))
+        text = wire.dumps(wire.Hello(wire.PROTOCOL, self.info.name, screen))
+        self.state = State.CONNECTING
+        return text
 
     def welcome(self, text: str) -> bool:
         """Whether a reply to `hello` welcomes us (False: not yet, wait for the next one);
-        `DaemonError` where the server refused or replied nonsense."""
+        `DaemonError` where the server refused or replied nonsense (the connection is then
+        lost: `connection_lost`)."""
+        self._expect("welcome")
         try:
             reply = wire.parse_reply(text)
         except wire.WireError as e:
@@ -444,7 +505,10 @@ class Delivery:
 
     def connected(self) -> None:
         """The server welcomed us: a fresh bucket, echo cadence and clock (this may be another
-        server, or the same one rebooted), and the note of what the outage dropped."""
+        server, or the same one rebooted), and the note of what the outage dropped.
+        CONNECTING → OPEN."""
+        self._expect("connected")
+        self.state = State.OPEN
         self.stats.connects += 1
         self.clock = ClockEstimator(self.clock.window.maxlen or 1)
         self._bucket = TokenBucket(self.max_rate, self.burst)
@@ -452,7 +516,12 @@ class Delivery:
         self._note_drops("while disconnected")
 
     def connection_lost(self) -> None:
-        """The connection ended: what it left unacknowledged goes first on the next one."""
+        """The connection ended: what it left unacknowledged goes first on the next one.
+        OPEN → IDLE; CONNECTING → IDLE counts nothing (it was never welcomed, sent nothing)."""
+        self._expect("connection_lost")
+        was, self.state = self.state, State.IDLE
+        if was is State.CONNECTING:
+            return
         self.stats.disconnects += 1
         self._marks.clear()
         if self._inflight:
@@ -463,6 +532,7 @@ class Delivery:
     def receive(self, text: str, now_ns: int) -> None:
         """A reply from the server, come at `now_ns`: an echo (clock and acknowledgement) or a
         notice (counted where it reports what a rate limit dropped, warned of always)."""
+        self._expect("receive")
         try:
             reply = wire.parse_reply(text)
         except wire.WireError as e:
@@ -511,6 +581,7 @@ class Delivery:
     def send(self, now_ns: int) -> list[str]:
         """A sending round at `now_ns`: what the token bucket and the in-flight window allow,
         as wire texts to send in this order. Call `echo` once they are sent."""
+        self._expect("send")
         self._wake = self._held = self._sent_in_round = False
         now = now_ns / 1e9
         texts: list[str] = []
@@ -534,6 +605,7 @@ class Delivery:
     def echo(self, now_ns: int) -> str | None:
         """The echo that ends a round, stamped `now_ns` (when it is sent: its round trip is the
         clock's), or None when none is due."""
+        self._expect("echo")
         last = self._last_echo_ns
         due = (
             last is None

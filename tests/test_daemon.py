@@ -296,6 +296,47 @@ def _nothing_lost_but_counted(
     assert any("dropped" in n.text for n in recorded.notes)
 
 
+def test_a_connection_lost_before_its_welcome_is_tried_again() -> None:
+    """A server that closes the first connection on its hello, then welcomes the next: the
+    daemon says hello again and delivers everything, and the unwelcomed one is neither a
+    connection nor a disconnect. Guards the daemon telling its core of a connection lost
+    before the welcome (mutation: `connection_lost` only once welcomed; the core then refuses
+    the next hello, InvalidStateError)."""
+    from websockets.asyncio.server import serve
+
+    hellos: list[wire.Hello] = []
+    arrived: list[int] = []
+
+    async def handler(ws) -> None:
+        hellos.append(wire.parse(await ws.recv()))
+        if len(hellos) == 1:
+            await ws.close()
+            return
+        await ws.send(wire.dumps(wire.Welcome(wire.PROTOCOL)))
+        async for text in ws:
+            message = wire.parse(text)
+            if isinstance(message, wire.Samples):
+                arrived.extend(s.t_ns for s in message.samples)
+            elif isinstance(message, wire.Echo):
+                reply = wire.EchoReply(message.t0_ns, time.monotonic_ns())
+                await ws.send(wire.dumps(reply))
+
+    samples = [GazeSample(i * 1_000_000, 960.0, 540.0) for i in range(300)]
+    source = IterableSource(samples, SourceInfo("rig", GEOMETRY, live=False))
+
+    async def scenario() -> DaemonStats:
+        async with serve(handler, "127.0.0.1", 0) as server:
+            port = server.sockets[0].getsockname()[1]
+            daemon = Daemon(source, f"ws://127.0.0.1:{port}", "t", backoff=(0.01, 0.05))
+            return await daemon.run()
+
+    stats = run(scenario())
+    assert [type(h) for h in hellos] == [wire.Hello, wire.Hello]
+    assert arrived == [s.t_ns for s in samples]
+    assert (stats.connects, stats.disconnects, stats.resent) == (1, 1, 0)  # the welcomed one
+    assert stats.samples_delivered == 300 and stats.samples_undelivered == 0
+
+
 def test_a_wrong_token_is_fatal_and_clear(live_server, capsys, monkeypatch, caplog) -> None:
     server = live_server(token="right")
     source = SyntheticSource(0, 100.0)

@@ -9,11 +9,12 @@ from typing import Any
 import pytest
 
 from gazehdr.drivers import wire
-from gazehdr.drivers.delivery import DaemonError, Delivery
+from gazehdr.drivers.delivery import DaemonError, Delivery, State
 from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog import ClockUpdate, FixationPlace, GazeEvent, Note
 from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.states import InvalidStateError
 
 MS = 1_000_000  # ns
 S = 1_000_000_000
@@ -29,6 +30,7 @@ def _samples(times: range) -> list[GazeSample]:
 
 
 def _connected(core: Delivery) -> Delivery:
+    core.hello()
     assert core.welcome(wire.dumps(wire.Welcome(wire.PROTOCOL)))
     core.connected()
     return core
@@ -339,3 +341,176 @@ def test_a_binocular_recording_sends_the_first_fixating_eyes_fixations() -> None
     assert core.stats.events_produced == 2
     assert len(core.records_to_write()) == 3  # all recorded
     assert math.isnan(sent[1].x)
+
+
+# --- the connection's states: each call its state does not allow is refused, losing nothing ---
+
+
+def _refused(call: Any, method: str, state: State) -> None:
+    """`call()` raises InvalidStateError naming the method and the state."""
+    with pytest.raises(InvalidStateError, match=rf"^Delivery\.{method}\(\) in state {state.name}:"):
+        call()
+
+
+def test_the_states_of_a_connections_life() -> None:
+    """Guards the transitions themselves (mutation: `hello`, `connected`, `connection_lost` or
+    `finish` leaving `state` as it was)."""
+    core = _core()
+    assert core.state is State.IDLE and issubclass(InvalidStateError, RuntimeError)
+    core.hello()
+    assert core.state is State.CONNECTING
+    core.connected()
+    assert core.state is State.OPEN
+    core.connection_lost()
+    assert core.state is State.IDLE
+    core.finish()
+    assert core.state is State.CLOSED
+
+
+def test_sending_before_a_connection_is_welcomed_is_refused_and_loses_nothing() -> None:
+    """Mutation: no state check in `send` (it would take the buffered samples out for a
+    connection that is not there)."""
+    core = _core()
+    for sample in _samples(range(3)):
+        core.add(sample)
+    _refused(lambda: core.send(0), "send", State.IDLE)
+    core.hello()
+    _refused(lambda: core.send(0), "send", State.CONNECTING)
+    assert core.unsent == 3 and core.stats.samples_sent == 0 and not core.stats.sent_times
+    assert core.records_to_write() == _samples(range(3))  # recorded all the same
+    core.welcome(wire.dumps(wire.Welcome(wire.PROTOCOL)))
+    core.connected()
+    messages, echo = _round(core, MS)
+    assert _sample_ms(messages) == [0, 1, 2] and echo is not None
+
+
+def test_an_echo_before_a_connection_is_welcomed_is_refused() -> None:
+    """Mutation: no state check in `echo` (it would mark what no server will acknowledge)."""
+    core = _core()
+    core.add(_samples(range(1))[0])
+    _refused(lambda: core.echo(0), "echo", State.IDLE)
+    _connected(core)
+    messages, echo = _round(core, MS)
+    assert _sample_ms(messages) == [0] and echo is not None and echo.t0_ns == MS
+    _reply(core, echo, server_ns=0, at_ns=2 * MS)
+    assert core.stats.samples_delivered == 1 and core.backlog == 0
+
+
+def test_a_reply_without_a_connection_is_refused() -> None:
+    """Mutation: no state check in `receive` (a reply of no connection would move the clock
+    estimate)."""
+    core = _connected(_core())
+    core.add(_samples(range(1))[0])
+    _, echo = _round(core, MS)
+    core.connection_lost()
+    late = wire.dumps(wire.EchoReply(echo.t0_ns, 5 * S))
+    _refused(lambda: core.receive(late, 2 * MS), "receive", State.IDLE)
+    assert core.stats.clock is None and core.stats.samples_delivered == 0
+    assert core.backlog == 1 and core.warnings() == []
+
+
+def test_losing_a_connection_that_never_was_is_refused_and_loses_nothing() -> None:
+    """Mutation: no state check in `connection_lost` (it would count a disconnect before any
+    connection)."""
+    core = _core()
+    for sample in _samples(range(5)):
+        core.add(sample)
+    _refused(core.connection_lost, "connection_lost", State.IDLE)
+    assert (core.stats.disconnects, core.stats.resent, core.unsent) == (0, 0, 5)
+    messages, _ = _round(_connected(core), MS)
+    assert _sample_ms(messages) == [0, 1, 2, 3, 4]
+
+
+def test_a_connection_is_lost_once() -> None:
+    """Mutation: no state check in `connection_lost` (a second call for one loss would count
+    a second disconnect)."""
+    core = _connected(_core())
+    for sample in _samples(range(4)):
+        core.add(sample)
+    _round(core, MS)
+    core.connection_lost()
+    _refused(core.connection_lost, "connection_lost", State.IDLE)
+    assert (core.stats.disconnects, core.stats.resent, core.backlog) == (1, 4, 4)
+    messages, echo = _round(_connected(core), 2 * MS)
+    assert _sample_ms(messages) == [0, 1, 2, 3]  # sent again once, in order
+    _reply(core, echo, server_ns=0, at_ns=3 * MS)
+    assert core.stats.samples_delivered == 4 and core.backlog == 0
+
+
+def test_a_connection_lost_before_its_welcome_counts_nothing() -> None:
+    """A connection may die between hello and welcome: allowed, back to IDLE, and neither a
+    disconnect nor a resend. Mutation: `connection_lost` in CONNECTING counting as in OPEN."""
+    core = _core()
+    core.add(_samples(range(1))[0])
+    core.hello()
+    core.connection_lost()
+    assert core.state is State.IDLE
+    assert (core.stats.connects, core.stats.disconnects, core.stats.resent) == (0, 0, 0)
+    messages, _ = _round(_connected(core), MS)
+    assert _sample_ms(messages) == [0] and core.stats.connects == 1
+
+
+def test_hello_on_a_connection_already_begun_is_refused() -> None:
+    """Mutation: no state check in `hello` (a second hello would take an open connection back
+    to CONNECTING, where nothing is sent)."""
+    core = _core()
+    core.hello()
+    _refused(core.hello, "hello", State.CONNECTING)
+    assert core.welcome(wire.dumps(wire.Welcome(wire.PROTOCOL)))
+    core.connected()
+    core.add(_samples(range(1))[0])
+    _refused(core.hello, "hello", State.OPEN)
+    assert core.state is State.OPEN
+    assert _sample_ms(_round(core, MS)[0]) == [0]
+
+
+def test_a_welcome_without_a_hello_is_refused() -> None:
+    """Mutation: no state check in `welcome` (a reply read with no hello given)."""
+    core = _core()
+    welcome = wire.dumps(wire.Welcome(wire.PROTOCOL))
+    _refused(lambda: core.welcome(welcome), "welcome", State.IDLE)
+    _connected(core)
+    _refused(lambda: core.welcome(welcome), "welcome", State.OPEN)
+    assert core.state is State.OPEN
+
+
+def test_connected_without_a_hello_or_twice_is_refused() -> None:
+    """Mutation: no state check in `connected` (a connection counted that said no hello, or
+    one counted twice, its clock estimate thrown away)."""
+    core = _core()
+    _refused(core.connected, "connected", State.IDLE)
+    assert core.stats.connects == 0
+    _connected(core)
+    _, echo = _round(core, S)
+    _reply(core, echo, server_ns=2 * S, at_ns=S + 2 * MS)
+    _refused(core.connected, "connected", State.OPEN)
+    assert core.stats.connects == 1 and core.clock.best is not None
+
+
+def test_finishing_twice_is_refused_and_counts_once() -> None:
+    """Mutation: no state check in `finish` (a second call would say "gave up" again)."""
+    core = _core()
+    for sample in _samples(range(3)):
+        core.add(sample)
+    core.finish()
+    assert core.stats.samples_undelivered == 3 and len(core.warnings()) == 1
+    _refused(core.finish, "finish", State.CLOSED)
+    assert core.stats.samples_undelivered == 3 and core.warnings() == []
+
+
+def test_nothing_is_sent_or_taken_once_finished() -> None:
+    """Mutation: `finish` leaving the state OPEN (a round after it would still send, and the
+    source's records would still be taken, never to be counted)."""
+    core = _connected(_core())
+    core.finish()
+    core.add(_samples(range(1))[0])  # the source's last record, come late: not taken
+    assert core.stats.samples_produced == 0 and not core.accepting and core.drained
+    for method, call in [
+        ("send", lambda: core.send(0)),
+        ("echo", lambda: core.echo(0)),
+        ("hello", core.hello),
+        ("connection_lost", core.connection_lost),
+    ]:
+        _refused(call, method, State.CLOSED)
+    core.end_of_source()  # the source's end, come late: nothing changes
+    assert core.state is State.CLOSED and core.stats.disconnects == 0

@@ -12,7 +12,7 @@ import struct
 from dataclasses import replace
 
 import pytest
-from test_hid import (
+from hid_device import (
     DATA,
     END,
     FEATURES,
@@ -20,16 +20,24 @@ from test_hid import (
     count,
     feature,
     gaze_only_descriptor,
+    input_,
     logical,
     microsoft_style_descriptor,
     size,
     tracker_descriptor,
     tracking_report,
     usage,
+    usage_page,
 )
 
 from gazehdr.drivers.hid.clock import ReportClock, TrackerClock
-from gazehdr.drivers.hid.descriptor import Descriptor, ReportError, Value
+from gazehdr.drivers.hid.descriptor import (
+    INPUT,
+    MAX_REPORT_SIZE,
+    Descriptor,
+    ReportError,
+    Value,
+)
 from gazehdr.drivers.hid.tracker import (
     TrackerInfo,
     TrackerReports,
@@ -150,6 +158,35 @@ def test_screen_geometry_and_shape() -> None:
         screen_geometry(None, None, {"screen_width_px": 0})
     assert not shape_differs(calibrated, (1920, 1080))
     assert shape_differs(calibrated, (1280, 1024))
+
+
+# --- descriptor: value arrays ----------------------------------------------------------------
+
+
+def sensor_timestamp_array(n: int, bits: int) -> bytes:
+    """An Eye Tracker whose input report is one Sensor Timestamp as a value array of n × bits."""
+    items = [usage_page(0x12), usage(0x01), collection(1), usage(0x20), size(bits), count(n)]
+    return b"".join([*items, input_(DATA), END])
+
+
+def test_a_value_array_reads_as_one_number_up_to_the_widest_field() -> None:
+    """8 × 32 bits is one 256-bit number; a report with 9 × 32 or 33 × 32 does not decode,
+    while its descriptor still opens. Guards the width check in `Descriptor.decode`: without
+    it, 33 × 32 bits (as the fuzzer's descriptor had) decoded to a number too large for a
+    float, an OverflowError (and 9 × 32 to a number, with no error)."""
+    d = Descriptor(sensor_timestamp_array(8, 32))
+    report = bytes(range(1, 33))
+    v = d.decode(INPUT, report).find(SENSOR_TIMESTAMP)
+    assert v is not None and v.bits == MAX_REPORT_SIZE == 256
+    assert v.raw == int.from_bytes(report, "little") and v.value == float(v.raw)
+    for n in (9, 33):
+        d = Descriptor(sensor_timestamp_array(n, 32))
+        with pytest.raises(ReportError) as info:
+            d.decode(INPUT, bytes(range(4 * n)))
+        assert str(info.value) == (
+            f"Input report None: usage 0x00120020 is a value array of {n} × 32 bits; at most "
+            "256 bits are read as one number"
+        )
 
 
 # --- clock: tracker µs to host ns -------------------------------------------------------------

@@ -44,7 +44,10 @@ Work-arounds for hid-tools 0.12, all in `_descriptor_class` (a subclass that hoo
   writes it as a whole signed byte (0xFC for −4) is also accepted.
 - A value array (Report Count > 1 under one usage, in one main item) reads as one little-endian
   number, as Windows' `HidP_GetUsageValueArray` does: the Microsoft reference driver sends its
-  64-bit Sensor Timestamp as 8 × 8 bits. hid-tools splits it into fields; they are joined here.
+  64-bit Sensor Timestamp as 8 × 8 bits. hid-tools splits it into fields; they are joined here,
+  up to MAX_REPORT_SIZE bits in all, as for one field: a report holding a wider one does not
+  decode (ReportError; its number may not fit a float), and a descriptor that has one still
+  opens, for a report gazehdr never decodes may hold it.
 """
 
 from __future__ import annotations
@@ -370,6 +373,12 @@ class Descriptor:
                 in_range = f.logical_min <= raw <= f.logical_max
                 bits = f.size
             else:
+                if f.size * len(item.fields) > MAX_REPORT_SIZE:
+                    raise ReportError(
+                        f"{kind} report {rid}: usage 0x{f.usage:08x} is a value array of "
+                        f"{len(item.fields)} × {f.size} bits; at most {MAX_REPORT_SIZE} bits "
+                        "are read as one number"
+                    )
                 raw = 0
                 for i, part in enumerate(item.fields):
                     chunk = int(part.get_values(data)[0]) & ((1 << part.size) - 1)

@@ -17,15 +17,26 @@ Windows the `hid` module uses the native backend, so it is the one used there.
 Unplug shows as an `OSError` from `read`: the source closes the device and reconnects with
 exponential back-off; samples already yielded stay yielded (the generator never buffers), and a
 note with the count so far is logged.
+
+The source's state (`HidState`) says whether a tracker is open:
+
+    DISCONNECTED --connect()--> OPEN --unplug, or the iteration ends--> DISCONNECTED
+    DISCONNECTED, OPEN --close()--> CLOSED
+    OPEN --close() while iterated--> CLOSING --the iteration's next read--> CLOSED
+
+`connect` is refused (`InvalidStateError`) while a tracker is open, where a second handle would
+leak the first, and once closed, where nothing would close the device it opened.
 """
 
 from __future__ import annotations
 
 import contextlib
+import enum
 import logging
 import math
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
@@ -45,6 +56,7 @@ from gazehdr.drivers.hid.usages import SENSOR_TIMESTAMP, USAGE_PAGE
 from gazehdr.drivers.registry import SourceUnavailableError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.states import InvalidStateError
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +127,15 @@ class HidTracker:
         return mode
 
 
+class HidState(enum.Enum):
+    """Whether a `HidGazeSource` has a tracker open (the module docstring has the diagram)."""
+
+    DISCONNECTED = "disconnected"  # none open: not yet, or unplugged (an iteration reconnects)
+    OPEN = "open"
+    CLOSING = "closing"  # closed while iterated: the iteration closes the device at its next read
+    CLOSED = "closed"  # nothing is opened again
+
+
 class HidGazeSource:
     """Gaze samples from a HID eye tracker, reconnecting after an unplug.
 
@@ -179,10 +200,11 @@ class HidGazeSource:
         if not (math.isfinite(clock_window_s) and clock_window_s > 0):
             raise ValueError(f"clock_window_s must be a positive number, got {clock_window_s}")
         self._report_clock = ReportClock(round(clock_window_s * 1e9))
-        self.tracker: HidTracker | None = None
+        self.tracker: HidTracker | None = None  # open exactly in OPEN and CLOSING
+        self.state = HidState.DISCONNECTED
+        self._lock = threading.Lock()  # close() may come from another thread than the reads
         self.samples_yielded = 0
         self.reconnects = 0
-        self._closed = False
         self._running = False
         if open_now:
             self.connect()
@@ -229,8 +251,26 @@ class HidGazeSource:
         wanted = path_str(self.path) if self.path is not None else "usage page 0x12"
         raise OSError(f"no HID eye tracker found ({wanted}); see 'gazehdr devices'")
 
+    @property
+    def _closed(self) -> bool:
+        return self.state in (HidState.CLOSING, HidState.CLOSED)
+
     def connect(self) -> HidTracker:
-        """Open the tracker once (OSError when there is none or it cannot be opened)."""
+        """Open the tracker once, DISCONNECTED → OPEN (OSError when there is none or it cannot
+        be opened). InvalidStateError while one is open or once the source is closed."""
+        tracker = self._connect()
+        if tracker is None:
+            raise InvalidStateError("HidGazeSource", "connect", self.state, "the source is closed")
+        return tracker
+
+    def _connect(self) -> HidTracker | None:
+        """`connect`, but None when the source is closed, before or while it opens (by another
+        thread: the device it opened is closed again)."""
+        if self.state is HidState.OPEN:
+            why = "a tracker is open already (a second handle would leak it)"
+            raise InvalidStateError("HidGazeSource", "connect", self.state, why)
+        if self._closed:
+            return None
         entry = self._pick()
         dev = self.backend.device()
         dev.open_path(entry["path"])
@@ -239,7 +279,15 @@ class HidGazeSource:
         except BaseException:
             dev.close()
             raise
-        self.tracker, self.tracker_info = tracker, tracker.info
+        with self._lock:
+            opened = self.state is HidState.DISCONNECTED
+            if opened:
+                self.tracker, self.state = tracker, HidState.OPEN
+        if not opened:
+            with contextlib.suppress(Exception):
+                dev.close()
+            return None
+        self.tracker_info = tracker.info
         self._geometry = self._screen_geometry()
         calibrated = tracker.info.calibrated_screen_um
         g = self.geometry
@@ -274,7 +322,7 @@ class HidGazeSource:
     def _reconnect(self) -> HidTracker | None:
         """Open the tracker, waiting with back-off; None when the source was closed meanwhile."""
         return retry(
-            self.connect,
+            self._connect,
             name="HID tracker",
             missing="HID eye tracker",
             closed=lambda: self._closed,
@@ -287,17 +335,32 @@ class HidGazeSource:
         )
 
     def _drop(self) -> None:
-        if self.tracker is not None:
+        """Close the device: OPEN → DISCONNECTED, CLOSING → CLOSED."""
+        with self._lock:
+            tracker, self.tracker = self.tracker, None
+            if self.state is HidState.OPEN:
+                self.state = HidState.DISCONNECTED
+            elif self.state is HidState.CLOSING:
+                self.state = HidState.CLOSED
+        if tracker is not None:
             with contextlib.suppress(Exception):  # the device is gone; closing is best effort
-                self.tracker.dev.close()
-        self.tracker = None
+                tracker.dev.close()
 
     def close(self) -> None:
         """Stop: the running iteration ends at its next read (within `read_timeout_ms`) and
-        closes the device itself, so no device is closed under a read in another thread."""
-        self._closed = True
-        if not self._running:
-            self._drop()
+        closes the device itself (CLOSING), so no device is closed under a read in another
+        thread; else the device is closed now. Again: nothing more happens."""
+        with self._lock:
+            if self._closed:
+                return
+            iterated = self._running and self.tracker is not None
+            self.state = HidState.CLOSING if iterated else HidState.CLOSED
+            if iterated:
+                return
+            tracker, self.tracker = self.tracker, None
+        if tracker is not None:
+            with contextlib.suppress(Exception):
+                tracker.dev.close()
 
     # the stream
 

@@ -4,6 +4,7 @@ hand beside them (`repro-*`), never by this script; it only replaces its own `se
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
 import sys
@@ -14,7 +15,7 @@ import OpenEXR
 
 HERE = Path(__file__).parent
 DATA = HERE.parent / "data" / "formats"
-sys.path.insert(0, str(HERE.parent))  # tests/ for test_hid's descriptors
+sys.path.insert(0, str(HERE.parent))  # tests/ for hid_device's descriptors
 
 
 def put(target: str, name: str, data: bytes) -> None:
@@ -62,7 +63,7 @@ def exr_seeds() -> None:
 
 
 def hid_seeds() -> None:
-    from test_hid import microsoft_style_descriptor, tracker_descriptor, tracking_report
+    from hid_device import microsoft_style_descriptor, tracker_descriptor, tracking_report
 
     def pack(descriptor: bytes, reports: list[bytes]) -> bytes:
         body = b"".join(bytes([len(r)]) + r for r in reports)
@@ -102,10 +103,19 @@ def import_seeds() -> None:
             gzip.decompress((beh / f"{stem}events.tsv.gz").read_bytes()),
         ]
         put("bids", eye, b"\n\x00--\x00\n".join(parts))
-        if eye == "eye1":  # the physio part as gzip bytes, so that the gzip layer is fuzzed too
+        if eye == "eye1":
+            # the screen in the physio sidecar (where drafts put it; the target writes no
+            # events sidecar), so that its values are fuzzed too
+            events = json.loads((DATA / "bids" / "task-freeview_events.json").read_text())
+            screen = {"StimulusPresentation": events["StimulusPresentation"]}
+            with_screen = [json.dumps({**top, **sidecar, **screen}).encode(), *parts[1:]]
+            put("bids", f"{eye}-screen", b"\n\x00--\x00\n".join(with_screen))
+            # the physio part as gzip bytes, so that the gzip layer is fuzzed too
             parts[1] = gzip.compress(parts[1], mtime=0)
             put("bids", f"{eye}-gz", b"\n\x00--\x00\n".join(parts))
     log = read_eyelink_asc(DATA / "eyelink_bino.asc")
+    # a fixed creation time, so that the seed is the same bytes at each run of this script
+    log.header = dataclasses.replace(log.header, created="2026-11-24T21:33:18.134+00:00")
     t = log.samples[0].t_ns
     for record in (SceneChange(t, "lamp"), ParamsChange(t, {"tau": 0.2}),
                    ModelChange(t, "ritschel", "jacobs"), Note(t, "seed")):  # fmt: skip
