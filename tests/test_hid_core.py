@@ -1,7 +1,8 @@
 """The HID driver's pure parts, fed directly: bytes and numbers in, values out.
 
 No device, no fake bus, no clock: what `gazehdr.drivers.hid.source` does around these is in
-`tests/test_hid.py`. Descriptors and reports are built with that module's item encoders.
+`tests/test_hid.py`. Descriptors and reports are built with `tests/hid_device.py`'s item
+encoders.
 """
 
 from __future__ import annotations

@@ -8,9 +8,9 @@ ranges, units, unit exponents and collections all come from the device's report 
 
 Descriptor parser: `hid-tools` (`hidtools.hid.ReportDescriptor`, by the Linux HID maintainers),
 chosen over `hid-parser` (FFY00). Both install on Python 3.11 and are pure Python. Evaluated on
-the descriptors in `tests/test_hid.py`:
+the descriptors in `tests/hid_device.py`:
 
-- hid-parser 0.1.0 (its latest release) parses `tests/test_hid.py`'s tracker descriptor only
+- hid-parser 0.1.0 (its latest release) parses `tests/hid_device.py`'s tracker descriptor only
   with the warning "Data specifies a unit or unit exponent, but we don't support those yet" (it
   keeps neither), and then cannot decode its input report at all: `parse_input_report` raises
   ValueError "Sub-data not available", because it decodes through its own table of usage types,
