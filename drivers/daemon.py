@@ -41,6 +41,7 @@ from urllib.parse import urlsplit, urlunsplit
 
 from gazehdr.drivers import wire
 from gazehdr.drivers.delivery import DaemonError, DaemonStats, Delivery, State, is_event
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog import ClockInfo, SessionHeader, SessionLogWriter
 from gazehdr.drivers.sources import SourceInfo, fixation_places_of, records_of
@@ -62,7 +63,7 @@ def gaze_url(server: str) -> str:
     parts = urlsplit(text)
     scheme = {"http": "ws", "https": "wss", "ws": "ws", "wss": "wss"}.get(parts.scheme)
     if scheme is None or not parts.netloc:
-        raise ValueError(f"server {server!r}: expected ws://HOST:PORT")
+        raise InputError(f"server {server!r}: expected ws://HOST:PORT")
     path = parts.path if parts.path not in ("", "/") else "/ws/gaze"
     return urlunsplit((scheme, parts.netloc, path, parts.query, ""))
 
@@ -129,7 +130,7 @@ class Daemon:
         **options: Any,
     ) -> None:
         if record is not None and record_dir is not None:
-            raise ValueError(
+            raise InputError(
                 "record (one file) and record_dir (a new file per run) exclude each other"
             )
         self.source = source

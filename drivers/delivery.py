@@ -69,6 +69,7 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr.drivers import wire
+from gazehdr.drivers.errors import GazehdrError, InputError
 from gazehdr.drivers.fixations import DETECTORS, make_detector
 from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.drivers.samples import GazeSample
@@ -87,7 +88,7 @@ _RATE_NOTE = re.compile(r"rate limit: (\d+) (samples|events|echoes) dropped")
 _WIRE_TIMES = range(2**63)  # what a wire `t` may be (gazehdr.drivers.wire._int)
 
 
-class DaemonError(RuntimeError):
+class DaemonError(GazehdrError, RuntimeError):
     """The daemon cannot go on; the text says why."""
 
 
@@ -280,11 +281,11 @@ class Delivery:
         clock_window: int = 32,
     ) -> None:
         if buffer < 1 or batch < 1 or max_inflight < batch:
-            raise ValueError("buffer and batch must be positive, max_inflight at least batch")
+            raise InputError("buffer and batch must be positive, max_inflight at least batch")
         if max_rate > SERVER_RATE_HZ:
-            raise ValueError(f"max_rate {max_rate} is over the server's {SERVER_RATE_HZ:g}/s")
+            raise InputError(f"max_rate {max_rate} is over the server's {SERVER_RATE_HZ:g}/s")
         if detector is not None and detector not in DETECTORS:
-            raise ValueError(f"unknown detector {detector!r}; known: {', '.join(DETECTORS)}")
+            raise InputError(f"unknown detector {detector!r}; known: {', '.join(DETECTORS)}")
         self.info = info
         self.buffer, self.batch, self.flush_interval = buffer, batch, flush_interval
         self.max_rate, self.burst, self.max_inflight = max_rate, burst, max_inflight

@@ -6,6 +6,8 @@ the same way and a test can script the time.
 
 from __future__ import annotations
 
+from gazehdr.drivers.errors import InputError
+
 
 class TokenBucket:
     """`rate` tokens per second on average, at most `burst` at once; starts full.
@@ -15,7 +17,7 @@ class TokenBucket:
 
     def __init__(self, rate: float, burst: float) -> None:
         if not (rate > 0 and burst >= 1):
-            raise ValueError(f"rate must be positive and burst at least 1, got {rate}, {burst}")
+            raise InputError(f"rate must be positive and burst at least 1, got {rate}, {burst}")
         self.rate, self.burst = rate, burst
         self.level = burst
         self.at: float | None = None  # when the level was last brought up to date

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from gazehdr.drivers.errors import GazehdrError, InputError
 from gazehdr.drivers.samples import GazeTrack, ScreenGeometry, StreamRequest, TrackRequest
 
 if TYPE_CHECKING:  # sources brings numpy; the table stays light for `gazehdr --help`
@@ -38,7 +39,7 @@ STREAM: How = "stream"
 TRACK: How = "track"
 
 
-class SourceUnavailableError(RuntimeError):
+class SourceUnavailableError(GazehdrError, RuntimeError):
     """A source that cannot be opened here (missing driver, no device); the text says why."""
 
 
@@ -230,9 +231,9 @@ def open_source(
     name, _, arg = spec.partition(":")
     kind = next((k for k in KINDS if k.name == name), None)
     if kind is None or kind.stream is None:
-        raise ValueError(f"unknown gaze source {spec!r}; known: {choices(STREAM)}")
+        raise InputError(f"unknown gaze source {spec!r}; known: {choices(STREAM)}")
     if "min_confidence" in options and not kind.confidence:
-        raise ValueError(
+        raise InputError(
             f"a minimum confidence is for sources whose samples carry one "
             f"({', '.join(with_confidence())}); {kind.title or kind.name} samples do not"
         )
@@ -253,7 +254,7 @@ def _track_kind(spec: str) -> tuple[SourceKind, Opening]:
     for kind, opening in tracks:
         if opening.suffix == suffix:
             return kind, opening
-    raise ValueError(f"gaze {spec!r}: expected {choices(TRACK)}")
+    raise InputError(f"gaze {spec!r}: expected {choices(TRACK)}")
 
 
 def open_track(spec: str, *, seed: int = 0, duration: float = 60.0) -> GazeTrack:
@@ -266,5 +267,5 @@ def open_track(spec: str, *, seed: int = 0, duration: float = 60.0) -> GazeTrack
     kind, opening = _track_kind(spec)
     request = TrackRequest(spec, seed, duration)
     if opening.suffix is not None and not request.path.is_file():
-        raise ValueError(f"gaze file {spec!r} not found")
+        raise InputError(f"gaze file {spec!r} not found")
     return _open(kind, opening, request)

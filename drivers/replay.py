@@ -25,6 +25,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sessionlog import (
     FORMAT,
@@ -209,11 +210,11 @@ def parse_speed(text: str) -> float:
     try:
         value = float(t)
     except ValueError:
-        raise ValueError(
+        raise InputError(
             f"replay speed {text!r}: expected a factor such as 2 or 0.5, or max"
         ) from None
     if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"replay speed {text!r}: must be positive and finite, or max")
+        raise InputError(f"replay speed {text!r}: must be positive and finite, or max")
     return value
 
 
@@ -234,7 +235,7 @@ def open_replay(request: StreamRequest) -> ReplaySource:
     """The `replay:FILE[@SPEED]` stream; the request's geometry (with its `screen` fields) fills
     in what an imported recording does not record."""
     if not request.arg:
-        raise ValueError("replay needs a file: replay:FILE[@SPEED]")
+        raise InputError("replay needs a file: replay:FILE[@SPEED]")
     path, speed = split_replay_spec(request.arg)
     options = dict(request.options)
     geometry = request.screen_geometry()

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
+from gazehdr.drivers.errors import InputError
+
 
 def _finite(value: float) -> bool:
     """math.isfinite, but False for an int too large for a float (a log can hold 10**400),
@@ -49,7 +51,7 @@ class ScreenGeometry:
         ):
             value = getattr(self, name)
             if not (_finite(value) and value > 0):
-                raise ValueError(f"geometry {name} must be a finite positive number, got {value}")
+                raise InputError(f"geometry {name} must be a finite positive number, got {value}")
 
     @property
     def pixels_per_degree(self) -> float:
@@ -95,7 +97,7 @@ class GazeSample:
 
     def __post_init__(self) -> None:
         if self.valid and not (math.isfinite(self.x) and math.isfinite(self.y)):
-            raise ValueError(f"a valid gaze sample needs finite x, y; got ({self.x}, {self.y})")
+            raise InputError(f"a valid gaze sample needs finite x, y; got ({self.x}, {self.y})")
 
 
 @dataclass(frozen=True)

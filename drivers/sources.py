@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar, runtime_checkable
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.synthetic import SyntheticScanPath
 
@@ -107,7 +108,7 @@ class Pacer:
         self, speed: float = 1.0, *, clock: Clock | None = None, sleep: Sleep | None = None
     ) -> None:
         if not (speed > 0 and not math.isnan(speed)):
-            raise ValueError(f"speed must be a positive number or inf, got {speed}")
+            raise InputError(f"speed must be a positive number or inf, got {speed}")
         self.speed = speed
         self.clock = clock or time.monotonic_ns
         self.sleep = sleep or time.sleep
@@ -178,9 +179,9 @@ class SyntheticSource:
         **path_options: Any,
     ) -> None:
         if not (math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"rate_hz must be a finite positive number, got {rate_hz}")
+            raise InputError(f"rate_hz must be a finite positive number, got {rate_hz}")
         if duration is not None and not (math.isfinite(duration) and duration > 0):
-            raise ValueError("duration must be a finite positive number of seconds or None")
+            raise InputError("duration must be a finite positive number of seconds or None")
         self.seed = seed
         self.rate_hz = float(rate_hz)
         self.duration = duration
@@ -244,7 +245,7 @@ def open_synthetic(request: StreamRequest) -> SyntheticSource:
     try:
         seed = int(request.arg) if request.arg else 0
     except ValueError:
-        raise ValueError(f"synthetic:SEED needs an integer seed, got {request.arg!r}") from None
+        raise InputError(f"synthetic:SEED needs an integer seed, got {request.arg!r}") from None
     return SyntheticSource(
         seed,
         request.rate_hz or DEFAULT_SYNTHETIC_RATE_HZ,

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazePoint, GazeSample, ScreenGeometry
 
 #: Peak over mean velocity of a minimum-jerk movement, the saccade profile used here.
@@ -99,7 +100,7 @@ class _Fixating:
 def _check_range(name: str, value: tuple[float, float]) -> None:
     lo, hi = value
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
-        raise ValueError(f"{name} must be (low, high) with 0 < low <= high, got {value}")
+        raise InputError(f"{name} must be (low, high) with 0 < low <= high, got {value}")
 
 
 class SyntheticScanPath:
@@ -158,29 +159,29 @@ class SyntheticScanPath:
     ) -> None:
         self.geometry = geometry or ScreenGeometry()
         if seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {seed}")
+            raise InputError(f"seed must be a non-negative integer, got {seed}")
         if not (math.isfinite(duration) and duration > 0):
-            raise ValueError(
+            raise InputError(
                 f"duration must be a finite positive number of seconds, got {duration}"
             )
         if not 0 <= margin < 0.5:
-            raise ValueError(f"margin must lie in [0, 0.5), got {margin}")
+            raise InputError(f"margin must lie in [0, 0.5), got {margin}")
         _check_range("fixation_s", fixation_s)
         _check_range("blink_interval_s", blink_interval_s)
         _check_range("blink_duration_s", blink_duration_s)
         for name, value in (("v_max_deg_s", v_max_deg_s), ("c_deg", c_deg)):
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite positive number, got {value}")
+                raise InputError(f"{name} must be a finite positive number, got {value}")
         for name, value in (
             ("drift_deg", drift_deg),
             ("jitter_deg", jitter_deg),
             ("noise_deg", noise_deg),
         ):
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be finite and non-negative, got {value}")
+                raise InputError(f"{name} must be finite and non-negative, got {value}")
         inner_deg = self.geometry.norm_to_deg(1 - 2 * margin, 1 - 2 * margin)
         if not 0 <= min_amplitude_deg <= min(inner_deg) / 2:
-            raise ValueError(
+            raise InputError(
                 f"min_amplitude_deg must lie in [0, {min(inner_deg) / 2:.3g}] "
                 f"(half the usable screen), got {min_amplitude_deg}"
             )
@@ -322,7 +323,7 @@ class SyntheticScanPath:
 
     def at(self, t: float) -> GazePoint:
         if not math.isfinite(t):
-            raise ValueError(f"gaze time must be finite, got {t}")
+            raise InputError(f"gaze time must be finite, got {t}")
         x, y = self._positions(np.array([t]))[0].tolist()
         return GazePoint(x, y, self._eyes_open(t))
 
@@ -330,7 +331,7 @@ class SyntheticScanPath:
         """What a tracker sampling at `rate_hz` would report over [0, duration], in screen px:
         the eye, plus `noise_deg` of measurement noise (the same for the same seed and rate)."""
         if not (math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"rate_hz must be a finite positive number, got {rate_hz}")
+            raise InputError(f"rate_hz must be a finite positive number, got {rate_hz}")
         width, height = self.geometry.screen_width_px, self.geometry.screen_height_px
         noise_rng = np.random.default_rng(self._noise_seq)
         sigma_px = self.noise_deg * self.geometry.pixels_per_degree
@@ -372,7 +373,7 @@ class FixedGaze:
 
     def __post_init__(self) -> None:
         if not all(math.isfinite(v) and 0 <= v <= 1 for v in (self.x, self.y)):
-            raise ValueError(
+            raise InputError(
                 f"fixed gaze must be normalised coordinates in [0, 1], got ({self.x}, {self.y})"
             )
 

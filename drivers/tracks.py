@@ -22,6 +22,7 @@ import itertools
 import math
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazePoint, TrackRequest
 from gazehdr.drivers.sessionlog import SessionTrack, read_session_track
 from gazehdr.drivers.synthetic import FixationView, FixedGaze, SyntheticScanPath
@@ -36,9 +37,9 @@ class CsvGazeTrack:
 
     def __init__(self, times: list[float], points: list[GazePoint]) -> None:
         if not times or len(times) != len(points):
-            raise ValueError("a gaze track needs at least one sample and one point per time")
+            raise InputError("a gaze track needs at least one sample and one point per time")
         if any(b < a for a, b in itertools.pairwise(times)):
-            raise ValueError("gaze sample times must be non-decreasing")
+            raise InputError("gaze sample times must be non-decreasing")
         self.times = times
         self.points = points
 
@@ -59,13 +60,13 @@ class CsvGazeTrack:
                         continue
                     t, point = _parse_row(fields, where)
                     if times and t < times[-1]:
-                        raise ValueError(f"{where}: time {t} goes back from {times[-1]}")
+                        raise InputError(f"{where}: time {t} goes back from {times[-1]}")
                     times.append(t)
                     points.append(point)
             except UnicodeDecodeError:
-                raise ValueError(f"{path}: not a UTF-8 text CSV file") from None
+                raise InputError(f"{path}: not a UTF-8 text CSV file") from None
         if not times:
-            raise ValueError(f"{path}: no gaze samples (expected rows of t,x,y[,eyes_open])")
+            raise InputError(f"{path}: no gaze samples (expected rows of t,x,y[,eyes_open])")
         return cls(times, points)
 
     def at(self, t: float) -> GazePoint:
@@ -74,18 +75,18 @@ class CsvGazeTrack:
 
 def _parse_row(fields: list[str], where: str) -> tuple[float, GazePoint]:
     if len(fields) not in (3, 4):
-        raise ValueError(f"{where}: expected t,x,y[,eyes_open], got {len(fields)} fields")
+        raise InputError(f"{where}: expected t,x,y[,eyes_open], got {len(fields)} fields")
     try:
         t, x, y = (float(v) for v in fields[:3])
     except ValueError:
-        raise ValueError(f"{where}: t, x, y must be numbers, got {','.join(fields[:3])}") from None
+        raise InputError(f"{where}: t, x, y must be numbers, got {','.join(fields[:3])}") from None
     if not math.isfinite(t):
-        raise ValueError(f"{where}: time must be finite, got {fields[0]}")
+        raise InputError(f"{where}: time must be finite, got {fields[0]}")
     if not all(math.isfinite(v) and 0 <= v <= 1 for v in (x, y)):
-        raise ValueError(f"{where}: x, y must be normalised coordinates in [0, 1], got {x}, {y}")
+        raise InputError(f"{where}: x, y must be normalised coordinates in [0, 1], got {x}, {y}")
     eyes = fields[3].lower() if len(fields) == 4 else "1"
     if eyes not in _TRUE | _FALSE:
-        raise ValueError(f"{where}: eyes_open must be 1/0, true/false or yes/no, got {fields[3]}")
+        raise InputError(f"{where}: eyes_open must be 1/0, true/false or yes/no, got {fields[3]}")
     return t, GazePoint(x, y, eyes in _TRUE)
 
 

@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
+
 PROTOCOL = 1
 MAX_MESSAGE_BYTES = 1024 * 1024
 MAX_BATCH = 1000  # samples per `samples` message
@@ -36,7 +38,7 @@ EVENT_KINDS = (
 )
 
 
-class WireError(ValueError):
+class WireError(InputError):
     """A gaze message that does not follow the protocol; the text says which field."""
 
 
@@ -114,7 +116,7 @@ Reply = Welcome | EchoReply | Notice
 
 
 def _refuse_constant(name: str) -> float:
-    raise ValueError(f"{name} is not a number JSON allows")
+    raise InputError(f"{name} is not a number JSON allows")
 
 
 def load_typed_json(data: str | bytes, limit: int) -> dict[str, Any]:
@@ -122,15 +124,15 @@ def load_typed_json(data: str | bytes, limit: int) -> dict[str, Any]:
     Infinity, which Python's json would accept). Raises ValueError saying what is wrong; each
     protocol turns it into its own error type."""
     if len(data) > limit:
-        raise ValueError(f"message of {len(data)} bytes; the limit is {limit}")
+        raise InputError(f"message of {len(data)} bytes; the limit is {limit}")
     try:
         msg = json.loads(data, parse_constant=_refuse_constant)
     except (ValueError, UnicodeDecodeError) as e:
-        raise ValueError(f"malformed JSON: {e}") from None
+        raise InputError(f"malformed JSON: {e}") from None
     except RecursionError:  # Python's parser recurses once per level of nesting
-        raise ValueError("malformed JSON: nested too deeply") from None
+        raise InputError("malformed JSON: nested too deeply") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        raise ValueError("a message is a JSON object with a string 'type'")
+        raise InputError("a message is a JSON object with a string 'type'")
     return msg
 
 

@@ -22,6 +22,8 @@ from types import TracebackType
 import numpy as np
 from PIL import Image
 
+from gazehdr.drivers.errors import InputError
+
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -43,10 +45,10 @@ class ApngWriter:
 
     def __init__(self, path: str | Path, frames: int, fps: float, compress_level: int = 6):
         if frames < 1:
-            raise ValueError("an animation needs at least one frame")
+            raise InputError("an animation needs at least one frame")
         delay = Fraction(1.0 / fps).limit_denominator(65535)
         if not 0 < delay.numerator <= 65535:
-            raise ValueError(f"fps {fps} gives a frame delay APNG cannot store")
+            raise InputError(f"fps {fps} gives a frame delay APNG cannot store")
         self.delay = (delay.numerator, delay.denominator)
         self.frames, self.written, self.seq = frames, 0, 0
         self.compress_level = compress_level
@@ -55,7 +57,7 @@ class ApngWriter:
 
     def add(self, rgb: np.ndarray) -> None:
         if self.written >= self.frames:
-            raise ValueError(f"all {self.frames} frames are written already")
+            raise InputError(f"all {self.frames} frames are written already")
         h, w = rgb.shape[:2]
         buf = io.BytesIO()
         Image.fromarray(rgb).save(buf, format="PNG", compress_level=self.compress_level)
@@ -66,7 +68,7 @@ class ApngWriter:
             self._f.write(SIGNATURE + _chunk(b"IHDR", ihdr))
             self._f.write(_chunk(b"acTL", struct.pack(">II", self.frames, 0)))  # 0: loop
         elif self.size != (w, h):
-            raise ValueError(f"frame {self.written} is {w}x{h}, the animation {self.size}")
+            raise InputError(f"frame {self.written} is {w}x{h}, the animation {self.size}")
         fctl = struct.pack(">IIIIIHHBB", self.seq, w, h, 0, 0, *self.delay, 0, 0)
         self._f.write(_chunk(b"fcTL", fctl))
         self.seq += 1
@@ -85,7 +87,7 @@ class ApngWriter:
             self._f.write(_chunk(b"IEND", b""))
         self._f.close()
         if self.written != self.frames:
-            raise ValueError(f"animation closed after {self.written} of {self.frames} frames")
+            raise InputError(f"animation closed after {self.written} of {self.frames} frames")
 
     def __enter__(self) -> ApngWriter:
         return self

@@ -32,6 +32,7 @@ from typing import Any
 
 from gazehdr import atomic
 from gazehdr.drivers.cli_args import screen_size_arg
+from gazehdr.drivers.errors import InputError
 from gazehdr.render import RenderRequest, render_request
 from gazehdr.sim.models import Models
 
@@ -68,7 +69,7 @@ class Batch:
 def _strings(value: Any, key: str, source: str) -> list[str]:
     value = [value] if isinstance(value, str) else value
     if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise ValueError(f"{source}: '{key}' must be a string or a non-empty list of strings")
+        raise InputError(f"{source}: '{key}' must be a string or a non-empty list of strings")
     return value
 
 
@@ -83,16 +84,16 @@ def load_manifest(path: str | Path) -> Batch:
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"batch manifest {path}: {e}") from None
+        raise InputError(f"batch manifest {path}: {e}") from None
     unknown = set(data) - {"logs", "models", "presets", "render"}
     if unknown:
-        raise ValueError(f"batch manifest {path}: unknown keys {sorted(unknown)}")
+        raise InputError(f"batch manifest {path}: unknown keys {sorted(unknown)}")
     if "logs" not in data:
-        raise ValueError(f"batch manifest {path}: 'logs' is missing")
+        raise InputError(f"batch manifest {path}: 'logs' is missing")
     render = data.get("render", {})
     if not isinstance(render, dict) or set(render) - set(RENDER_KEYS):
         bad = sorted(set(render) - set(RENDER_KEYS)) if isinstance(render, dict) else render
-        raise ValueError(f"batch manifest {path}: [render] takes {', '.join(RENDER_KEYS)}: {bad}")
+        raise InputError(f"batch manifest {path}: [render] takes {', '.join(RENDER_KEYS)}: {bad}")
     models = [None] if "models" not in data else _strings(data["models"], "models", str(path))
     presets = [None] if "presets" not in data else _strings(data["presets"], "presets", str(path))
     return Batch(
@@ -107,7 +108,7 @@ def manifest_fields(batch: Batch) -> dict[str, Any]:
         try:
             fields["width"], fields["height"] = screen_size_arg(str(fields.pop("size")))
         except argparse.ArgumentTypeError as e:
-            raise ValueError(f"batch manifest: size: {e}") from None
+            raise InputError(f"batch manifest: size: {e}") from None
     for key in _PATH_KEYS:
         if isinstance(fields.get(key), str):
             fields[key] = str(batch.base / fields[key])
@@ -125,9 +126,9 @@ def find_logs(patterns: Sequence[str], base: Path = Path(".")) -> list[Path]:
         if glob.has_magic(full):
             matches = sorted(Path(p) for p in glob.glob(full, recursive=True))
             if not matches:
-                raise ValueError(f"{pattern!r} matches no file")
+                raise InputError(f"{pattern!r} matches no file")
         elif not Path(full).exists():
-            raise ValueError(f"session log {pattern!r} not found")
+            raise InputError(f"session log {pattern!r} not found")
         else:
             matches = [Path(full)]
         found |= dict.fromkeys(p.resolve() for p in matches)
@@ -343,11 +344,11 @@ def run_batch(
 def main(args: Any, make_request: Callable[..., Any], *, parser_defaults: dict[str, Any]) -> int:
     """`gazehdr render --logs/--batch`: 0 when every job is finished, 1 when one failed."""
     if args.logs and args.batch:
-        raise ValueError("give the logs with --logs or with --batch, not both")
+        raise InputError("give the logs with --logs or with --batch, not both")
     if args.gaze != parser_defaults["gaze"]:
-        raise ValueError("--gaze names one log; batch rendering takes them with --logs/--batch")
+        raise InputError("--gaze names one log; batch rendering takes them with --logs/--batch")
     if args.workers is not None and args.workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+        raise InputError(f"--workers must be at least 1, got {args.workers}")
     if args.batch:
         batch = load_manifest(args.batch)
         given = {k for k, v in vars(args).items() if parser_defaults.get(k, v) != v}
@@ -360,7 +361,7 @@ def main(args: Any, make_request: Callable[..., Any], *, parser_defaults: dict[s
     try:
         request = make_request(args, **fields)
     except TypeError as e:
-        raise ValueError(f"batch manifest: {e}") from None
+        raise InputError(f"batch manifest: {e}") from None
     jobs = expand(
         find_logs(batch.logs, batch.base), request,
         models=batch.models,

@@ -1,9 +1,10 @@
 """The `gazehdr` command line: one small function per subcommand, listed in `COMMANDS`.
 
-Only the standard library and `drivers` are imported up front; each subcommand imports what it
-needs when it runs, so `gazehdr --help` (and later `gazehdr daemon` on a tracker machine
-without pyopencl) works on a minimal install. Errors the user can fix print one line,
-`gazehdr: error: …`, and exit with status 2; `main` returns the status instead of exiting.
+Only the standard library, `drivers` and the options (`cli_options`) are imported up front;
+each subcommand imports what it needs when it runs, so `gazehdr --help` (and `gazehdr daemon` on
+a tracker machine without pyopencl) works on a minimal install. A refusal (`GazehdrError`)
+prints one line, `gazehdr: error: …`, and exits with status 2; anything else is a bug, shown
+with its traceback (status 3); `main` returns the status instead of exiting.
 """
 
 from __future__ import annotations
@@ -12,35 +13,22 @@ import argparse
 import importlib
 import os
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from gazehdr import __version__
+from gazehdr import cli_options as options
 from gazehdr.drivers import registry
-from gazehdr.drivers.cli_args import OneLineParser, screen_size_arg
+from gazehdr.drivers.cli_args import OneLineParser
+from gazehdr.drivers.errors import GazehdrError
 
 PROG = "gazehdr"
 
 
-class UsageError(Exception):
+class UsageError(GazehdrError):
     """A mistake in what the user asked for; reported in one line with status 2."""
-
-
-def _add_model_options(p: argparse.ArgumentParser, whose: str, default: str = "") -> None:
-    """--afterimage and --acuity; `default` words the default when it is not the paper's."""
-    p.add_argument(
-        "--afterimage",
-        metavar="NAME",
-        help=f"afterimage model{whose}: jacobs, ritschel, mikamo or none "
-        f"(default: {default or 'jacobs'})",
-    )
-    p.add_argument(
-        "--acuity",
-        metavar="NAME",
-        help=f"acuity model{whose}: stochastic, none, gaussian, bilateral or thompson "
-        f"(default: {default or 'stochastic'})",
-    )
 
 
 def _data_dir(given: str | None) -> Path:
@@ -50,110 +38,10 @@ def _data_dir(given: str | None) -> Path:
 # --- render -----------------------------------------------------------------------------------
 
 
-def _add_size_and_backend(p: argparse.ArgumentParser, size: tuple[int, int], what: str) -> None:
-    p.add_argument(
-        "--size",
-        type=screen_size_arg,
-        default=size,
-        metavar="WxH",
-        help=f"{what} (default: {size[0]}x{size[1]})",
-    )
-    p.add_argument(
-        "--backend",
-        choices=("opencl", "reference"),
-        default="opencl",
-        help="PyOpenCL kernels or the NumPy reference (default: opencl)",
-    )
-
-
-def _configure_render(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "scene",
-        metavar="SCENE",
-        nargs="?",
-        help="built-in scene name or HDR image file: .exr, .hdr, .pfm (default with a session "
-        "log: the scenes it recorded, looked up among the built-ins and DATA_DIR's uploads)",
-    )
-    p.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
-    p.add_argument(
-        "--gaze",
-        default="synthetic",
-        metavar="SPEC",
-        help=f"{registry.describe(registry.TRACK)}; a recorded viewing session also brings "
-        "its scene, parameter and model changes and resets, unless SCENE, --params or a model "
-        "option replaces them (default: synthetic)",
-    )
-    p.add_argument("--seconds", type=float, help="duration (default: a session log's, else 6)")
-    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
-    _add_size_and_backend(p, (640, 360), "frame size")
-    p.add_argument(
-        "--seed",
-        type=int,
-        help="seeds noise, dither and scan path (default: the seed a recorded session ran "
-        "with, else 0)",
-    )
-    _add_model_options(p, "", "a recorded session's, else the paper's")
-    _add_preset_options(p, "a recorded session's, else the paper's: 'paper'")
-    p.add_argument(
-        "--data-dir",
-        metavar="DIR",
-        help="where a recorded session's uploaded scenes are (default: $GAZEHDR_DATA_DIR or "
-        "~/.local/share/gazehdr)",
-    )
-    p.add_argument(
-        "--scale",
-        type=float,
-        metavar="CD_PER_UNIT",
-        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an "
-        "estimate; docs/server.md)",
-    )
-    p.add_argument("--exr", action="store_true", help="also write undithered float32 EXR")
-    p.add_argument(
-        "--video",
-        action="store_true",
-        help="also write DIR/render.apng, the frames as one lossless animated PNG",
-    )
-    p.add_argument("--overwrite", action="store_true", help="replace frames already in DIR")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    batch = p.add_argument_group(
-        "batch rendering (many logs as Dask tasks, each into its own folder under --out)"
-    )
-    batch.add_argument(
-        "--logs", nargs="+", metavar="LOG", help="session logs to render, files or globs"
-    )
-    batch.add_argument(
-        "--batch", metavar="MANIFEST.toml", help="logs x models x presets (docs/cli.md)"
-    )
-    batch.add_argument(
-        "--workers", type=int, metavar="N", help="local cluster's worker processes (default: cores)"
-    )
-    batch.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="an existing Dask cluster's scheduler, tcp://HOST:PORT",
-    )
-
-
-def _add_preset_options(p: argparse.ArgumentParser, default: str) -> None:
-    from gazehdr.sim.presets import PRESETS
-
-    p.add_argument(
-        "--preset",
-        choices=list(PRESETS),
-        help="the model's parameters: 'paper' (Appendix A, the paper's results) or 'visible' "
-        f"(ours: afterimages visible on a plain monitor; docs/model.md) (default: {default})",
-    )
-    p.add_argument(
-        "--params",
-        metavar="PARAMS.json",
-        help="parameter values over the preset (a JSON object; partial is fine)",
-    )
-
-
 def _render_defaults() -> dict[str, object]:
     """The render options' defaults: a batch manifest's values replace these, not given ones."""
     p = argparse.ArgumentParser()
-    _configure_render(p)
+    options.configure_render(p)
     return vars(p.parse_args(["--out", "-"]))
 
 
@@ -193,122 +81,6 @@ def _render(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 # --- serve ------------------------------------------------------------------------------------
-
-
-def _configure_serve(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8000, help="port (default: 8000)")
-    p.add_argument(
-        "--scene",
-        default="flash",
-        metavar="SCENE",
-        help="built-in or HDR image file: .exr, .hdr, .pfm (default: flash)",
-    )
-    p.add_argument(
-        "--gaze",
-        default="mouse",
-        metavar="SOURCE",
-        help="gaze of new sessions: mouse (the viewer's pointer), remote:TRACKER (the gaze "
-        "daemon whose hello names TRACKER), remote (the tracker, once exactly one is "
-        "connected), or a track: "
-        + ", ".join(f"{k.name} ({k.track.help})" for k in registry.named_tracks() if k.track)
-        + " (default: mouse)",
-    )
-    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default: 30)")
-    p.add_argument(
-        "--size",
-        type=screen_size_arg,
-        default=(640, 360),
-        metavar="WxH",
-        help="frame pixel budget; the frame takes the viewer's aspect ratio (default: 640x360)",
-    )
-    p.add_argument("--fixed-size", action="store_true", help="never fit the frame to the viewer")
-    p.add_argument(
-        "--no-late-gaze",
-        action="store_true",
-        help="show each frame from the gaze its step started with, not the newest one read once "
-        "the step is simulated (offline renders of recordings then match the live frames)",
-    )
-    _add_preset_options(p, "'paper'")
-    p.add_argument(
-        "--scale",
-        type=float,
-        metavar="CD_PER_UNIT",
-        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an estimate; "
-        "docs/server.md)",
-    )
-    p.add_argument("--layer", metavar="NAME", help="the EXR layer to show (default: the first)")
-    p.add_argument(
-        "--token",
-        help="bearer token for the gaze daemon and scripts (default: $GAZEHDR_TOKEN or a new one)",
-    )
-    p.add_argument(
-        "--data-dir",
-        metavar="DIR",
-        help="where uploaded scenes go (default: $GAZEHDR_DATA_DIR or ~/.local/share/gazehdr)",
-    )
-    p.add_argument(
-        "--allow-origin",
-        action="append",
-        default=[],
-        metavar="ORIGIN",
-        help="another origin (scheme://host:port) whose pages may use this server (CORS, "
-        "/ws/view); repeatable",
-    )
-    p.add_argument(
-        "--allow-host",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="another name clients may reach this server by (the Host header), besides "
-        "127.0.0.1, localhost, [::1] and --host; repeatable (docs/security.md)",
-    )
-    p.add_argument(
-        "--no-auth",
-        action="store_true",
-        help="ask no credential for anything (a lab's closed network only: anyone who reaches "
-        "the server can change it and read recordings; Host and Origin are still checked)",
-    )
-    p.add_argument(
-        "--encoding",
-        choices=("f16", "rgb10a2"),
-        default="rgb10a2",
-        help="frame pixels: rgb10a2 (10 bits, 4 bytes/px; default: fewer bytes, faster in a "
-        "browser) or f16 (half floats, 6 bytes/px, finer in the darks)",
-    )
-    p.add_argument("--backend", choices=("opencl", "reference"), default="opencl")
-    _add_model_options(p, " of new sessions (the viewer's panel changes it)")
-    p.add_argument(
-        "--split",
-        metavar="AFTERIMAGE[+ACUITY]",
-        help="start new sessions in split view with this model in the right pane, e.g. "
-        "ritschel or jacobs+thompson (the left pane: --afterimage, --acuity)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
-    p.add_argument(
-        "--record",
-        action="store_true",
-        help="record each session (gaze followed, scene, parameter and model changes) as a "
-        "session log in DATA_DIR/recordings, replayable in the viewer and by 'gazehdr render'",
-    )
-    p.add_argument(
-        "--tracker",
-        action="append",
-        default=[],
-        metavar="SOURCE",
-        help="also stream this gaze source to the server from this process, as 'gazehdr daemon' "
-        f"would, recorded to DATA_DIR/recordings (repeatable): {registry.choices(registry.STREAM)}"
-        "; sessions follow it as remote:NAME, or with --gaze remote",
-    )
-    p.add_argument(
-        "--lsl-outlet",
-        nargs="?",
-        const="gazehdr",
-        metavar="NAME",
-        help="publish the gaze each session follows on Lab Streaming Layer, for LabRecorder: a "
-        "Gaze stream NAME (default: gazehdr) and a Markers stream 'NAME events' (fixations, "
-        "blinks, scene and parameter changes) per session (needs gazehdr[lsl])",
-    )
 
 
 def _serve(args: argparse.Namespace, extra: list[str]) -> int:
@@ -407,28 +179,6 @@ def _devices(args: argparse.Namespace, extra: list[str]) -> int:
 # --- figures ----------------------------------------------------------------------------------
 
 
-def _figure_numbers(text: str) -> list[int]:
-    try:
-        return [int(n) for n in text.split(",") if n.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected figure numbers such as 4,5,10, got {text!r}"
-        ) from None
-
-
-def _configure_figures(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, metavar="DIR", help="directory for PNGs and index.html")
-    _add_size_and_backend(p, (320, 180), "frame size of the simulations")
-    p.add_argument(
-        "--only",
-        type=_figure_numbers,
-        metavar="N,N,...",
-        help="only these of the paper's figures, from 4 to 12 (default: all)",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seeds the acuity noise (default: 0)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
 def _figures(args: argparse.Namespace, extra: list[str]) -> int:
     import importlib.util
 
@@ -453,14 +203,6 @@ def _figures(args: argparse.Namespace, extra: list[str]) -> int:
 
 
 # --- scenes -----------------------------------------------------------------------------------
-
-
-def _configure_scenes(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--data-dir",
-        metavar="DIR",
-        help="where uploaded scenes are (default: $GAZEHDR_DATA_DIR or ~/.local/share/gazehdr)",
-    )
 
 
 def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
@@ -507,7 +249,7 @@ COMMANDS: dict[str, Command] = {
     "serve": Command(
         "serve the live viewer: the simulation in a browser, the mouse as gaze",
         _serve,
-        _configure_serve,
+        options.configure_serve,
         epilog="examples:\n"
         "  gazehdr serve                      # the demo on http://127.0.0.1:8000\n"
         "  gazehdr serve --scene night.exr --size 1280x720\n"
@@ -516,7 +258,7 @@ COMMANDS: dict[str, Command] = {
     "render": Command(
         "render a scene along a gaze track to PNG/EXR frames",
         _render,
-        _configure_render,
+        options.configure_render,
         epilog="examples:\n"
         "  gazehdr render flash --out out/flash\n"
         "  gazehdr render night.exr --gaze 0.3,0.6 --seconds 10 --exr --out out/night\n"
@@ -568,13 +310,15 @@ COMMANDS: dict[str, Command] = {
     "figures": Command(
         "reproduce the paper's Figures 4-12 as PNGs and an index.html",
         _figures,
-        _configure_figures,
+        options.configure_figures,
         epilog="examples:\n"
         "  gazehdr figures --out figs\n"
         "  gazehdr figures --out figs --only 4,5 --size 640x360",
     ),
     "scenes": Command(
-        "list the scenes: built-ins and uploads, with their scale", _scenes, _configure_scenes
+        "list the scenes: built-ins and uploads, with their scale",
+        _scenes,
+        options.configure_scenes,
     ),
 }
 
@@ -608,8 +352,14 @@ def _describe(e: Exception) -> str:
     return str(e)
 
 
+#: The exit status of a bug: an exception that is no deliberate refusal.
+BUG_STATUS = 3
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status (0 ok, 2 usage or input error)."""
+    """Run the command line; returns the exit status: 0 ok, 2 a refusal (bad input, usage, a
+    file that cannot be read: one line says why), 3 a bug (its traceback, and how to report
+    it), 130 interrupted."""
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)
@@ -619,9 +369,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return command.run(args, extra)
     except SystemExit as e:
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-    except (UsageError, ValueError, OSError) as e:
+    except (GazehdrError, OSError) as e:
         sys.stderr.write(f"{PROG}: error: {_describe(e)}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write(f"{PROG}: interrupted\n")
         return 130
+    except Exception:  # not a refusal of ours: a bug, shown as one
+        traceback.print_exc()
+        sys.stderr.write(
+            f"{PROG}: this is a bug in gazehdr {__version__}, not a mistake of yours: please "
+            "report it with the traceback above and the command you ran\n"
+        )
+        return BUG_STATUS

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
+
 
 def dither8(v: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Quantise display values `v` in [0, 1] to uint8 with a fresh uniform offset per entry.
@@ -18,6 +20,6 @@ def dither8(v: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """
     v = np.asarray(v, dtype=np.float32)
     if not np.isfinite(v).all():
-        raise ValueError("display values contain NaN or Inf")
+        raise InputError("display values contain NaN or Inf")
     codes = np.floor(255.0 * v + rng.random(v.shape, dtype=np.float32))
     return np.clip(codes, 0, 255).astype(np.uint8)

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.scenes import Scene
 from gazehdr.sim import Geometry, Params, Simulator
 from gazehdr.sim.models import Models
@@ -58,7 +59,7 @@ class Eye:
         continue_from: Eye | None = None,
     ) -> None:
         if len(panes) not in (1, 2):
-            raise ValueError(f"an eye has one or two panes, not {len(panes)}")
+            raise InputError(f"an eye has one or two panes, not {len(panes)}")
         self.scene, self.size, self.params = scene, size, params
         self.panes = tuple(panes)
         self.backend, self.seed = backend, seed
@@ -74,7 +75,7 @@ class Eye:
                     afterimage=model.afterimage, acuity=model.acuity,
                 )  # fmt: skip
             except ImportError as e:  # a baseline that is not part of this installation
-                raise ValueError(f"model {model} is not available: {e}") from None
+                raise InputError(f"model {model} is not available: {e}") from None
             previous = old[min(i, len(old) - 1)] if old else None  # a new right pane: the left's
             sim.start(frame, self.pane_gaze(gaze), eyes_open, continue_from=previous)
             self.sims.append(sim)

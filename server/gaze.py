@@ -29,6 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeTrack
 from gazehdr.protocol import Eyes, Gaze
 
@@ -275,6 +276,6 @@ class Trackers:
 
     def _new(self, name: str) -> TrackerFeed:
         if len(self._feeds) >= MAX_TRACKERS:
-            raise ValueError(f"this server knows {MAX_TRACKERS} tracker names already")
+            raise InputError(f"this server knows {MAX_TRACKERS} tracker names already")
         feed = self._feeds[name] = TrackerFeed(name, self._moved)
         return feed

@@ -24,6 +24,7 @@ from datetime import datetime, timezone
 from typing import Any
 
 from gazehdr import heap
+from gazehdr.drivers.errors import GazehdrError, InputError
 from gazehdr.drivers.sessionlog import SessionLogWriter
 from gazehdr.gaze import REMOTE_PREFIX, GazeReading, TrackerFeed, Trackers
 from gazehdr.metrics import Metrics
@@ -42,7 +43,7 @@ DEMAND_POLL_S = 0.002
 MAX_VIEWERS = 16  # per session (`SessionHub.max_viewers`): each costs a sending task and frames
 
 
-class TooManySessionsError(Exception):
+class TooManySessionsError(GazehdrError):
     """The server runs as many sessions as it is allowed to (or a session has as many viewers
     as it may); the message is the WebSocket close reason, at most 123 bytes."""
 
@@ -431,7 +432,7 @@ class SessionHub:
         self.max_viewers = max_viewers
         self.starting = 0  # sessions being built: their slots are taken (`join`)
         if settings.record and self.recordings.folder is None:
-            raise ValueError("recording sessions needs a data directory")
+            raise InputError("recording sessions needs a data directory")
 
     async def join(self, session_id: str | None, viewer: Viewer) -> LiveSession:
         """The session `session_id` if it still runs, else a new one; `viewer` is added.

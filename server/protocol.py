@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from gazehdr import warp
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.wire import as_float, excerpt, load_typed_json
 from gazehdr.sim.layout import encode_output
 
@@ -53,7 +54,7 @@ RAW = (Encoding.f16, Encoding.rgb10a2)
 SIM_OUTPUT = {Encoding.f16: "float16", Encoding.rgb10a2: "rgb10a2"}
 
 
-class ProtocolError(ValueError):
+class ProtocolError(InputError):
     """A message the peer sent that we refuse; `in_type` is its `type` when known."""
 
     def __init__(self, message: str, in_type: str | None = None) -> None:

@@ -14,6 +14,7 @@ import os
 import uuid
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.sessionlog import (
     SessionHeader,
     SessionLogWriter,
@@ -42,7 +43,7 @@ class RecordingLibrary:
         does not: the replay is then exact, gazehdr.gaze.TrackGaze)."""
         path = self._path(name)
         if not path.is_file():
-            raise ValueError(f"no recording named {name!r}; available: {', '.join(self.names())}")
+            raise InputError(f"no recording named {name!r}; available: {', '.join(self.names())}")
         log = read_session_log(path)
         tracker = log.header.tracker
         return log.fixation_track(), TrackerFigures(
@@ -60,7 +61,7 @@ class RecordingLibrary:
                 log = read_session_log(tmp)
                 log.track()  # a log without samples cannot drive a gaze
             except ValueError as e:
-                raise ValueError(str(e).replace(str(tmp), f"upload {name!r}")) from None
+                raise InputError(str(e).replace(str(tmp), f"upload {name!r}")) from None
             os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)
@@ -74,7 +75,7 @@ class RecordingLibrary:
 
     def _path(self, name: str) -> Path:
         if self.folder is None:
-            raise ValueError("this server has no data directory for recordings")
+            raise InputError("this server has no data directory for recordings")
         return self.folder / f"{check_name(name)}.jsonl"
 
 

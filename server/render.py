@@ -30,6 +30,7 @@ from tqdm import tqdm
 from gazehdr.apng import ApngWriter
 from gazehdr.dither import dither8
 from gazehdr.drivers import registry
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeTrack
 from gazehdr.drivers.sessionlog import SessionLog, read_session_log
 from gazehdr.eye import Eye
@@ -103,27 +104,27 @@ def frame_count(seconds: float, fps: float) -> int:
 
 def _check(seconds: float, fps: float, width: int, height: int, seed: int) -> None:
     if seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed}")
+        raise InputError(f"seed must be a non-negative integer, got {seed}")
     if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps must be a finite positive number, got {fps}")
+        raise InputError(f"fps must be a finite positive number, got {fps}")
     if not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"seconds must be a finite positive number, got {seconds}")
+        raise InputError(f"seconds must be a finite positive number, got {seconds}")
     try:
         check_frame_size(width, height)
     except ValueError as exc:
-        raise ValueError(f"frame size {width}x{height} is out of range: {exc}") from None
+        raise InputError(f"frame size {width}x{height} is out of range: {exc}") from None
 
 
 def _prepare_out_dir(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"output {out_dir} exists and is not a directory")
+        raise InputError(f"output {out_dir} exists and is not a directory")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise ValueError(f"cannot create output directory {out_dir}: {e.strerror}") from None
+        raise InputError(f"cannot create output directory {out_dir}: {e.strerror}") from None
     old = sorted(p for pattern in FRAME_PATTERNS for p in out_dir.glob(pattern))
     if old and not overwrite:
-        raise ValueError(
+        raise InputError(
             f"output directory {out_dir} already holds frames ({old[0].name}, ...); "
             f"choose another --out, or pass --overwrite (overwrite=True) to replace them"
         )
@@ -253,7 +254,7 @@ def render_request(
     log, changes = None, []
     if Path(r.gaze).suffix.lower() == ".jsonl":
         if not Path(r.gaze).exists():  # a named pipe is fine
-            raise ValueError(f"gaze file {r.gaze!r} not found")
+            raise InputError(f"gaze file {r.gaze!r} not found")
         log = read_session_log(r.gaze)
         track = log.fixation_track()
         changes = recorded_changes(
@@ -279,7 +280,7 @@ def render_request(
     if r.scene is not None:
         scene = open_scene(r.scene, scale=r.scale)
     elif not any(c.scene for c in changes):
-        raise ValueError("SCENE is needed: the gaze given is not a session log naming its scene")
+        raise InputError("SCENE is needed: the gaze given is not a session log naming its scene")
     else:  # the log's first scene; render takes it from the changes
         scene = next(c.scene for c in changes if c.scene)
     return render(

@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.ratelimit import TokenBucket
 from gazehdr.viewer import default_web_dir
 
@@ -199,7 +200,7 @@ def cookie_secret(data_dir: Path | None) -> str:
     return _read_secret(path)
 
 
-class SecretError(ValueError):
+class SecretError(InputError):
     """The viewer secret on disk cannot be used; the message says why and what to do."""
 
 

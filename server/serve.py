@@ -21,6 +21,7 @@ from gazehdr import heap
 from gazehdr.app import ServerConfig, create_app
 from gazehdr.drivers import registry
 from gazehdr.drivers.daemon import run_daemon
+from gazehdr.drivers.errors import InputError
 from gazehdr.gaze import is_tracker_source
 from gazehdr.protocol import SIM_OUTPUT, Encoding
 from gazehdr.scenes import builtin_names, open_scene
@@ -68,12 +69,12 @@ def build_config(
     if lsl_outlet is not None:
         _check_lsl(lsl_outlet)
     if not (math.isfinite(fps) and 0 < fps <= 240):
-        raise ValueError(f"fps must be in (0, 240], got {fps}")
+        raise InputError(f"fps must be in (0, 240], got {fps}")
     if not 0 <= port <= 65535:
-        raise ValueError(f"port must be in [0, 65535], got {port}")
+        raise InputError(f"port must be in [0, 65535], got {port}")
     check_frame_size(*size)
     if gaze not in GAZE_SOURCES and not is_tracker_source(gaze):
-        raise ValueError(
+        raise InputError(
             f"gaze source {gaze!r}: choose {', '.join(GAZE_SOURCES)} or remote:TRACKER"
         )
     model = Models(afterimage, acuity)  # unknown names: a ValueError listing the choices
@@ -118,13 +119,13 @@ def build_config(
 def _check_lsl(name: str) -> None:
     """--lsl-outlet needs a name and pylsl with its liblsl, checked before the server starts."""
     if not name.strip():
-        raise ValueError("--lsl-outlet needs a stream name")
+        raise InputError("--lsl-outlet needs a stream name")
     from gazehdr.drivers.lsl import load_pylsl
 
     try:
         load_pylsl()
     except ImportError as e:
-        raise ValueError(f"--lsl-outlet: LSL outlet unavailable: {e}") from None
+        raise InputError(f"--lsl-outlet: LSL outlet unavailable: {e}") from None
 
 
 def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicorn.Server:
@@ -197,7 +198,7 @@ def bind(host: str, port: int) -> socket.socket:
         sock.listen(2048)
     except OSError as e:
         sock.close()
-        raise ValueError(f"cannot listen on {host} port {port}: {e.strerror or e}") from None
+        raise InputError(f"cannot listen on {host} port {port}: {e.strerror or e}") from None
     sock.set_inheritable(True)
     return sock
 
@@ -292,7 +293,7 @@ def check_tracker_spec(spec: str) -> None:
     """A ValueError unless `spec` names a kind of source that streams (`serve --tracker`)."""
     name = spec.partition(":")[0]
     if not any(k.name == name for k in registry.kinds(registry.STREAM)):
-        raise ValueError(f"--tracker {spec!r}: not a stream; choose {registry.choices('stream')}")
+        raise InputError(f"--tracker {spec!r}: not a stream; choose {registry.choices('stream')}")
 
 
 def start_tracker(spec: str, url: str, token: str, record_dir: Path) -> threading.Thread:

@@ -41,6 +41,7 @@ from types import EllipsisType
 from typing import Any
 
 from gazehdr.drivers import registry, sessionlog
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.eye import Eye
 from gazehdr.gaze import (
@@ -428,7 +429,7 @@ class Session:
             track, known = self.recordings.replay(name.removeprefix("replay:"))
             return TrackGaze(track, t, getattr(track, "duration", SYNTHETIC_LOOP_S), known)
         known = ", ".join([*GAZE_SOURCES, REMOTE_PREFIX + "TRACKER", "replay:NAME"])
-        raise ValueError(f"unknown gaze source {name!r}; available: {known}")
+        raise InputError(f"unknown gaze source {name!r}; available: {known}")
 
     def _with_figures(self, params: Params) -> Params:
         """`params` with the tracker parameters of the gaze source's figures (the default
@@ -498,7 +499,7 @@ class Session:
             check_remote_change(self.params, values)
             params = Params.from_dict(merged)
         except (TypeError, ValueError) as e:
-            raise ValueError(f"parameters refused: {e}") from None
+            raise InputError(f"parameters refused: {e}") from None
         if params == self.params:
             return False
         before = self.params
@@ -631,7 +632,7 @@ class Session:
 
 def _check_split_width(size: tuple[int, int]) -> None:
     if size[0] < 2 * MIN_SIZE:
-        raise ValueError(f"a frame {size[0]} px wide is too narrow for split view")
+        raise InputError(f"a frame {size[0]} px wide is too narrow for split view")
 
 
 def _names(model: Models) -> dict[str, str]:

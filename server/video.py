@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from gazehdr.drivers.errors import GazehdrError, InputError
 from gazehdr.yuv import Converter, to_rgb, to_yuv420p10
 
 __all__ = ["CODEC", "Decoder", "Encoder", "Packet", "Stream", "available", "to_rgb"]
@@ -46,7 +47,7 @@ PRESET = 10
 MIN_KEY_INTERVAL_S = 0.25
 
 
-class VideoUnavailableError(RuntimeError):
+class VideoUnavailableError(GazehdrError, RuntimeError):
     """PyAV (or its SVT-AV1 encoder, or dav1d) is missing; the message says what to install."""
 
 
@@ -187,16 +188,16 @@ class Decoder:
     def planes(self, packet: bytes, key: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The decoded Y, Cb, Cr (uint16, the coded size) of one packet."""
         if not (key or self.keyed):
-            raise ValueError("an AV1 delta packet before any keyframe: ask for a keyframe")
+            raise InputError("an AV1 delta packet before any keyframe: ask for a keyframe")
         try:
             frames = self._codec.decode(self._av.Packet(packet))
         except self._av.FFmpegError as e:
             self.keyed = False
             self._codec = self._open()
-            raise ValueError(f"corrupt AV1 packet ({e}): ask for a keyframe") from None
+            raise InputError(f"corrupt AV1 packet ({e}): ask for a keyframe") from None
         if len(frames) != 1:
             self.keyed = False
-            raise ValueError(f"an AV1 packet gave {len(frames)} frames, not 1: ask for a keyframe")
+            raise InputError(f"an AV1 packet gave {len(frames)} frames, not 1: ask for a keyframe")
         self.keyed = True
         f = frames[0]
         out = []

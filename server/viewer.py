@@ -15,6 +15,8 @@ import re
 from importlib import resources
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
+
 #: Overrides where the viewer's files are read from (a viewer being edited beside an install).
 WEB_DIR_ENV = "GAZEHDR_WEB_DIR"
 ENTRY = "index.html"
@@ -23,7 +25,7 @@ _HTML_REF = re.compile(r"""<(?:script|link)\b[^>]*?\b(?:src|href)=["']/?([\w./-]
 _JS_IMPORT = re.compile(r"""\bfrom\s+["']\./([\w./-]+)["']|\bimport\s+["']\./([\w./-]+)["']""")
 
 
-class ViewerMissingError(ValueError):
+class ViewerMissingError(InputError):
     """The viewer's files are not all there; the text names the first one missing."""
 
 

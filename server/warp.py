@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_LMS, Layout
 from gazehdr.sim.params import Params
 from gazehdr.sim.reference import apply_afterimages
@@ -55,7 +56,7 @@ def pack(panes: Sequence[WarpLayers], width: int, params: Params) -> bytearray:
     """The payload of one warp frame (`width` px wide; panes side by side from the left, as a
     plain frame has them, `Eye.step`)."""
     if not 1 <= len(panes) <= MAX_PANES:
-        raise ValueError(f"a warp frame has 1 or {MAX_PANES} panes, not {len(panes)}")
+        raise InputError(f"a warp frame has 1 or {MAX_PANES} panes, not {len(panes)}")
     first = panes[0]
     h, pw, _ = first.rgb.shape
     grid_h, grid_w = first.maps.shape[1:3]

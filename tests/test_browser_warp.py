@@ -21,6 +21,7 @@ from gazehdr import warp
 from gazehdr.protocol import HEADER_BYTES, Encoding, FrameHeader, Gaze, decode_frame, parse_control
 from gazehdr.session import SessionSettings
 from gazehdr.sim import Simulator
+from gazehdr.sim.presets import preset
 from tests.browser import afterimage_centroid, browser, open_viewer, web_page  # noqa: F401
 from tests.sessions import new_session
 from tests.test_sim_backends import mixed_scene
@@ -84,9 +85,13 @@ def test_warp_shader_composes_as_the_server(browser) -> None:
 
 def test_warp_shader_warps_each_pane_in_split_view(browser) -> None:
     """Split view: the right pane (no afterimages) and the left (jacobs) side by side, an odd
-    last column black; the pointer over the right half warps both panes as the server maps it."""
+    last column black; the pointer over the right half warps both panes as the server maps it.
+    Our `visible` preset, whose flash afterimage is strong enough to see move at 81x32."""
     w, h = 81, 32
-    session = new_session(SessionSettings(width=w, height=h, scene="flash", backend="opencl"))
+    settings = SessionSettings(
+        width=w, height=h, scene="flash", backend="opencl", params=preset("visible")
+    )
+    session = new_session(settings)
     session.apply(parse_control('{"type": "model", "split": {"afterimage": "none"}}'))
     session.pointer.take(Gaze(0.25, 0.42, 1), 0.0)
     for _ in range(30):  # through the flash at t = 1 s, gaze on it

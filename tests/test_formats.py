@@ -515,6 +515,43 @@ def test_tobii_malformed_rows_name_line_and_field(
     assert_names(info.value, path, line, field)
 
 
+@pytest.mark.parametrize(
+    ("name", "line", "text", "field", "reason"),
+    [
+        # the fuzzer's: a screen 0 pixels high (ScreenGeometry's ValueError)
+        ("tobii_pygaze.tsv", 3, "Recording resolution\t1920 x 0", "Recording resolution",
+         "1 to 65536 pixels each, got '1920 x 0'"),
+        ("tobii_pygaze.tsv", 3, "Recording resolution\t0 x 1080", "Recording resolution",
+         "got '0 x 1080'"),
+        # 5000 digits: int() refuses them itself (a ValueError)
+        ("tobii_pygaze.tsv", 3, "Recording resolution\t1920 x " + "9" * 5000,
+         "Recording resolution", "1 to 65536 pixels each"),
+        # 400 digits in a position's units: width / 2 overflowed a float (OverflowError)
+        ("tobii_ptc.tsv", 3, "Recording resolution:\t1920 x " + "9" * 400,
+         "Recording resolution", "1 to 65536 pixels each"),
+        ("tobii_pygaze.tsv", 7, "display size in cm: 0x0", "display size in cm",
+         "positive numbers of cm, got '0x0'"),
+        ("tobii_pygaze.tsv", 7, "display size in cm: 5.3.0x30.0", "display size in cm",
+         "got '5.3.0x30.0'"),
+        ("tobii_pygaze.tsv", 7, "display size in cm: " + "9" * 400 + "x30.0",
+         "display size in cm", "positive numbers of cm"),
+        ("tobii_pygaze.tsv", 17, "distance between participant and display: 0 cm",
+         "distance between participant and display", "a positive number of cm, got '0'"),
+    ],
+)  # fmt: skip
+def test_tobii_screen_lines_that_size_no_screen_name_line_and_field(
+    tmp_path: Path, name: str, line: int, text: str, field: str, reason: str
+) -> None:
+    """A resolution, display size or distance that gives no screen (zero, too many digits,
+    not a number) is the file's FormatError at its line. Guards the check in tobii's
+    `_meta_values`: without it these were a ValueError from ScreenGeometry or int() and an
+    OverflowError from converting a psychopy_tobii_controller position."""
+    path = corrupt(tmp_path, name, line, text)
+    with pytest.raises(FormatError, match=reason) as info:
+        read_tobii_tsv(path, units="pix")
+    assert_names(info.value, path, line, field)
+
+
 def test_tobii_psychopy_needs_units() -> None:
     path = DATA / "tobii_ptc.tsv"
     with pytest.raises(FormatError, match="--units pix") as info:

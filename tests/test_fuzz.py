@@ -10,6 +10,9 @@ that raises, so that a silent runner cannot pass these tests.
 from __future__ import annotations
 
 import json
+import os
+import re
+import shutil
 import subprocess
 import sys
 import urllib.error
@@ -23,7 +26,7 @@ import pytest
 from gazehdr.drivers import wire
 from gazehdr.drivers.formats.bids import read_bids
 from gazehdr.drivers.formats.pupil import read_pupil_gaze_csv
-from gazehdr.drivers.hid.descriptor import Descriptor, DescriptorError, ReportError
+from gazehdr.drivers.hid.descriptor import INPUT, Descriptor, DescriptorError, ReportError
 from gazehdr.drivers.hid.tracker import TrackerReports
 from gazehdr.drivers.samples import ScreenGeometry
 from gazehdr.drivers.sessionlog import FormatError, read_session_log
@@ -45,15 +48,50 @@ def repro(target: str, name: str) -> bytes:
     return (REPO_CORPUS / target / f"repro-{name}").read_bytes()
 
 
+def run_once(target: str, data: bytes) -> Exception | None:
+    """What the target's fuzz run does with `data`: its documented error (returned), or None;
+    any other exception propagates, and fails the test, as it crashes the run."""
+    one, documented = TARGETS[target].load()
+    try:
+        one(data)
+    except documented as e:
+        return e
+    return None
+
+
 # --- the bounded run ---------------------------------------------------------------------------
 
 
-def test_every_target_has_a_ci_budget_and_seeds() -> None:
+#: The EXR seeds make_seeds.py writes: the 8 compressions, luminance-only, layered, tiled.
+EXR_SEEDS = {
+    *(f"seed-rgb-{c}.exr" for c in ("no", "rle", "zips", "zip", "piz", "pxr24", "b44", "dwaa")),
+    "seed-y.exr", "seed-layers.exr", "seed-tiled.exr", "seed-rgbe.hdr", "seed-a.pfm",
+}  # fmt: skip
+
+
+def test_every_target_has_a_ci_budget_and_a_committed_corpus() -> None:
+    """Every target's corpus folder holds seeds, the EXR one the seeds make_seeds.py writes,
+    and git would commit every file of it. Guards the corpus lines of .gitignore: with
+    `!tests/fuzz_corpus/**` removed, `*.exr` drops the EXR seeds (checked) and this fails."""
     assert set(CI_RUNS) == set(TARGETS)
     for name in TARGETS:
-        assert any((REPO_CORPUS / name).glob("seed-*")), name
-    total = sum(p.stat().st_size for p in REPO_CORPUS.rglob("*") if p.is_file())
-    assert total < 64_000  # the corpus stays small
+        folder = REPO_CORPUS / name
+        assert folder.is_dir() and any(folder.glob("seed-*")), name
+        assert all(p.stat().st_size > 0 for p in folder.iterdir()), name
+    assert EXR_SEEDS <= {p.name for p in (REPO_CORPUS / "exr").iterdir()}
+    files = sorted(str(p) for p in REPO_CORPUS.rglob("*") if p.is_file())
+    total = sum(Path(f).stat().st_size for f in files)
+    assert total < 200_000  # the corpus stays small
+    root = REPO_CORPUS.parents[1]
+    if not (root / ".git").exists() or shutil.which("git") is None:
+        pytest.skip("not a git checkout: nothing to check against .gitignore")
+    ignored = subprocess.run(
+        ["git", "check-ignore", "--no-index", "--stdin"],
+        input="\n".join(os.path.relpath(f, root) for f in files),
+        capture_output=True, text=True, cwd=root, check=False,
+    )  # fmt: skip
+    assert ignored.returncode in (0, 1), ignored.stderr  # 1: none is ignored
+    assert ignored.stdout == "", f"git ignores corpus files:\n{ignored.stdout}"
 
 
 @pytest.mark.parametrize("name", list(CI_RUNS))
@@ -219,6 +257,19 @@ def test_hid_reproducers_are_descriptor_errors(name: str) -> None:
         Descriptor(descriptor)
 
 
+def test_hid_value_array_wider_than_a_float_is_a_report_error() -> None:
+    """The fuzzer's descriptor: 34 Position values of 32 bits in one main item, 33 of them
+    joined as one 1056-bit number, too large for a float: `decode` raised OverflowError on its
+    8th report (189 bytes). Guards the width check in `Descriptor.decode` (removed: the
+    OverflowError, here and in the target's own run)."""
+    data = repro("hid", "value-array-wider-than-a-float")
+    descriptor, reports = split_hid(data)
+    d = Descriptor(descriptor)  # the descriptor opens; the report does not decode
+    with pytest.raises(ReportError, match=r"usage 0x00120022 is a value array of 33 × 32 bits"):
+        d.decode(INPUT, reports[7])
+    run_once("hid", data)
+
+
 @pytest.mark.parametrize("name", ["mode-request-two-ranges", "mode-request-too-few-bits"])
 def test_hid_device_mode_request_that_cannot_hold_the_mode(name: str) -> None:
     """Device Mode Request fields whose range or size cannot hold the mode (a second field of
@@ -286,6 +337,25 @@ def test_session_log_lines_nested_too_deeply_or_too_large_are_format_errors(
         read_session_log(path)
 
 
+def test_a_log_time_beyond_64_bits_is_a_format_error(tmp_path: Path) -> None:
+    """The fuzzer's log: a fixation_end at t = 10^400 (json reads any integer), read without
+    complaint; its fixation track's duration, (last - first) / 1e9, raised OverflowError.
+    Guards the 64-bit check of `_Fields.integer` in the session log codec (removed: the
+    OverflowError again, and the bounds below no error at all)."""
+    err = run_once("sessionlog", repro("sessionlog", "event-time-beyond-64-bits"))
+    assert isinstance(err, FormatError)
+    assert str(err).endswith(
+        ":10: field 't': must fit in 64 bits (a signed integer), got an integer of 401 digits"
+    )
+    for t, ok in ((2**63 - 1, True), (-(2**63), True), (2**63, False), (-(2**63) - 1, False)):
+        path = _log(tmp_path, f'{{"k": "fixation_start", "id": 1, "t": {t}}}')
+        if ok:
+            assert read_session_log(path).events[0].t_ns == t
+        else:
+            with pytest.raises(FormatError, match=f"field 't': must fit in 64 bits.*got {t}$"):
+                read_session_log(path)
+
+
 def test_a_log_that_repeats_a_sample_time_has_a_fixation_track(tmp_path: Path) -> None:
     """I-VT refused it (ValueError: timestamps must increase strictly): read_session_track of
     an XDF import whose times went back (held at the previous time) failed the same way."""
@@ -308,6 +378,24 @@ def test_pupil_csv_bytes_that_are_not_utf8_are_a_field_error(tmp_path: Path) -> 
     path.write_bytes(b"\n".join([seed[0], seed[1].replace(b",0.99,", b",0.9\xff,"), *seed[2:]]))
     with pytest.raises(FormatError, match=r"gaze_positions\.csv:2: field 'confidence'"):
         read_pupil_gaze_csv(path)
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        # the fuzzer's: "display size in cm: 533x.00.0" (float('.00.0'), a ValueError)
+        ("display-size-not-a-number", ":7: field 'display size in cm': expected positive "
+         "numbers of cm, got '533x.00.0'"),
+        # the seed with a screen 0 pixels high (ScreenGeometry's ValueError)
+        ("screen-height-0", ":3: field 'Recording resolution': expected the screen's width x "
+         "height, 1 to 65536 pixels each, got '1920 x 0'"),
+    ],
+)  # fmt: skip
+def test_tobii_screen_lines_that_size_no_screen_are_format_errors(name: str, message: str) -> None:
+    """Guards the check of tobii's `_meta_values` (removed: a ValueError, a crash of the
+    target, from float() and from ScreenGeometry)."""
+    err = run_once("tobii", repro("tobii", name))
+    assert isinstance(err, FormatError) and str(err).endswith(message), err
 
 
 def _bids_run(tmp_path: Path, data: bytes) -> Path:
@@ -367,3 +455,38 @@ def _notes_of_cut(path: Path) -> str:
     from gazehdr.drivers.formats.xdf import check_structure
 
     return " ".join(check_structure(path))
+
+
+def test_xdf_samples_that_do_not_fill_their_chunk_are_refused_before_pyxdf(
+    tmp_path: Path,
+) -> None:
+    """The fuzzer's file (a timeout, 14 GB resident when let run): a string sample's length
+    of 0x67 bytes (neither 1, 4 nor 8) made pyxdf give up on a Samples chunk mid-way, scan
+    forward to a Boundary signature copied inside that chunk, and read a count of 1.7 billion
+    samples from there. Guards `_samples_layout` in the XDF walk (removed: the walk lets the
+    file through; the first assertion fails before pyxdf is called)."""
+    from gazehdr.drivers.formats.xdf import _samples_layout, _Stream, check_structure
+
+    path = tmp_path / "resync.xdf"
+    path.write_bytes(repro("xdf", "samples-resync-huge-count"))
+    message = "byte 653: stream 46202862: sample 1: a string length of 103 bytes (1, 4 or 8)"
+    with pytest.raises(FormatError, match=re.escape(message)):
+        check_structure(path)
+    err = run_once("xdf", path.read_bytes())
+    assert isinstance(err, FormatError) and str(err).endswith(message)
+    # what pyxdf reads of each sample: a flag byte (not 0: a double follows), then the values
+    doubles, strings = _Stream(2, 8), _Stream(1, 0)
+    one = b"\x00" + bytes(16)
+    assert _samples_layout(one * 3, 3, doubles) is None
+    assert _samples_layout(b"\x08" + bytes(8) + bytes(16), 1, doubles) is None
+    assert _samples_layout(one * 3 + b"\x00", 3, doubles) == (
+        "its 3 samples end 1 bytes before the chunk's end"
+    )
+    assert _samples_layout(one * 2, 3, doubles) == "sample 3 of 3 starts past the chunk's end"
+    assert _samples_layout(b"\x00\x01\x02hi", 1, strings) is None
+    assert _samples_layout(b"\x00\x01\x05hi", 1, strings) == (
+        "sample 1 of 1 runs past the chunk's end"
+    )
+    assert _samples_layout(b"\x00\x04\x02\x00\x00\x00hi\x00\x02\x02hi", 2, strings) == (
+        "sample 2: a string length of 2 bytes (1, 4 or 8)"
+    )

@@ -34,9 +34,9 @@ def test_each_bounded_value_is_refused_past_its_bound_and_taken_at_it(name: str)
 
 def test_the_geometry_is_bounded_by_its_pixels_per_degree() -> None:
     """A tiny screen seen from far away turns every size in degrees into thousands of pixels.
-    Guards the geometry's check (a 0.01 m, 16 px screen at 100 m gave 4e3 px per degree)."""
+    Guards the geometry's check (a 4 mm, 16 px screen at 100 m gives 1e4 px per degree)."""
     with pytest.raises(ValueError, match="px per degree, outside"):
-        Geometry(screen_width_px=16, screen_height_px=16, screen_diagonal_m=0.01,
+        Geometry(screen_width_px=16, screen_height_px=16, screen_diagonal_m=0.004,
                  viewing_distance_m=100.0)  # fmt: skip
     with pytest.raises(ValueError, match=r"screen_width_px must be an integer in \[16, 16384\]"):
         Geometry(screen_width_px=10**9)

@@ -6,6 +6,7 @@ from collections.abc import Iterable
 from dataclasses import fields
 from typing import Any, Protocol, runtime_checkable
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.fixations.base import _Detector
 from gazehdr.drivers.fixations.events import Event
 from gazehdr.drivers.fixations.idt import IDTDetector
@@ -43,13 +44,13 @@ def make_detector(
     try:
         detector_cls, params_cls = DETECTORS[name]
     except (KeyError, TypeError):
-        raise ValueError(
+        raise InputError(
             f"unknown fixation detector {name!r}; known: {', '.join(DETECTORS)}"
         ) from None
     known = [f.name for f in fields(params_cls)]
     unknown = sorted(set(params) - set(known))
     if unknown:
-        raise ValueError(
+        raise InputError(
             f"unknown {name} parameter(s) {', '.join(unknown)}; known: {', '.join(known)}"
         )
     return detector_cls(geometry, params_cls(**params))

@@ -7,6 +7,8 @@ import numbers
 from dataclasses import dataclass, fields
 from typing import Any, Literal
 
+from gazehdr.drivers.errors import InputError
+
 
 def _ms_to_ns(ms: float) -> int:
     return round(ms * 1_000_000)
@@ -24,11 +26,11 @@ def _check_params(params: Any, positive: tuple[str, ...]) -> None:
             or not math.isfinite(value)
             or value < 0
         ):
-            raise ValueError(f"{f.name} must be a finite non-negative number, got {value!r}")
+            raise InputError(f"{f.name} must be a finite non-negative number, got {value!r}")
         if f.name in positive and value == 0:
-            raise ValueError(f"{f.name} must be positive, got {value!r}")
+            raise InputError(f"{f.name} must be positive, got {value!r}")
     if params.max_blink_ms < params.max_gap_ms:
-        raise ValueError(
+        raise InputError(
             f"max_blink_ms ({params.max_blink_ms}) must be at least max_gap_ms "
             f"({params.max_gap_ms}): a blink is a gap too long to fill"
         )
@@ -75,12 +77,12 @@ class IVTParams:
             self, ("velocity_threshold_deg_s", "velocity_window_ms", "noise_window_samples")
         )
         if self.noise_reduction not in ("none", "median", "average"):
-            raise ValueError(
+            raise InputError(
                 "noise_reduction must be 'none', 'median' or 'average', "
                 f"got {self.noise_reduction!r}"
             )
         if not isinstance(self.noise_window_samples, int) or self.noise_window_samples % 2 != 1:
-            raise ValueError(
+            raise InputError(
                 f"noise_window_samples must be an odd integer, got {self.noise_window_samples!r}"
             )
 

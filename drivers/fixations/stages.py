@@ -24,6 +24,7 @@ import math
 import numbers
 import statistics
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample
 
 #: Window edges tolerate this much timestamp rounding (ns), so that a 300 Hz stream whose
@@ -54,12 +55,12 @@ class _GapFill:
     def push(self, sample: GazeSample) -> list[tuple]:
         t = sample.t_ns
         if isinstance(t, bool) or not isinstance(t, numbers.Integral):
-            raise ValueError(
+            raise InputError(
                 f"sample {self.index}: t_ns must be an integer number of nanoseconds, got {t!r}"
             )
         t = int(t)
         if self.prev_t is not None and t <= self.prev_t:
-            raise ValueError(
+            raise InputError(
                 f"sample {self.index}: t_ns={t} is not after the previous sample's "
                 f"t_ns={self.prev_t}; timestamps must increase strictly"
             )

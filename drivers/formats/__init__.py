@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr.drivers.cli_args import OneLineParser, positive_arg, screen_size_arg
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.layout import SELECTABLE
 from gazehdr.drivers.formats.common import geometry_with
 from gazehdr.drivers.sessionlog import FormatError, SessionLog, write_session_log
@@ -50,7 +51,7 @@ def detect_format(path: str | Path) -> str:
     if name.endswith(".asc"):
         return "eyelink"
     if name.endswith(".edf"):
-        raise ValueError(
+        raise InputError(
             f"{p}: an EyeLink EDF file is SR Research's binary format; convert it to ASC with "
             f"SR Research's edf2asc first (edf2asc {p.name}, EyeLink Developers Kit), then "
             "import the .asc"
@@ -63,7 +64,7 @@ def detect_format(path: str | Path) -> str:
         with p.open(encoding="utf-8", errors="replace") as f:
             if f.readline().startswith("Recording date:"):
                 return "tobii"
-    raise ValueError(
+    raise InputError(
         f"{p}: cannot tell its format from the name; pass --format "
         f"({', '.join(IMPORTERS)}). Expected a BIDS *_physio.tsv.gz, an EyeLink .asc, a Pupil "
         "Player gaze_positions.csv, a Tobii .tsv starting with 'Recording date:' or an .xdf"
@@ -82,7 +83,7 @@ def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> Ses
     if fmt == "auto":
         fmt = detect_format(path)
     if fmt not in IMPORTERS:
-        raise ValueError(f"unknown format {fmt!r}; known: {', '.join(IMPORTERS)}")
+        raise InputError(f"unknown format {fmt!r}; known: {', '.join(IMPORTERS)}")
     module, function = IMPORTERS[fmt]
     return getattr(importlib.import_module(module), function)(Path(path), **options)
 

@@ -8,6 +8,7 @@ from dataclasses import replace
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import EyeSample, ScreenGeometry
 
 
@@ -20,9 +21,9 @@ def decimal_ns(text: str, unit_ns: int) -> int:
     try:
         value = Decimal(text.strip())
     except InvalidOperation:
-        raise ValueError(f"not a number: {text!r}") from None
+        raise InputError(f"not a number: {text!r}") from None
     if not value.is_finite():
-        raise ValueError(f"not a finite number: {text!r}")
+        raise InputError(f"not a finite number: {text!r}")
     return int((value * unit_ns).to_integral_value(ROUND_HALF_EVEN))
 
 
@@ -30,7 +31,7 @@ def finite_float(text: str) -> float:
     """A finite float from text, or ValueError."""
     value = float(text)
     if not math.isfinite(value):
-        raise ValueError(f"not a finite number: {text!r}")
+        raise InputError(f"not a finite number: {text!r}")
     return value
 
 

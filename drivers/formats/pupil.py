@@ -26,6 +26,7 @@ import csv
 import math
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.common import decimal_ns, finite_float
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import ClockInfo, FormatError, SessionHeader, SessionLog
@@ -59,7 +60,7 @@ def read_pupil_gaze_csv(
     """Read a Pupil Player `gaze_positions.csv`; `geometry` is the screen the image stands for."""
     path = Path(path)
     if not 0 <= min_confidence <= 1:
-        raise ValueError(f"min_confidence must lie in [0, 1], got {min_confidence}")
+        raise InputError(f"min_confidence must lie in [0, 1], got {min_confidence}")
     screen = geometry or ScreenGeometry()
     samples: list[GazeSample] = []
     # Bytes that are not UTF-8 become U+FFFD: a number holding one is refused by its field.

@@ -42,7 +42,9 @@ import re
 import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.common import decimal_ns, geometry_with, is_number, mean_of_eyes
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import ClockInfo, FormatError, Note, SessionHeader, SessionLog
@@ -74,6 +76,8 @@ PTC_COLUMNS = (
     "GazePointY",
 )
 UNITS = ("pix", "norm", "height")
+#: Pixels on a side beyond any screen (as the EyeLink reader): a resolution line past it is refused.
+MAX_SCREEN_PX = 65_536
 _META = {
     "resolution": re.compile(r"Recording resolution:?\t(\d+) x (\d+)"),
     "size_cm": re.compile(r"display size in cm: ([\d.]+)x([\d.]+)"),
@@ -96,8 +100,8 @@ def read_tobii_tsv(
     """Read a PyGaze or psychopy_tobii_controller TSV; `units` for the latter's positions."""
     path = Path(path)
     if units is not None and units not in UNITS:
-        raise ValueError(f"units {units!r}: supported are {', '.join(UNITS)}")
-    meta: dict[str, tuple[str, ...]] = {}
+        raise InputError(f"units {units!r}: supported are {', '.join(UNITS)}")
+    meta: dict[str, tuple[Any, ...]] = {}
     blocks: list[_Block] = []
     columns: tuple[str, ...] | None = None
     writer: str | None = None
@@ -129,8 +133,8 @@ def read_tobii_tsv(
             if not (in_rows and (in_events or len(fields) >= 3 or is_number(fields[0]))):
                 for key, pattern in _META.items():  # a header or PyGaze report line
                     match = pattern.fullmatch(text)
-                    if match:
-                        meta.setdefault(key, match.groups())
+                    if match and key not in meta:
+                        meta[key] = _meta_values(path, line, key, match)
                 in_rows = False
                 continue
             if columns is None or writer is None or not blocks:
@@ -157,11 +161,11 @@ def read_tobii_tsv(
         )
     width = height = diagonal = distance = None
     if "resolution" in meta:
-        width, height = (int(v) for v in meta["resolution"])
+        width, height = meta["resolution"]
     if "size_cm" in meta:
-        diagonal = math.hypot(*(float(v) for v in meta["size_cm"])) / 100
+        diagonal = math.hypot(*meta["size_cm"]) / 100
     if "distance_cm" in meta:
-        distance = float(meta["distance_cm"][0]) / 100
+        distance = meta["distance_cm"][0] / 100
     screen = geometry_with(
         geometry, width_px=width, height_px=height, diagonal_m=diagonal, distance_m=distance
     )
@@ -182,6 +186,44 @@ def read_tobii_tsv(
     )
     _place_blocks(log, [b for b in blocks if b.samples or b.notes])
     return log
+
+
+_META_FIELDS = {
+    "resolution": "Recording resolution",
+    "size_cm": "display size in cm",
+    "distance_cm": "distance between participant and display",
+}
+
+
+def _meta_values(path: Path, line: int, key: str, match: re.Match[str]) -> tuple[Any, ...]:
+    """The values of a header or report line, checked where they size the screen: a
+    resolution of 1 to MAX_SCREEN_PX pixels a side, sizes and a distance in cm that are
+    positive numbers (FormatError naming the line otherwise)."""
+    texts = match.groups()
+    if key not in _META_FIELDS:
+        return texts
+    shown = match.string[match.start(1) : match.end(len(texts))]
+    shown = repr(shown if len(shown) <= 40 else shown[:40] + "...")
+    if key == "resolution":
+        # at most 6 digits: int() of thousands of digits is refused by Python itself
+        pixels = tuple(int(t) if len(t) <= 6 else 0 for t in texts)
+        if not all(1 <= p <= MAX_SCREEN_PX for p in pixels):
+            raise FormatError(
+                path,
+                line,
+                _META_FIELDS[key],
+                f"expected the screen's width x height, 1 to {MAX_SCREEN_PX} pixels each, "
+                f"got {shown}",
+            )
+        return pixels
+    try:
+        cm = tuple(float(t) for t in texts)
+    except ValueError:  # the pattern takes any run of digits and dots: "5.3.0", "."
+        cm = (math.nan,)
+    if not all(math.isfinite(v) and v > 0 for v in cm) or not math.isfinite(math.hypot(*cm)):
+        what = "a positive number" if len(texts) == 1 else "positive numbers"
+        raise FormatError(path, line, _META_FIELDS[key], f"expected {what} of cm, got {shown}")
+    return cm
 
 
 def _header(path: Path, line: int, fields: list[str]) -> tuple[tuple[str, ...], str]:
@@ -267,7 +309,7 @@ def _ptc_row(
     columns: tuple[str, ...],
     block: _Block,
     units: str | None,
-    meta: dict[str, tuple[str, ...]],
+    meta: dict[str, tuple[Any, ...]],
 ) -> None:
     if len(fields) != len(columns):
         raise FormatError(
@@ -289,7 +331,7 @@ def _ptc_row(
         raise FormatError(
             path, line, "Recording resolution", "needed before the rows to convert positions"
         )
-    width, height = (int(v) for v in meta["resolution"])
+    width, height = meta["resolution"]
     _check_time(path, line, block, t)
     eyes = []
     for x_i, y_i, p_i, v_i in ((1, 2, 3, 4), (5, 6, 7, 8)):

@@ -8,10 +8,14 @@ double follows) and the values: each numeric value in its `channel_format`, each
 varlen length and its bytes), 4 ClockOffset (StreamId, collection time, offset: doubles), 5
 Boundary, 6 StreamFooter (StreamId, XML).
 
-`check_structure` walks the chunks first, reading only lengths, tags and headers: what is not
-XDF (a wrong magic, a length of another size, an unknown tag, samples of a stream without a
-header, more samples than the chunk can hold, an `<info>` without a channel count or format) is
-refused with the byte where it is wrong, before pyxdf allocates anything from such numbers. A
+`check_structure` walks the chunks first, reading lengths, tags, headers and the samples'
+layout: what is not XDF (a wrong magic, a length of another size, an unknown tag, samples of a
+stream without a header, more samples than the chunk can hold, samples that do not fill their
+chunk exactly, an `<info>` without a channel count or format) is refused with the byte where it
+is wrong, before pyxdf allocates anything from such numbers. (pyxdf reads a Samples chunk
+sample by sample and does not seek to its end: samples that end elsewhere, or that it cannot
+read, make it take what follows for chunks, after scanning forward to a Boundary chunk's
+signature, where a sample count of billions can be.) A
 file cut short (LabRecorder stopped by a crash) is read as far as it goes, and says so in a
 note. pyxdf then reads it with the recorded clock offsets applied (`synchronize_clocks`, clock
 resets handled) and no dejittering: a tracker's own time stamps are kept. What pyxdf warns of
@@ -163,6 +167,36 @@ def _stream_chunk(
                 path, None, what,
                 f"byte {at}: {count} samples of stream {sid} cannot fit in {room} bytes",
             )  # fmt: skip
+        wrong = _samples_layout(f.read(room), count, s)
+        if wrong:
+            raise FormatError(path, None, what, f"byte {at}: stream {sid}: {wrong}")
+
+
+def _samples_layout(data: bytes, count: int, stream: _Stream) -> str | None:
+    """What is wrong with `count` samples laid out in `data` (a Samples chunk after its
+    count) as pyxdf reads them, or None when they fill it exactly: per sample a time stamp
+    flag byte (not 0: a double follows), then each value, a string as a varlen length and
+    its bytes."""
+    pos, end = 0, len(data)
+    fixed = stream.channels * stream.value_bytes
+    for k in range(count):
+        if pos >= end:
+            return f"sample {k + 1} of {count} starts past the chunk's end"
+        pos += 9 if data[pos] else 1
+        if fixed:
+            pos += fixed
+            continue
+        for _ in range(stream.channels):
+            size = data[pos] if pos < end else 1
+            if size not in (1, 4, 8):
+                return f"sample {k + 1}: a string length of {size} bytes (1, 4 or 8)"
+            pos += 1 + size + int.from_bytes(data[pos + 1 : pos + 1 + size], "little")
+            if pos > end:
+                return f"sample {k + 1} of {count} runs past the chunk's end"
+    if pos != end:
+        how = "past" if pos > end else f"{end - pos} bytes before"
+        return f"its {count} samples end {how} the chunk's end"
+    return None
 
 
 class _Warnings(logging.Handler):

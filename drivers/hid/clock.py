@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.hid.descriptor import Value
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,7 @@ class TrackerClock:
 
     def __init__(self, window_ns: int) -> None:
         if window_ns <= 0:
-            raise ValueError(f"the clock window must be positive, got {window_ns} ns")
+            raise InputError(f"the clock window must be positive, got {window_ns} ns")
         self.window_ns = window_ns
         self._mins: deque[tuple[int, int]] = deque()  # (host ns, host − sensor), both increasing
 

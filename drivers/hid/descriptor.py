@@ -58,17 +58,18 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.hid.usages import CANONICAL_UNITS, HZ, UM, US
 
 #: The kinds of report, as hid-tools names their main items.
 INPUT, FEATURE, OUTPUT = "Input", "Feature", "Output"
 
 
-class DescriptorError(ValueError):
+class DescriptorError(InputError):
     """The report descriptor cannot be used: malformed, or no usable Tracking Data report."""
 
 
-class ReportError(ValueError):
+class ReportError(InputError):
     """A report does not match the descriptor (unknown report id, too short)."""
 
 

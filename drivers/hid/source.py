@@ -42,6 +42,7 @@ from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from gazehdr.drivers.backoff import retry
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.hid.clock import ReportClock
 from gazehdr.drivers.hid.descriptor import DecodedReport, Descriptor, DescriptorError, ReportError
 from gazehdr.drivers.hid.tracker import (
@@ -198,7 +199,7 @@ class HidGazeSource:
         self._clock = clock
         self._clock_ns = clock_ns
         if not (math.isfinite(clock_window_s) and clock_window_s > 0):
-            raise ValueError(f"clock_window_s must be a positive number, got {clock_window_s}")
+            raise InputError(f"clock_window_s must be a positive number, got {clock_window_s}")
         self._report_clock = ReportClock(round(clock_window_s * 1e9))
         self.tracker: HidTracker | None = None  # open exactly in OPEN and CLOSING
         self.state = HidState.DISCONNECTED

@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.hid.descriptor import (
     FEATURE,
     INPUT,
@@ -174,7 +175,7 @@ class TrackerReports:
             if both_eyes and f.logical_max >= MODE_GAZE_POINT | MODE_EYE_POSITION:
                 mode |= MODE_EYE_POSITION
         if not f.logical_min <= mode <= f.logical_max:
-            raise ValueError(
+            raise InputError(
                 f"device mode {mode} is outside the tracker's range "
                 f"{f.logical_min}..{f.logical_max}"
             )

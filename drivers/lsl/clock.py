@@ -20,6 +20,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from gazehdr.drivers.errors import InputError
+
 NOTE_CHANGE_S = 0.001  # a correction that moves by more than this is noted in the session log
 
 
@@ -67,7 +69,7 @@ class StreamClock:
 
     def __init__(self, link: ClockLink, offset_s: float) -> None:
         if not math.isfinite(offset_s):
-            raise ValueError(f"clock correction must be a finite number, got {offset_s}")
+            raise InputError(f"clock correction must be a finite number, got {offset_s}")
         self.link = link
         self.offset_s = offset_s
         self.noted_s = offset_s

@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.common import mean_of_eyes
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import Record, decode_record, encode_record
@@ -61,7 +62,7 @@ _MAX_DEPTH = 16  # a description nested deeper than this is cut there
 _MISSING_LOW, _MISSING_HIGH = -32768.0, 1e7
 
 
-class LayoutError(ValueError):
+class LayoutError(InputError):
     """A stream whose description gazehdr cannot read gaze from; the text says why."""
 
 
@@ -74,7 +75,7 @@ def xpath_literal(value: str) -> str:
         return f"'{value}'"
     if '"' not in value:
         return f'"{value}"'
-    raise ValueError(f"an LSL query value cannot hold both kinds of quote: {value!r}")
+    raise InputError(f"an LSL query value cannot hold both kinds of quote: {value!r}")
 
 
 def stream_predicate(query: str) -> str:
@@ -92,7 +93,7 @@ def stream_predicate(query: str) -> str:
     prop, sep, value = text.partition("=")
     if sep and prop.strip() in QUERY_PROPERTIES:
         if not value.strip():
-            raise ValueError(f"lsl:{text}: {prop.strip()}= needs a value")
+            raise InputError(f"lsl:{text}: {prop.strip()}= needs a value")
         return f"{prop.strip()}={xpath_literal(value.strip())}"
     return f"name={xpath_literal(text)}"
 

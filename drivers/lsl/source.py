@@ -24,6 +24,7 @@ from dataclasses import replace
 from typing import Any
 
 from gazehdr.drivers.backoff import retry
+from gazehdr.drivers.errors import GazehdrError, InputError
 from gazehdr.drivers.lsl import load_pylsl
 from gazehdr.drivers.lsl.clock import ClockLink, StreamClock
 from gazehdr.drivers.lsl.meta import (
@@ -43,7 +44,7 @@ log = logging.getLogger(__name__)
 CORRECTION_EVERY_S = 1.0  # how often the clock correction is read (liblsl refreshes it itself)
 
 
-class AmbiguousStreamError(LookupError):
+class AmbiguousStreamError(GazehdrError, LookupError):
     """Several streams match the query; the text names them."""
 
 
@@ -83,7 +84,7 @@ class LslGazeSource:
         base = geometry or ScreenGeometry()
         self.geometry = replace(base, **dict(screen or {}))
         if not 0 <= min_confidence <= 1:
-            raise ValueError(f"min_confidence must lie in [0, 1], got {min_confidence}")
+            raise InputError(f"min_confidence must lie in [0, 1], got {min_confidence}")
         self.min_confidence = min_confidence
         self.resolve_timeout_s, self.open_timeout_s = resolve_timeout_s, open_timeout_s
         self.pull_timeout_s = pull_timeout_s

@@ -23,6 +23,7 @@ may move the mapping by a few µs) and never later than the message that carried
 from __future__ import annotations
 
 from gazehdr.drivers.delivery import ClockEstimate, ClockEstimator
+from gazehdr.drivers.errors import InputError
 
 #: Two answers whose intervals miss each other by more than this are of two different clocks
 #: (a `T`, a restart): 2 ms is 100 ppm of drift over 20 s, more than two crystals drift apart
@@ -52,7 +53,7 @@ class PupilClock:
 
     def __init__(self, window: int = 10) -> None:
         if window < 1:
-            raise ValueError(f"the clock window must hold at least one answer, got {window}")
+            raise InputError(f"the clock window must hold at least one answer, got {window}")
         self._estimator = ClockEstimator(window)
         self.jumps = 0
 
@@ -86,7 +87,7 @@ class PupilClock:
         """Where Pupil time `pupil_s` falls on the host clock (ValueError with no estimate)."""
         best = self._estimator.best
         if best is None:
-            raise ValueError("no Pupil time answer yet: the offset is unknown")
+            raise InputError("no Pupil time answer yet: the offset is unknown")
         return pupil_ns(pupil_s) - best.offset_ns
 
     def plausible(self, pupil_s: float, arrived_ns: int) -> bool:

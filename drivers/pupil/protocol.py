@@ -45,6 +45,7 @@ except ModuleNotFoundError as e:  # pragma: no cover - depends on the installati
         "the Pupil Capture source needs pyzmq and msgpack: install gazehdr[pupil]", name=e.name
     ) from None
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.pupil import MIN_CONFIDENCE, gaze_sample
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 
@@ -54,7 +55,7 @@ DEFAULT_SURFACE = "screen"
 TOPIC_PREFIX = "surfaces."
 
 
-class MessageError(ValueError):
+class MessageError(InputError):
     """A reply or message that does not follow the Network API; the text says what is wrong."""
 
 
@@ -98,16 +99,16 @@ def parse_address(arg: str) -> PupilAddress:
     ValueError naming what is wrong."""
     m = _SPEC.fullmatch(arg)
     if m is None:
-        raise ValueError(f"pupil:{arg}: expected pupil:HOST[:PORT][/SURFACE]")
+        raise InputError(f"pupil:{arg}: expected pupil:HOST[:PORT][/SURFACE]")
     host = m["v6"] or m["host"] or PupilAddress.host
     port = PupilAddress.port
     if m["port"] is not None:
         if not m["port"].isdigit() or not 0 < int(m["port"]) < 65536:
-            raise ValueError(f"pupil:{arg}: the port must be a number from 1 to 65535")
+            raise InputError(f"pupil:{arg}: the port must be a number from 1 to 65535")
         port = int(m["port"])
     surface = m["surface"] if m["surface"] is not None else PupilAddress.surface
     if not surface:
-        raise ValueError(f"pupil:{arg}: the surface name after '/' is empty")
+        raise InputError(f"pupil:{arg}: the surface name after '/' is empty")
     return PupilAddress(host, port, surface)
 
 

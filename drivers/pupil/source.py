@@ -31,6 +31,7 @@ except ModuleNotFoundError as e:  # pragma: no cover - depends on the installati
     ) from None
 
 from gazehdr.drivers.backoff import retry
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.pupil import MIN_CONFIDENCE
 from gazehdr.drivers.pupil.clock import PupilClock, SampleTimes, describe
 from gazehdr.drivers.pupil.protocol import (
@@ -172,12 +173,12 @@ class PupilGazeSource:
         clock_ns: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         if not 0 <= min_confidence <= 1:
-            raise ValueError(f"min_confidence must lie in [0, 1], got {min_confidence}")
+            raise InputError(f"min_confidence must lie in [0, 1], got {min_confidence}")
         for name, value in (("timeout_s", timeout_s), ("sync_interval_s", sync_interval_s)):
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number of seconds, got {value}")
+                raise InputError(f"{name} must be a positive number of seconds, got {value}")
         if sync_burst < 1:
-            raise ValueError(f"sync_burst must be at least 1, got {sync_burst}")
+            raise InputError(f"sync_burst must be at least 1, got {sync_burst}")
         self.address = address or PupilAddress()
         self.geometry = geometry or ScreenGeometry()
         self.min_confidence = min_confidence

@@ -128,6 +128,9 @@ def encode_record(record: Any) -> dict[str, Any]:
 # --- decoding, with errors that name the field ------------------------------------------------
 
 
+_INT64 = 1 << 63
+
+
 class _Fields:
     """Typed access to one JSON record; every complaint names file, line and field."""
 
@@ -152,6 +155,9 @@ class _Fields:
             raise self.error(name, "missing (an integer is required)")
         if not isinstance(value, int) or isinstance(value, bool):
             raise self.error(name, f"must be an integer, got {value!r}")
+        if not -_INT64 <= value < _INT64:  # times in ns: ±292 years; json reads any integer
+            shown = value if abs(value) < 10**30 else f"an integer of {len(str(value))} digits"
+            raise self.error(name, f"must fit in 64 bits (a signed integer), got {shown}")
         if minimum is not None and value < minimum:
             raise self.error(name, f"must be at least {minimum}, got {value}")
         return value

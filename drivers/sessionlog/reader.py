@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample
 from gazehdr.drivers.sessionlog.codec import decode_header, decode_record
 from gazehdr.drivers.sessionlog.log import SessionLog
@@ -20,7 +21,7 @@ from gazehdr.drivers.sessionlog.track import SessionTrack
 
 
 def _reject_constant(name: str) -> float:
-    raise ValueError(f"{name} is not a number JSON allows")
+    raise InputError(f"{name} is not a number JSON allows")
 
 
 def _loads(raw: bytes) -> Any:
@@ -28,7 +29,7 @@ def _loads(raw: bytes) -> Any:
     try:
         return json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
     except RecursionError:  # Python's parser recurses once per level of nesting
-        raise ValueError("JSON nested too deeply") from None
+        raise InputError("JSON nested too deeply") from None
 
 
 class SessionLogReader:

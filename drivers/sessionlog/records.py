@@ -13,6 +13,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 
 FORMAT = "gazehdr-session"
@@ -28,7 +29,7 @@ EVENT_KINDS: tuple[str, ...] = (
 EYES = ("left", "right")
 
 
-class FormatError(ValueError):
+class FormatError(InputError):
     """A file that does not follow its format; the message names file, line and field."""
 
     def __init__(
@@ -93,9 +94,9 @@ class GazeEvent:
 
     def __post_init__(self) -> None:
         if self.kind not in EVENT_KINDS:
-            raise ValueError(f"event kind {self.kind!r}; known: {', '.join(EVENT_KINDS)}")
+            raise InputError(f"event kind {self.kind!r}; known: {', '.join(EVENT_KINDS)}")
         if self.eye is not None and self.eye not in EYES:
-            raise ValueError(f"event eye {self.eye!r}; known: left, right")
+            raise InputError(f"event eye {self.eye!r}; known: left, right")
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable
 from typing import Any, NamedTuple
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazePoint, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog.records import GazeEvent, _finite
 
@@ -65,7 +66,7 @@ class SessionTrack:
         span_ns: tuple[int, int] | None = None,
     ) -> None:
         if not samples:
-            raise ValueError("a session log with no samples has no gaze track")
+            raise InputError("a session log with no samples has no gaze track")
         first, last = span_ns or (samples[0].t_ns, samples[-1].t_ns)
         self.t0_ns = first
         self.duration = (last - first) / 1e9
@@ -94,7 +95,7 @@ class SessionTrack:
 
     def at(self, t: float) -> GazePoint:
         if not math.isfinite(t):
-            raise ValueError(f"gaze time must be finite, got {t}")
+            raise InputError(f"gaze time must be finite, got {t}")
         q = round(t * 1e9)  # log times are integer ns
         point = self._points[max(bisect.bisect_right(self._times, q) - 1, 0)]
         if point.eyes_open and self._in_blink(q):

@@ -14,6 +14,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.sessionlog.codec import encode_record
 from gazehdr.drivers.sessionlog.log import SessionLog
 from gazehdr.drivers.sessionlog.records import (
@@ -46,7 +47,7 @@ class SessionLogWriter:
         fsync_every: int | None = None,
     ) -> None:
         if fsync_every is not None and fsync_every < 1:
-            raise ValueError(f"fsync_every must be a positive number of records, got {fsync_every}")
+            raise InputError(f"fsync_every must be a positive number of records, got {fsync_every}")
         self.path = Path(path)
         self.header = header
         self.fsync_every = fsync_every
@@ -85,11 +86,11 @@ class SessionLogWriter:
     def write(self, record: Any) -> None:
         """Append one record (a `GazeSample`, an event, `SceneChange`, `ParamsChange`, ...)."""
         if self._file.closed:
-            raise ValueError(f"{self.path}: session log is closed")
+            raise InputError(f"{self.path}: session log is closed")
         obj = encode_record(record)
         if obj["k"] == "s":
             if self._last_sample_ns is not None and obj["t"] < self._last_sample_ns:
-                raise ValueError(
+                raise InputError(
                     f"{self.path}: sample time {obj['t']} goes back from {self._last_sample_ns}"
                 )
             self._last_sample_ns = obj["t"]

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment import psychometric as pm
 from gazehdr.experiment.dataset import Observer
 
@@ -29,13 +30,13 @@ class Settings:
 
     def __post_init__(self) -> None:
         if self.bootstrap < 0:
-            raise ValueError(f"bootstrap must be 0 or more resamples, got {self.bootstrap}")
+            raise InputError(f"bootstrap must be 0 or more resamples, got {self.bootstrap}")
         if self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+            raise InputError(f"seed must be a non-negative integer, got {self.seed}")
         if not 0.0 < self.ci < 1.0:
-            raise ValueError(f"ci must be a level between 0 and 1 such as 0.95, got {self.ci}")
+            raise InputError(f"ci must be a level between 0 and 1 such as 0.95, got {self.ci}")
         if not 0.0 <= self.lapse_max < 1.0:
-            raise ValueError(f"lapse-max must be in [0, 1), got {self.lapse_max}")
+            raise InputError(f"lapse-max must be in [0, 1), got {self.lapse_max}")
 
 
 @dataclass(frozen=True)
@@ -166,7 +167,7 @@ def ranksum(x: Sequence[float], y: Sequence[float]) -> RankSum:
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     nx, ny = len(x), len(y)
     if nx == 0 or ny == 0:
-        raise ValueError("a rank-sum test needs at least one value in each sample")
+        raise InputError("a rank-sum test needs at least one value in each sample")
     ranks = stats.rankdata(np.concatenate([x, y]))
     W = float(ranks[:nx].sum())
     approx = stats.mannwhitneyu(x, y, alternative="two-sided", method="asymptotic")

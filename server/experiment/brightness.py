@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.display import DisplayModel
 from gazehdr.sim.layout import RGB_TO_XYZ
 
@@ -66,13 +67,13 @@ class Interval:
     def __post_init__(self) -> None:
         f, t = np.asarray(self.frames), np.asarray(self.times, dtype=float)
         if f.ndim != 4 or f.shape[-1] != 3 or len(f) == 0:
-            raise ValueError(f"frames must be N×H×W×3 with N >= 1, got shape {f.shape}")
+            raise InputError(f"frames must be N×H×W×3 with N >= 1, got shape {f.shape}")
         if t.shape != (len(f),):
-            raise ValueError(f"one time per frame: {len(f)} frames, times of shape {t.shape}")
+            raise InputError(f"one time per frame: {len(f)} frames, times of shape {t.shape}")
         if not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0) and t[-1] < self.end):
-            raise ValueError("frame times must be finite, increasing and end before `end`")
+            raise InputError("frame times must be finite, increasing and end before `end`")
         if not np.all(np.isfinite(f)):
-            raise ValueError("frames hold NaN or infinite display values")
+            raise InputError("frames hold NaN or infinite display values")
 
 
 def q_nayatani(theta: np.ndarray) -> np.ndarray:
@@ -115,7 +116,7 @@ def hk_gamma(xyz: np.ndarray, adapting_cd_m2: np.ndarray | float, method: str) -
 def frame_signal(interval: Interval, hk: str = "VAC") -> np.ndarray:
     """E(t): each frame's mean equivalent luminance Y_eq (cd/m²)."""
     if hk not in HK_METHODS:
-        raise ValueError(f"hk must be one of {', '.join(HK_METHODS)}, got {hk!r}")
+        raise InputError(f"hk must be one of {', '.join(HK_METHODS)}, got {hk!r}")
     out = []
     for i in range(0, len(interval.frames), _CHUNK):
         rgb = interval.display.cd_m2(interval.frames[i : i + _CHUNK])
@@ -135,7 +136,7 @@ def windowed_peak(signal: np.ndarray, times: np.ndarray, end: float, window: flo
     frame's time, or `end`) over any window of `window` s inside [times[0], end]; a window at
     least as long as that is the mean over all of it."""
     if not window > 0:
-        raise ValueError(f"window must be a positive number of seconds, got {window!r}")
+        raise InputError(f"window must be a positive number of seconds, got {window!r}")
     bounds = np.append(np.asarray(times, dtype=float), float(end))
     area = np.concatenate([[0.0], np.cumsum(signal * np.diff(bounds))])
     total = bounds[-1] - bounds[0]

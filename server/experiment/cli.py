@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gazehdr.drivers.cli_args import screen_size_arg
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment import commands as analysis_commands
 from gazehdr.experiment.brightness import BLOCH_S, HK_METHODS
 from gazehdr.experiment.design import PRESETS, load_design
@@ -30,7 +31,7 @@ def parse_pse(text: str) -> dict[str, float]:
         except ValueError:
             number = math.nan
         if not sep or not name or not math.isfinite(number):
-            raise ValueError(
+            raise InputError(
                 f"--pse {part!r}: give CONDITION=PSE (log10 units), e.g. control=0,manipulated=0.1"
             )
         out[name.strip()] = number
@@ -127,12 +128,12 @@ def main(argv: Sequence[str] | None = None, data_dir: Path | None = None) -> int
         return _headless(args, design)
     for given, flag in ((args.pse, "--pse"), (args.observers, "--observers")):
         if given is not None:
-            raise ValueError(f"{flag} is for --headless runs: people answer the page")
+            raise InputError(f"{flag} is for --headless runs: people answer the page")
     from gazehdr.experiment.service import ExperimentConfig
     from gazehdr.serve import serve
 
     if data_dir is None:
-        raise ValueError("serving needs serve's data folder: run it as 'gazehdr experiment'")
+        raise InputError("serving needs serve's data folder: run it as 'gazehdr experiment'")
     experiment = ExperimentConfig(design, args.out, args.size, args.backend, args.seed)
     return serve(
         host=args.host, port=args.port, scene="flash", scale=None, gaze="mouse", fps=30.0,
@@ -147,16 +148,16 @@ def _headless(args: argparse.Namespace, design) -> int:
     """Simulated observers through the trial code, then the group's PSEs and rank-sum beside
     the paper's (the analysis needs the experiment extra: without it, only the results)."""
     if any("palette" in b.repeats for b in design.blocks):
-        raise ValueError(
+        raise InputError(
             f"{args.design} has palette trials, which a simulated observer cannot answer: "
             "serve it to people (drop --headless), or call run_headless with a palette_chooser"
         )
     echo = args.simulated_observer == "echo"
     if echo and not args.pse:
-        raise ValueError("--simulated-observer echo needs --pse CONDITION=PSE,...: it answers "
+        raise InputError("--simulated-observer echo needs --pse CONDITION=PSE,...: it answers "
                          "from the PSEs it is given")  # fmt: skip
     if not echo and args.pse:
-        raise ValueError("the model observer takes no PSE: it judges the frames "
+        raise InputError("the model observer takes no PSE: it judges the frames "
                          "(--pse is for --simulated-observer echo)")  # fmt: skip
     from gazehdr.experiment import prediction
 

@@ -8,6 +8,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
+
 PROG = "gazehdr"
 
 
@@ -15,7 +17,7 @@ def _need_extra() -> None:
     wanted = ("scipy", "matplotlib", "threadpoolctl")
     missing = [m for m in wanted if importlib.util.find_spec(m) is None]
     if missing:
-        raise ValueError(
+        raise InputError(
             f"the analysis needs {', '.join(missing)}: pip install 'gazehdr[experiment]'"
         )
 
@@ -100,10 +102,10 @@ def run_analyse(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     if not 0.0 <= args.training_criterion <= 1.0:
-        raise ValueError(f"training criterion must be in [0, 1], got {args.training_criterion}")
+        raise InputError(f"training criterion must be in [0, 1], got {args.training_criterion}")
     out = Path(args.out)
     if out.is_dir():
-        raise ValueError(f"{out} is a folder: give the report's file name, e.g. {out}/report.html")
+        raise InputError(f"{out} is a folder: give the report's file name, e.g. {out}/report.html")
     observers = load([Path(r) for r in args.results], args.exclude, args.training_criterion)
     tasks = analyse(observers, settings)
     paths = write_report(tasks, settings, out)
@@ -160,7 +162,7 @@ def run_recovery(args: argparse.Namespace) -> int:
     from gazehdr.experiment.recovery import RUNNERS, recover
 
     if args.runner not in RUNNERS:
-        raise ValueError(f"unknown runner {args.runner!r}; choices: {', '.join(RUNNERS)}")
+        raise InputError(f"unknown runner {args.runner!r}; choices: {', '.join(RUNNERS)}")
     truth = EchoObserver(
         pse={"control": args.pse_control, "manipulated": args.pse_manipulated},
         sigma=args.sigma,

@@ -12,6 +12,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.files import NA
 from gazehdr.experiment.schedule import log_ratio
 
@@ -22,7 +23,7 @@ _FALSE = {"0", "false", "no", "n", "f", "included", "include", "", NA}
 _EXCLUDED_NAMES = ("excluded", "exclude", "is_excluded", "exclusion")
 
 
-class ResultsError(ValueError):
+class ResultsError(InputError):
     """Results that cannot be read; the message names the file."""
 
 

@@ -16,6 +16,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment import transforms
 from gazehdr.experiment.columns import CONDITIONS
 from gazehdr.experiment.transforms import NONE, Transform
@@ -40,7 +41,7 @@ _LABEL = re.compile(r"[A-Za-z0-9]+")
 _KEY = re.compile(r"[A-Za-z0-9]|Arrow(Left|Right|Up|Down)|Space")
 
 
-class DesignError(ValueError):
+class DesignError(InputError):
     """A design file that cannot be run; the message names the file, key and value."""
 
 

@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment.brightness import BLOCH_S, HK_METHODS, Interval, log10_brightness
 from gazehdr.experiment.schedule import Trial
 
@@ -54,7 +55,7 @@ def _erf(z: np.ndarray) -> np.ndarray:
 
 def _check_lapse(lapse: float) -> None:
     if not 0.0 <= lapse < 1.0:
-        raise ValueError(f"lapse must be in [0, 1), got {lapse!r}")
+        raise InputError(f"lapse must be in [0, 1), got {lapse!r}")
 
 
 @dataclass
@@ -74,7 +75,7 @@ class EchoObserver:
 
     def __post_init__(self) -> None:
         if not (self.sigma > 0 and math.isfinite(self.sigma)):
-            raise ValueError(f"sigma must be a positive number, got {self.sigma!r}")
+            raise InputError(f"sigma must be a positive number, got {self.sigma!r}")
         _check_lapse(self.lapse)
         self._rng = np.random.default_rng(self.seed)
 
@@ -116,11 +117,11 @@ class ModelObserver:
 
     def __post_init__(self) -> None:
         if not (self.weber > 0 and math.isfinite(self.weber)):
-            raise ValueError(f"weber must be a positive fraction, got {self.weber!r}")
+            raise InputError(f"weber must be a positive fraction, got {self.weber!r}")
         if not self.window > 0:
-            raise ValueError(f"window must be a positive number of seconds, got {self.window!r}")
+            raise InputError(f"window must be a positive number of seconds, got {self.window!r}")
         if self.hk not in HK_METHODS:
-            raise ValueError(f"hk must be one of {', '.join(HK_METHODS)}, got {self.hk!r}")
+            raise InputError(f"hk must be one of {', '.join(HK_METHODS)}, got {self.hk!r}")
         _check_lapse(self.lapse)
         self._rng = np.random.default_rng(self.seed)
 
@@ -155,7 +156,7 @@ class ModelObserver:
     def answer(self, trial: Trial, percepts: Percepts) -> bool:
         shown = percepts()
         if len(shown) != 2:
-            raise ValueError(f"a 2AFC trial shows two intervals, got {len(shown)}")
+            raise InputError(f"a 2AFC trial shows two intervals, got {len(shown)}")
         test = shown[trial.test_interval - 1]
         return self.chooses_test(test, shown[2 - trial.test_interval])
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment.design import Design
 from gazehdr.experiment.observer import ModelObserver, Observer
 from gazehdr.experiment.schedule import log_ratio
@@ -83,7 +84,7 @@ def run_group(
     from gazehdr.experiment.runner import run_headless
 
     if observers < 1:
-        raise ValueError(f"observers must be at least 1, got {observers}")
+        raise InputError(f"observers must be at least 1, got {observers}")
     paths = []
     for i, sub in enumerate(observer_ids(prefix, observers)):
         observer = make_observer(seed + i)

@@ -19,6 +19,8 @@ import numpy as np
 from scipy import optimize, special
 from threadpoolctl import threadpool_limits
 
+from gazehdr.drivers.errors import InputError
+
 #: Why a fit has the PSE it has; `USABLE` flags enter the group statistics.
 FLAGS = {
     "ok": "fitted within the tested levels",
@@ -251,7 +253,7 @@ def fit(levels: Levels, lapse_max: float = LAPSE_MAX) -> Fit:
     (`_starts`), the best kept.
     """
     if not 0.0 <= lapse_max < 1.0:
-        raise ValueError(f"lapse_max must be in [0, 1), got {lapse_max!r}")
+        raise InputError(f"lapse_max must be in [0, 1), got {lapse_max!r}")
     keep = levels.n > 0
     levels = Levels(levels.x[keep], levels.n[keep], levels.k[keep])
     degenerate = _degenerate(levels)
@@ -279,7 +281,7 @@ def bootstrap_pse(
     as NaN. Flat resamples (no PSE) are dropped.
     """
     if base.flag not in ("ok", "extrapolated"):
-        raise ValueError(f"no bootstrap for a fit flagged {base.flag!r}")
+        raise InputError(f"no bootstrap for a fit flagged {base.flag!r}")
     assert base.pse is not None and base.sigma is not None and base.lapse is not None
     keep = levels.n > 0
     levels = Levels(levels.x[keep], levels.n[keep], levels.k[keep])
@@ -308,7 +310,7 @@ def bootstrap_pse(
 def percentile_interval(samples: np.ndarray, level: float) -> tuple[float, float] | None:
     """The central `level` percentile interval of bootstrap samples (None without samples)."""
     if not 0.0 < level < 1.0:
-        raise ValueError(f"confidence level must be in (0, 1), got {level!r}")
+        raise InputError(f"confidence level must be in (0, 1), got {level!r}")
     if len(samples) == 0:
         return None
     tail = 50.0 * (1.0 - level)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.files import NA
 from gazehdr.experiment.analysis import Settings, analyse
 from gazehdr.experiment.columns import BEH_COLUMNS
@@ -142,7 +143,7 @@ def recover(
     `progress(done, runs)` is called after each run.
     """
     if runs < 1:
-        raise ValueError(f"runs must be at least 1, got {runs}")
+        raise InputError(f"runs must be at least 1, got {runs}")
     seeds = np.random.SeedSequence(settings.seed).generate_state(runs)
     hits: dict[str, list[tuple[float | None, tuple[float, float] | None]]] = {}
     with tempfile.TemporaryDirectory(prefix="gazehdr-recovery-") as tmp:

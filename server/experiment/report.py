@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gazehdr.atomic import write_text
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment import psychometric as pm
 from gazehdr.experiment.analysis import (
     ConditionFit,
@@ -43,7 +44,7 @@ def _r(x: float | None) -> float | None:
     if x is None:
         return None
     if not math.isfinite(x):
-        raise ValueError(f"non-finite number in the results: {x!r}")
+        raise InputError(f"non-finite number in the results: {x!r}")
     return float(x)
 
 

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from gazehdr.drivers import sessionlog
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.files import LABEL, file_stem
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.experiment.bids import refuse_existing, start_dataset, write_results
@@ -39,7 +40,7 @@ from gazehdr.experiment.stimulus import Clip, clip
 from gazehdr.sim import Params
 
 
-class RunError(ValueError):
+class RunError(InputError):
     """A call out of order (an answer to a trial not shown, a run already finished)."""
 
 
@@ -110,7 +111,7 @@ class ExperimentRun:
         source: str = "browser",
     ) -> None:
         if not LABEL.fullmatch(observer_id):
-            raise ValueError(f"observer id {observer_id!r}: letters and digits only (BIDS sub-)")
+            raise InputError(f"observer id {observer_id!r}: letters and digits only (BIDS sub-)")
         self.design, self.observer_id, self.seed = design, observer_id, int(seed)
         self.out_dir, self.backend, self.run = Path(out_dir), backend, run
         self.size = tuple(size or design.size)
@@ -213,10 +214,10 @@ class ExperimentRun:
         if trial_number is not None and trial_number != trial.number:
             raise RunError(f"trial {trial_number} is not the one waiting ({trial.number})")
         if response_time is not None and not (math.isfinite(response_time) and response_time >= 0):
-            raise ValueError(f"response_time must be seconds >= 0, got {response_time!r}")
+            raise InputError(f"response_time must be seconds >= 0, got {response_time!r}")
         answer = self._palette_answer(palette) if trial.palette else self._key_answer(trial, key)
         if palette is not None and not trial.palette:
-            raise ValueError("only a palette trial is answered with palette choices")
+            raise InputError("only a palette trial is answered with palette choices")
         correct = answer.pop("_correct")
         if response_time is not None:
             self.clock += response_time
@@ -251,7 +252,7 @@ class ExperimentRun:
 
     def _key_answer(self, trial: Trial, key: str | None) -> dict[str, Any]:
         if key not in self.design.keys:
-            raise ValueError(f"key {key!r} is not an answer; press {' or '.join(self.design.keys)}")
+            raise InputError(f"key {key!r} is not an answer; press {' or '.join(self.design.keys)}")
         interval = self.design.keys.index(key) + 1
         correct = trial.correct(interval) if trial.condition == "training" else None
         return {"response_key": key, "chose_test": int(trial.chose_test(interval)),
@@ -261,7 +262,7 @@ class ExperimentRun:
         labels = [c.label for c in self.design.palette]
         picked = list(palette or [])
         if not picked or len(set(picked)) != len(picked) or not set(picked) <= set(labels):
-            raise ValueError(
+            raise InputError(
                 f"a palette trial is answered with one or more of {', '.join(labels)}, each "
                 f"once; got {picked!r}"
             )
@@ -349,7 +350,7 @@ def run_headless(
         trial = shown.trial
         if trial.palette:
             if palette_chooser is None:
-                raise ValueError("palette trials need a palette_chooser: the observer answers 2AFC")
+                raise InputError("palette trials need a palette_chooser: the observer answers 2AFC")
             r.respond(palette=palette_chooser(trial, [c.label for c in design.palette]))
             continue
         chose = observer.answer(trial, lambda shown=shown: percepts(shown, design, observer))

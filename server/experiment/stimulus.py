@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.experiment.design import Design, Look, make_scene
 from gazehdr.eye import Eye
 from gazehdr.sim import Params
@@ -110,7 +111,7 @@ class Clip:
             else:
                 have, want = float(Y.mean()), want * ratios[min(i, len(ratios) - 1)]
             if not have > 0:  # nothing to scale: the gain would be infinite
-                raise ValueError(
+                raise InputError(
                     f"stimulus frame {i} is black: it cannot be scaled to {intensity:g} cd/m^2 "
                     "(its look shows no light while the flash is on)"
                 )

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
+
 #: What the design file's `transform` may say (the loader's error repeats it).
 SYNTAX = (
     "none; hue+D or hue-D (rotate the hue by D degrees, 0 < D < 360); or tint=H/S (set the "
@@ -63,21 +65,21 @@ NONE = Transform()
 def parse(text: str) -> Transform:
     """A transform from its name (`SYNTAX`); ValueError says what is wrong."""
     if not isinstance(text, str):
-        raise ValueError(f"must be a string: {SYNTAX}")
+        raise InputError(f"must be a string: {SYNTAX}")
     name = text.strip().lower()
     if name == "none":
         return NONE
     if m := _HUE.fullmatch(name):
         degrees = float(m.group(2))
         if not 0 < degrees < 360:
-            raise ValueError(f"a hue rotation is by more than 0, less than 360 degrees: {SYNTAX}")
+            raise InputError(f"a hue rotation is by more than 0, less than 360 degrees: {SYNTAX}")
         return Transform("hue", degrees if m.group(1) == "+" else -degrees)
     if m := _TINT.fullmatch(name):
         hue, saturation = float(m.group(1)), float(m.group(2))
         if not (0 <= hue < 360 and 0 <= saturation <= 1 and math.isfinite(hue)):
-            raise ValueError(f"a tint's hue is in [0, 360) and its saturation in [0, 1]: {SYNTAX}")
+            raise InputError(f"a tint's hue is in [0, 360) and its saturation in [0, 1]: {SYNTAX}")
         return Transform("tint", hue, saturation)
-    raise ValueError(f"not a colour transform: {SYNTAX}")
+    raise InputError(f"not a colour transform: {SYNTAX}")
 
 
 def rgb_to_hsv(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.figures import afterimage, colour, mesopic
 from gazehdr.figures.common import Context, ModelUnavailableError, Result
 
@@ -271,7 +272,7 @@ def select(only: Iterable[int] | None) -> list[Figure]:
     known = {n for f in FIGURES for n in f.numbers}
     unknown = sorted(wanted - known)
     if unknown:
-        raise ValueError(
+        raise InputError(
             f"no figure {', '.join(map(str, unknown))}; choose from "
             f"{', '.join(map(str, sorted(known)))}"
         )

@@ -16,13 +16,14 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from gazehdr.drivers.errors import GazehdrError
 from gazehdr.sim import Geometry, Params, Simulator
 
 #: Linear RGB -> photopic luminance (Rec.709), for measuring what the figures show.
 LUMA = np.array(Params().w_P)
 
 
-class ModelUnavailableError(RuntimeError):
+class ModelUnavailableError(GazehdrError, RuntimeError):
     """A figure needs a model (a baseline) that cannot be imported in this installation."""
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.scenes.scene import Scene
 
 
@@ -31,7 +32,7 @@ def open_scene(spec: str, scale: float | None = None, layer: str | None = None) 
         from gazehdr.scenes.image import ImageScene
 
         return ImageScene.open(path, scale=scale, layer=layer)
-    raise ValueError(
+    raise InputError(
         f"unknown scene {spec!r}: not a built-in ({', '.join(builtin_names())}) nor an image "
         "file (.exr, .hdr, .pfm)"
     )

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
+
 #: Largest image accepted by default: 64 Mi pixels (8192 × 8192), 768 MiB as float32 RGB.
 MAX_PIXELS = 64 * 1024 * 1024
 #: Rec.709 / sRGB primaries and D65 white: xy of R, G, B, white (as OpenEXR writes them).
@@ -22,7 +24,7 @@ _BRADFORD = np.array(
 )
 
 
-class SceneError(ValueError):
+class SceneError(InputError):
     """A scene file that cannot be used; the message names the file and what is wrong."""
 
 

@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
+
 #: Rec.709 luminance weights (the model's w_P).
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 METER_K = 12.5  # cd/m^2, ISO 2720's reflected-light meter calibration constant
@@ -83,7 +85,7 @@ def guess_kind(name: str) -> str:
 
 def check_kind(kind: str) -> str:
     if kind not in KINDS:
-        raise ValueError(f"unknown scene kind {kind!r}; one of {', '.join(KINDS)}")
+        raise InputError(f"unknown scene kind {kind!r}; one of {', '.join(KINDS)}")
     return kind
 
 

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.scenes.decoding import (
     MAX_PIXELS,
     REC709,
@@ -97,11 +98,11 @@ def write_exr(
     path = Path(path)
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[0] == 0 or rgb.shape[1] == 0:
-        raise ValueError(f"{path}: expected an H×W×3 image, got shape {rgb.shape}")
+        raise InputError(f"{path}: expected an H×W×3 image, got shape {rgb.shape}")
     if half:
         finite = np.abs(rgb[np.isfinite(rgb)])
         if finite.size and finite.max() > _HALF_MAX:
-            raise ValueError(
+            raise InputError(
                 f"{path}: values up to {finite.max():.4g} do not fit in half floats "
                 f"(max {_HALF_MAX:g}); write float or scale the image down"
             )
@@ -131,7 +132,7 @@ def _compression(c: OpenEXR.Compression | str) -> OpenEXR.Compression:
     }
     if key not in members:
         names = ", ".join(m.removesuffix("_COMPRESSION").lower() for m in members)
-        raise ValueError(f"unknown EXR compression {c!r}; one of {names.replace('no,', 'none,')}")
+        raise InputError(f"unknown EXR compression {c!r}; one of {names.replace('no,', 'none,')}")
     return members[key]
 
 

@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.layout import MAX_SIZE
 
 #: Values (pixels × channels) a band of the reduction reads at once: ~50 MiB as float64.
@@ -85,7 +86,7 @@ def reduce(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     height, width = rgb.shape[:2]
     new_w, new_h = size
     if not (0 < new_w <= width and 0 < new_h <= height):
-        raise ValueError(f"cannot reduce {width}×{height} to {new_w}×{new_h}")
+        raise InputError(f"cannot reduce {width}×{height} to {new_w}×{new_h}")
     out = np.empty((new_h, new_w, *rgb.shape[2:]), np.float32)
     channels = int(np.prod(rgb.shape[2:], dtype=np.int64))
     ry, rx = height / new_h, width / new_w

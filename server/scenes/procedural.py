@@ -24,6 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.scenes.exr import MAX_PIXELS
 from gazehdr.scenes.scene import Scene
 
@@ -160,7 +161,7 @@ def _require_positive(obj: object, *names: str) -> None:
         value = getattr(obj, n)
         for x in value if isinstance(value, tuple) else (value,):
             if not (math.isfinite(x) and x > 0):
-                raise ValueError(f"{type(obj).__name__}.{n} must be positive and finite: {value}")
+                raise InputError(f"{type(obj).__name__}.{n} must be positive and finite: {value}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,9 +180,9 @@ class _Procedural:
             raise TypeError(f"{self.name}: size must be integers, got {width!r}×{height!r}")
         width, height = int(width), int(height)
         if width <= 0 or height <= 0:
-            raise ValueError(f"{self.name}: size must be positive, got {width}×{height}")
+            raise InputError(f"{self.name}: size must be positive, got {width}×{height}")
         if width * height > MAX_PIXELS:
-            raise ValueError(f"{self.name}: {width}×{height} is over {MAX_PIXELS:,} pixels")
+            raise InputError(f"{self.name}: {width}×{height} is over {MAX_PIXELS:,} pixels")
         key = (width, height, self.state_at(t))
         frame = self._cache.get(key)
         if frame is None:
@@ -233,9 +234,9 @@ class Flash(_Procedural):
         _require_positive(self, "period", "duration", "flash_luminance", "halo_luminance")
         _require_positive(self, "halo_radius", "wall_luminance", "flash_half_size")
         if self.duration >= self.period:
-            raise ValueError("Flash.duration must be shorter than Flash.period")
+            raise InputError("Flash.duration must be shorter than Flash.period")
         if not math.isfinite(self.first):
-            raise ValueError(f"Flash.first must be finite: {self.first}")
+            raise InputError(f"Flash.first must be finite: {self.first}")
 
     def flash_on(self, t: float) -> bool:
         """Whether the flash is firing at `t`: for [first + k·period, + duration), k ≥ 0."""

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.params import Params
 
 
@@ -30,7 +31,7 @@ class DisplayModel:
         for name in ("white_cd_m2", "gamma"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"display {name} must be a finite positive number, got {value}")
+                raise InputError(f"display {name} must be a finite positive number, got {value}")
 
     def cd_m2(self, v: np.ndarray) -> np.ndarray:
         """cd/m² of display values `v` (per channel; luminance: weight them with w_P)."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.params import Params
 
 MIN_SIZE = 16
@@ -60,9 +61,9 @@ def check_frame_size(width: int, height: int) -> None:
     """The one rule for frame sizes, so every entry point refuses the same things alike."""
     for name, value, limit in (("width", width, MAX_SIZE[0]), ("height", height, MAX_SIZE[1])):
         if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
-            raise ValueError(f"{name} must be an integer, got {value!r}")
+            raise InputError(f"{name} must be an integer, got {value!r}")
         if not MIN_SIZE <= value <= limit:
-            raise ValueError(f"{name} must be in [{MIN_SIZE}, {limit}], got {value}")
+            raise InputError(f"{name} must be in [{MIN_SIZE}, {limit}], got {value}")
 
 
 #: The widest Gaussian any stage may run, in the pixels or cells it blurs (radius 3 sigma):
@@ -89,7 +90,7 @@ def check_work(params: Params, ppd: float, cell: int) -> None:
     for unit, sigmas in (("px", screen), ("cells", cells)):
         name, sigma = max(sigmas.items(), key=lambda kv: kv[1])
         if sigma > MAX_BLUR_SIGMA:
-            raise ValueError(
+            raise InputError(
                 f"parameter {name} gives a blur of sigma {sigma:.4g} {unit} at {ppd:.4g} px per "
                 f"degree, over the {MAX_BLUR_SIGMA:g} any stage may run; make it or the frame "
                 "smaller"
@@ -413,9 +414,9 @@ def sanitize_radiance(rgb: np.ndarray, params: Params) -> np.ndarray:
     """Any array-like -> finite float32 H×W×3 in [0, radiance_max]; bad shapes are an error."""
     arr = np.asarray(rgb)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] < 1 or arr.shape[1] < 1:
-        raise ValueError(f"scene must be an H×W×3 array of cd/m^2, got shape {arr.shape}")
+        raise InputError(f"scene must be an H×W×3 array of cd/m^2, got shape {arr.shape}")
     if not np.issubdtype(arr.dtype, np.number):
-        raise ValueError(f"scene must be numeric, got dtype {arr.dtype}")
+        raise InputError(f"scene must be numeric, got dtype {arr.dtype}")
     cap = params.radiance_max
     wide = arr.dtype.kind == "f" and arr.dtype.itemsize > 4  # clip before float32 overflows
     out = np.nan_to_num(
@@ -438,4 +439,4 @@ def encode_output(v: np.ndarray, output: str) -> np.ndarray:
     if output == "rgb10a2":
         q = np.rint(np.clip(v, 0.0, 1.0) * 1023.0).astype(np.uint32)
         return q[..., 0] | (q[..., 1] << 10) | (q[..., 2] << 20)
-    raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+    raise InputError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Protocol, TypeVar
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.layout import Layout, NoiseFrame
 from gazehdr.sim.params import Params
 
@@ -233,7 +234,7 @@ class Models:
             ("acuity", self.acuity, ACUITY_MODELS),
         ):
             if name not in table:
-                raise ValueError(f"unknown {kind} model {name!r}; choose one of {', '.join(table)}")
+                raise InputError(f"unknown {kind} model {name!r}; choose one of {', '.join(table)}")
 
     @classmethod
     def parse(cls, text: str) -> Models:

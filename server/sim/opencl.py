@@ -26,6 +26,7 @@ import os
 import numpy as np
 import pyopencl as cl
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.cl_program import Launch, build_program, shared_context, vector_width
 from gazehdr.sim.kernel_params import pack_params
 from gazehdr.sim.layout import (
@@ -156,7 +157,7 @@ class OpenCLBackend:
     def set_state_channels(self, n: int) -> None:
         """The afterimage model's retinal state has `n` planes (of STATE_PLANES allocated)."""
         if not 1 <= n <= STATE_PLANES:
-            raise ValueError(f"an afterimage model may keep 1 to {STATE_PLANES} state planes")
+            raise InputError(f"an afterimage model may keep 1 to {STATE_PLANES} state planes")
         self.shapes["state"] = (n, self.lay.grid_h, self.lay.grid_w)
 
     def get(self, name: str) -> np.ndarray:
@@ -539,10 +540,10 @@ class OpenCLBackend:
         lay, b = self.lay, self.buf
         kind = np.dtype(out_dtype)
         if kind not in COMPOSE_OUTPUTS:
-            raise ValueError(f"out_dtype must be float32, float16 or uint32, got {out_dtype!r}")
+            raise InputError(f"out_dtype must be float32, float16 or uint32, got {out_dtype!r}")
         kernel, buf_name, shape = COMPOSE_OUTPUTS[kind]
         if out is not None and (out.shape != shape(lay) or out.dtype != kind):
-            raise ValueError(f"out must be {shape(lay)} {kind}, got {out.shape} {out.dtype}")
+            raise InputError(f"out must be {shape(lay)} {kind}, got {out.shape} {out.dtype}")
         rho_full = self.rho_full()
         self._more_maps(self._screen_window(gaze))
         fovea = self._gaussian_xy(gaze, lay.px(self.p.fovea_sigma_deg))  # the foveal fall-off

@@ -14,12 +14,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from gazehdr.drivers.errors import InputError
+
 Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
-#: The most pixels per degree a viewing geometry may give (a 4K phone at 30 cm gives ~250).
-MAX_PPD = 1024.0
+#: The most pixels per degree a viewing geometry may give (a 4K phone at 30 cm gives ~250; tests
+#: give a 64 px frame the paper's 64 px per degree by a screen of 1920 px seen from 30 m).
+MAX_PPD = 4096.0
 #: The kernels' room for acuity band thresholds (kernel_params: the parameter block).
 MAX_BANDS = 8
 
@@ -37,16 +40,16 @@ class Geometry:
         for name in ("screen_width_px", "screen_height_px"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or not 16 <= value <= 16384:
-                raise ValueError(
+                raise InputError(
                     f"geometry {name} must be an integer in [16, 16384], got {value!r}"
                 )
         for name, high in (("screen_diagonal_m", 20.0), ("viewing_distance_m", 100.0)):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and 0 < value <= high):
-                raise ValueError(f"geometry {name} must be in (0, {high:g}] m, got {value!r}")
+                raise InputError(f"geometry {name} must be in (0, {high:g}] m, got {value!r}")
         ppd = self.pixels_per_degree()
         if not 1.0 <= ppd <= MAX_PPD:
-            raise ValueError(
+            raise InputError(
                 f"geometry gives {ppd:.3g} px per degree, outside [1, {MAX_PPD:g}]: sizes in "
                 "degrees become blurs and grids in pixels, so this bounds their work"
             )
@@ -218,32 +221,32 @@ class Params:
         for name in positive + acuity + baselines + sec5:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"parameter {name} must be a finite positive number, got {value}")
+                raise InputError(f"parameter {name} must be a finite positive number, got {value}")
         for name in ("b1", "b2"):
             value = getattr(self, name)
             if len(value) != 3 or not all(math.isfinite(v) and v > 0 for v in value):
-                raise ValueError(f"parameter {name} must be three finite positive numbers")
+                raise InputError(f"parameter {name} must be three finite positive numbers")
         if not self.m1 > self.m2:
-            raise ValueError(f"m1 ({self.m1}) must be greater than m2 ({self.m2})")
+            raise InputError(f"m1 ({self.m1}) must be greater than m2 ({self.m2})")
         if not self.alpha_eps < 1:  # Eq. 11's guard; contrast_floor takes log(1 - alpha_eps)
-            raise ValueError(f"alpha_eps must be below 1, got {self.alpha_eps}")
+            raise InputError(f"alpha_eps must be below 1, got {self.alpha_eps}")
         if not 0 < self.plateau_m_over_n < 1:
-            raise ValueError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
+            raise InputError("plateau_m_over_n must lie in (0, 1); 1 would cancel adaptation")
         if not 0 < self.acuity_cutoff_response < 1:
-            raise ValueError("acuity_cutoff_response must lie in (0, 1)")
+            raise InputError("acuity_cutoff_response must lie in (0, 1)")
         if not (isinstance(self.ritschel_steps, int) and 1 <= self.ritschel_steps <= 64):
-            raise ValueError("ritschel_steps must be an integer in [1, 64]")
+            raise InputError("ritschel_steps must be an integer in [1, 64]")
         if not isinstance(self.bands, int) or isinstance(self.bands, bool):
-            raise ValueError(f"bands must be an integer, got {self.bands!r}")
+            raise InputError(f"bands must be an integer, got {self.bands!r}")
         for name, (low, high, what) in WORK_BOUNDS.items():
             value = getattr(self, name)
             if not low <= value <= high:
-                raise ValueError(
+                raise InputError(
                     f"parameter {name} = {value:g} is outside [{low:g}, {high:g}] ({what}; the "
                     "bounds keep the work of a step bounded)"
                 )
         if not 0 < self.mikamo_top_fraction <= 1:
-            raise ValueError("mikamo_top_fraction must lie in (0, 1]")
+            raise InputError("mikamo_top_fraction must lie in (0, 1]")
         non_negative = (
             "bleach_display_gain", "c_a", "c_d", "ritschel_saccade_sigma_deg",
             "ritschel_N_sigma_deg", "ritschel_strength", "mikamo_lowpass_deg", "mikamo_strength",
@@ -252,18 +255,18 @@ class Params:
         for name in ("thompson_dog_gain", "thompson_noise", *non_negative, *ours):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"parameter {name} must be a finite number >= 0, got {value}")
+                raise InputError(f"parameter {name} must be a finite number >= 0, got {value}")
         if not (math.isfinite(self.thompson_dog_ratio) and self.thompson_dog_ratio >= 1):
-            raise ValueError("thompson_dog_ratio must be a finite number >= 1")
+            raise InputError("thompson_dog_ratio must be a finite number >= 1")
         if not 0 <= self.foveal_blind_spot <= 1:
-            raise ValueError("foveal_blind_spot must lie in [0, 1]")
+            raise InputError("foveal_blind_spot must lie in [0, 1]")
         for name in SWITCHES:
             if not isinstance(getattr(self, name), bool):
-                raise ValueError(
+                raise InputError(
                     f"parameter {name} must be true or false, got {getattr(self, name)!r}"
                 )
         if not math.isfinite(self.ritschel_flight_rate):
-            raise ValueError("ritschel_flight_rate must be a finite number (rad/s)")
+            raise InputError("ritschel_flight_rate must be a finite number (rad/s)")
 
     def tone_scotopic_weights(self) -> Vec3:
         """The scotopic weights of the luminance fed to Eq. 1: w_S with the Purkinje shift
@@ -292,7 +295,7 @@ class Params:
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
+            raise InputError(f"unknown parameter(s): {', '.join(unknown)}")
         values = dict(data)
         if "geometry" in values and isinstance(values["geometry"], dict):
             values["geometry"] = Geometry(**values["geometry"])
@@ -393,7 +396,7 @@ def check_remote_change(current: Params, values: dict[str, Any]) -> None:
     """Refuse a change from a client that would point a file parameter somewhere new."""
     for name in sorted(SERVER_FILES & set(values)):
         if values[name] not in ("", getattr(current, name)):
-            raise ValueError(
+            raise InputError(
                 f"{name} names a file on the server and cannot be set remotely; "
                 "start the server with --params PRESET.json instead"
             )

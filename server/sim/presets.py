@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.params import Params
 
 #: Each preset's values over `Params()`.
@@ -33,7 +34,7 @@ FROM_THE_SOURCE = ("tracker_accuracy_deg", "tracker_rate_hz")
 def preset(name: str) -> Params:
     """The parameters of preset `name`."""
     if name not in PRESETS:
-        raise ValueError(f"no preset {name!r}; the presets are {', '.join(PRESETS)}")
+        raise InputError(f"no preset {name!r}; the presets are {', '.join(PRESETS)}")
     return Params().replace(**PRESETS[name])
 
 
@@ -46,12 +47,12 @@ def load_params(name: str = DEFAULT_PRESET, path: str | Path | None = None) -> P
     try:
         values = json.loads(Path(path).read_text())
         if not isinstance(values, dict):
-            raise ValueError("must be a JSON object of parameter values")
+            raise InputError("must be a JSON object of parameter values")
         return Params.from_dict(params.to_dict() | values)
     except OSError as e:
-        raise ValueError(f"parameter file {path}: {e.strerror}") from None
+        raise InputError(f"parameter file {path}: {e.strerror}") from None
     except (TypeError, ValueError) as e:
-        raise ValueError(f"parameter file {path}: {e}") from None
+        raise InputError(f"parameter file {path}: {e}") from None
 
 
 def nearest_preset(params: Params) -> tuple[str, list[str]]:

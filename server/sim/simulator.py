@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.layout import (
     OUTPUTS,
     SETTLE_MIN_DT,
@@ -49,7 +50,7 @@ _DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}
 
 def _check_output(output: str) -> None:
     if output not in OUTPUTS:
-        raise ValueError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        raise InputError(f"output must be one of {', '.join(OUTPUTS)}, got {output!r}")
 
 
 MAX_DT = 60.0  # seconds; a longer gap should be stepped in pieces (it is no longer a frame)
@@ -64,7 +65,7 @@ def _make_backend(name: str, layout: Layout, params: Params):
         from gazehdr.sim.opencl import OpenCLBackend
 
         return OpenCLBackend(layout, params)
-    raise ValueError(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")
+    raise InputError(f"unknown backend {name!r}; choose one of {', '.join(BACKENDS)}")
 
 
 class Simulator:
@@ -289,7 +290,7 @@ class Simulator:
         composes in the viewer; `warp_layers`)."""
         dt = float(dt)
         if not (math.isfinite(dt) and 0.0 <= dt <= MAX_DT):
-            raise ValueError(f"dt must be a finite number of seconds in [0, {MAX_DT}], got {dt}")
+            raise InputError(f"dt must be a finite number of seconds in [0, {MAX_DT}], got {dt}")
         previous, was_open = self._gaze, self._eyes
         if gaze is not None:
             self._gaze = self._check_gaze(gaze)
@@ -330,9 +331,9 @@ class Simulator:
         try:
             x, y = (float(g) for g in gaze)
         except (TypeError, ValueError):
-            raise ValueError(f"gaze must be (x, y) in screen pixels, got {gaze!r}") from None
+            raise InputError(f"gaze must be (x, y) in screen pixels, got {gaze!r}") from None
         if not (math.isfinite(x) and math.isfinite(y)):
-            raise ValueError(f"gaze must be finite, got ({x}, {y})")
+            raise InputError(f"gaze must be finite, got ({x}, {y})")
         # Beyond two screens away nothing of the retina grid overlaps the screen; clamping there
         # keeps coordinates exact in float32 without changing the result.
         w, h = self.width, self.height

@@ -25,6 +25,7 @@ import json
 from collections.abc import Mapping
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.files import _split_name, file_stem, same_label
 from gazehdr.drivers.formats.bids.physio import _load_json, _sidecar
 from gazehdr.drivers.sessionlog import FormatError
@@ -79,7 +80,7 @@ def find_run(path: Path, select: Mapping[str, str] | None = None) -> list[Path]:
     key = _run_key(path.name)
     if not _selected(key, select):
         wanted = _describe(select)
-        raise ValueError(f"{path}: this run ({_describe(key)}) is not the one asked for ({wanted})")
+        raise InputError(f"{path}: this run ({_describe(key)}) is not the one asked for ({wanted})")
     # the named file is read whatever its PhysioType (its errors say what is wrong); the run's
     # other recordings only if they are eye-tracking (a run may hold cardiac ones too)
     return [
@@ -116,13 +117,13 @@ def _run_in_folder(folder: Path, select: Mapping[str, str]) -> list[Path]:
         return "\n".join(lines)
 
     if not chosen:
-        raise ValueError(
+        raise InputError(
             f"{folder}: no eye-tracking run has {_describe(select)}; it holds:\n{listing(runs)}"
         )
     keys = [dict(k[1]) for k in chosen]
     differ = [k for k in SELECTABLE if len({d.get(k) for d in keys}) > 1]
     how = " ".join(f"--{k}" for k in differ) if differ else "naming one of its files"
-    raise ValueError(
+    raise InputError(
         f"{folder}: {len(chosen)} eye-tracking runs; pick one with {how}:\n{listing(chosen)}"
     )
 
@@ -144,7 +145,7 @@ def open_dataset(root: Path, name: str, generated_by: dict[str, str], about: str
     if root.exists() and any(root.iterdir()):
         inside = next((p for p in root.parents if (p / description.name).exists()), None)
         hint = f"; its dataset root is {inside}" if inside else ""
-        raise ValueError(
+        raise InputError(
             f"{root}: not empty and not a BIDS dataset (no dataset_description.json): "
             f"give a new or empty folder, or an existing dataset's root{hint}"
         )

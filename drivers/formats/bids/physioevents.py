@@ -35,6 +35,7 @@ import math
 from collections import Counter
 from pathlib import Path
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.files import ESCAPED_TEXT, NA, unescape_text
 from gazehdr.drivers.formats.bids.physio import (
     UNITS_NS,
@@ -213,7 +214,7 @@ def _row_time(row: int, sample_times: list[int], fs: float | None) -> int:
     if 1 <= row <= len(sample_times):
         return sample_times[row - 1]
     if not sample_times or fs is None:
-        raise ValueError("row outside the recording")
+        raise InputError("row outside the recording")
     anchor = 1 if row < 1 else len(sample_times)
     return sample_times[anchor - 1] + round((row - anchor) * 1e9 / fs)
 

@@ -47,6 +47,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.files import (
     ESCAPED_TEXT,
     INDEX,
@@ -200,7 +201,7 @@ def _entities(sub: str, ses: str | None, task: str, run: str | None) -> dict[str
         pattern = INDEX if key == "run" else LABEL
         if value is not None and not pattern.fullmatch(value):
             what = "digits" if key == "run" else "letters and digits only"
-            raise ValueError(f"--{key} {value!r}: a BIDS {key} is {what}")
+            raise InputError(f"--{key} {value!r}: a BIDS {key} is {what}")
     return {k: v for k, v in entities.items() if v is not None}
 
 
@@ -220,7 +221,7 @@ def write_bids(
     entities = _entities(sub, ses, task, run)
     if len({s.t_ns for s in log.samples}) < 2:
         what = f"samples at one time only ({len(log.samples)})" if log.samples else "no samples"
-        raise ValueError(
+        raise InputError(
             f"the log has {what}: a BIDS physio file needs samples at two times at least, for "
             "its SamplingFrequency (REQUIRED)"
         )

@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.common import finite_float
 
 Box = tuple[float, float, float, float]
@@ -28,7 +29,7 @@ _VALIDATION = re.compile(
 )
 
 
-class BadFieldError(ValueError):
+class BadFieldError(InputError):
     """A message that names a thing this module reads, with a value that is not one."""
 
     def __init__(self, field: str, reason: str) -> None:

@@ -30,6 +30,7 @@ from typing import Generic
 
 import numpy as np
 
+from gazehdr.drivers.errors import InputError
 from gazehdr.sim.layout import LMS_TO_RGB, RGB_TO_XYZ
 from gazehdr.sim.models import Gaze, ReferenceStageBackend, StageBackendT
 from gazehdr.sim.params import Params
@@ -49,7 +50,7 @@ LUMINANCE_EPS = 1e-12  # display units; a clamped colour darker than this is bla
 MASK_SLACK = 1e-5
 
 
-class SequenceError(ValueError):
+class SequenceError(InputError):
     """A colour sequence file that cannot be used; the message names file, line and field."""
 
 
@@ -219,10 +220,10 @@ def check_params(p: Params) -> None:
     }
     for name, ok in checks.items():
         if not ok:
-            raise ValueError(f"parameter {name} is out of range: {getattr(p, name)}")
+            raise InputError(f"parameter {name} is out of range: {getattr(p, name)}")
     x, y = p.mikamo_reference_xy
     if not (x > 0 and y > 0 and x + y < 1):
-        raise ValueError(f"mikamo_reference_xy must be a chromaticity, got {(x, y)}")
+        raise InputError(f"mikamo_reference_xy must be a chromaticity, got {(x, y)}")
 
 
 def scene_stats(yp: np.ndarray, p: Params) -> tuple[float, float]:
