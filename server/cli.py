@@ -205,6 +205,21 @@ def _figures(args: argparse.Namespace, extra: list[str]) -> int:
 # --- scenes -----------------------------------------------------------------------------------
 
 
+def _docs(args: argparse.Namespace, extra: list[str]) -> int:
+    from importlib import resources
+
+    folder = resources.files("gazehdr.docs")
+    pages = sorted(p.name.removesuffix(".md") for p in folder.iterdir() if p.name.endswith(".md"))
+    if args.page is None:
+        print(f"{folder}: {', '.join(pages)} (README is the index)")
+        return 0
+    name = args.page.removesuffix(".md")
+    if name not in pages:
+        raise UsageError(f"no page {args.page!r}; the pages: {', '.join(pages)}")
+    print(folder / f"{name}.md")
+    return 0
+
+
 def _scenes(args: argparse.Namespace, extra: list[str]) -> int:
     """The built-ins, then each upload with its format, size and scale (and its source)."""
     from gazehdr.scenes import builtin_names
@@ -320,6 +335,12 @@ COMMANDS: dict[str, Command] = {
         _scenes,
         options.configure_scenes,
     ),
+    "docs": Command(
+        "where the documentation installed with gazehdr is: its pages, or PAGE's file",
+        _docs,
+        options.configure_docs,
+        epilog="examples:\n  gazehdr docs             # the pages\n  gazehdr docs server",
+    ),
 }
 
 
@@ -328,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Gaze-adaptive HDR display: simulates adaptation, afterimages and mesopic "
         "vision (Jacobs et al. 2015) on an ordinary monitor.",
+        epilog="The documentation is installed with gazehdr: 'gazehdr docs' says where.",
     )
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

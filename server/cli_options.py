@@ -97,7 +97,7 @@ def configure_render(p: argparse.ArgumentParser) -> None:
         "--logs", nargs="+", metavar="LOG", help="session logs to render, files or globs"
     )
     batch.add_argument(
-        "--batch", metavar="MANIFEST.toml", help="logs x models x presets (docs/cli.md)"
+        "--batch", metavar="MANIFEST.toml", help="logs x models x presets (gazehdr docs cli)"
     )
     batch.add_argument(
         "--workers", type=int, metavar="N", help="local cluster's worker processes (default: cores)"
@@ -269,3 +269,7 @@ def configure_scenes(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="where uploaded scenes are (default: $GAZEHDR_DATA_DIR or ~/.local/share/gazehdr)",
     )
+
+
+def configure_docs(p: argparse.ArgumentParser) -> None:
+    p.add_argument("page", nargs="?", help="a page's name, e.g. server, cli, model")

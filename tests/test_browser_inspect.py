@@ -1,12 +1,16 @@
 """The viewer's HDR inspection and panel in real headless Chromium (see tests/browser.py for
 the browser set-up): images made by OpenCV (not by gazehdr) upload, show and read out in
-cd/m²; false colour and histogram follow the scene's scale; keys work whatever has focus."""
+cd/m²; false colour and histogram follow the scene's scale; keys work whatever has focus; the
+inspector's view (exposure, false-colour range, zoom), its readout of the file's pixel and
+its labels."""
 
 # ruff: noqa: F811  (the browser fixtures are imported from tests/browser.py, used as arguments)
 
 from __future__ import annotations
 
+import base64
 import json
+import re
 import time
 import urllib.request
 from pathlib import Path
@@ -16,7 +20,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.browser import browser, open_viewer  # noqa: F401
+from tests.browser import browser, dither_levels, open_viewer  # noqa: F401
 
 W, H = 160, 96  # the frame; the images are this size, so the scene map is the image itself
 
@@ -384,3 +388,330 @@ def test_histogram_marks_the_adaptation_and_the_floor(live_server, open_viewer, 
     viewer.wait("() => window.gazehdr.state.params.A_min === 3")
     red_x, grey_x, a = lines(3.0)
     assert grey_x == pytest.approx(180, abs=1.0) and red_x == pytest.approx((a + 3) * 30, abs=3.0)
+
+
+# ---- the inspector's view: exposure, false-colour range, zoom, the file's pixel, labels ------
+
+#: Viridis at the five stops web/inspect.js joins linearly, written out again here.
+VIRIDIS = np.array(
+    [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], np.float64
+)
+READOUT = "() => document.querySelector('#inspector .readout').textContent"
+#: A number as the legend and the histogram write it: 10ⁿ or m·10ⁿ, "≤"/"≥" at the ends.
+TEN_TO_THE = re.compile("^(≤|≥)?(\\d(\\.\\d+)?·)?10[⁻⁰¹²³⁴⁵⁶⁷⁸⁹]+$")
+
+
+def _viridis(t: float) -> list[int]:
+    x = min(max(t, 0.0), 1.0) * 4
+    i = min(int(x), 3)
+    return [int(np.floor(v + 0.5)) for v in VIRIDIS[i] + (VIRIDIS[i + 1] - VIRIDIS[i]) * (x - i)]
+
+
+def _srgb_bytes(linear: np.ndarray) -> np.ndarray:
+    x = np.clip(linear, 0.0, 1.0)
+    return 255.0 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+
+
+def _scene(srv: Any, viewer: Any, name: str, rgb: np.ndarray, scale: float, tmp: Path) -> None:
+    """Upload `rgb` (as a PFM) as scene `name` at `scale` cd/m² per unit, show it and wait for
+    its scene map."""
+    path = tmp / f"{name}.pfm"
+    assert cv2.imwrite(str(path), rgb[..., ::-1].astype(np.float32))
+    with open(path, "rb") as f:
+        assert _http("PUT", f"{srv.url}/api/scenes/{name}", f.read(), srv.token)[0] == 201
+    assert _http("PATCH", f"{srv.url}/api/scenes/{name}", {"scale": scale}, srv.token)[0] == 200
+    seen = _maps_seen(viewer)
+    viewer.js("(n) => window.gazehdr.connection.send({type: 'scene', name: n})", name)
+    viewer.wait(
+        "([n, s]) => { const g = window.gazehdr;"
+        " return g.state.scene === n && g.state.scene_info.scale === s; }",
+        [name, scale],
+    )
+    viewer.wait("(n) => window.gazehdr.sceneMaps > n", seen)
+
+
+def _overlay(viewer: Any) -> np.ndarray:
+    """The overlay canvas (scene view or false colour) as an H×W×3 byte array."""
+    w, h, b64 = viewer.js(
+        """() => { const c = document.getElementById('falsecolour');
+          const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+          return [c.width, c.height, window.__b64(d.buffer)]; }"""
+    )
+    return np.frombuffer(base64.b64decode(b64), np.uint8).reshape(h, w, 4)[..., :3]
+
+
+def _gaze_after(viewer: Any, sent: int) -> dict[str, Any]:
+    """The header of a frame made with a gaze sent after gaze number `sent`."""
+    seq = viewer.wait(
+        "(s) => window.gazehdr.stats.gazeSent > s && window.gazehdr.stats.gazeSent", sent
+    )
+    return viewer.wait(
+        "(s) => window.gazehdr.lastHeader.gaze_seq >= s && window.gazehdr.lastHeader", seq
+    )
+
+
+def test_exposure_scales_the_scene_view_by_two_to_the_stops(
+    live_server, open_viewer, tmp_path
+) -> None:
+    """S shows the scene as tev shows its file: each channel's value in file units (radiance ÷
+    scale) × 2^exposure, sRGB-encoded; ] and [ step the exposure by half a stop. The canvas's
+    pixels are read back at 0, +1.5 and −1 stops and each compared with the formula, within a
+    byte; the panel and the readout show the exposure; no message goes to the server. Guards
+    the mutation: the gain drawn without 2^exposure (`2 ** this.exposure / this.scale` →
+    `1 / this.scale` in sceneImage)."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    stored = _image() * 0.02  # 2·10⁻⁴ … 2.3 file units: most of it between black and white
+    _scene(srv, viewer, "exposed", stored, 250.0, tmp_path)
+    page = viewer.page
+    page.keyboard.press("i")
+    page.keyboard.press("s")
+    viewer.wait("() => document.getElementById('falsecolour').width === 160")
+    viewer.js(
+        """() => { const c = window.gazehdr.connection, send = c.send.bind(c);
+          window.__sent = []; c.send = (m) => { window.__sent.push(m); return send(m); }; }"""
+    )
+    for keys, stops, shown in [("", 0.0, "±0.0"), ("]]]", 1.5, "+1.5"), ("[[[[[", -1.0, "−1.0")]:
+        for key in keys:
+            page.keyboard.press(key)
+        viewer.wait(
+            "(e) => { const d = window.gazehdr.inspector.drawn;"
+            " return d?.mode === 'scene' && d.exposure === e && d.scale === 250; }",
+            stops,
+        )
+        diff = np.abs(_overlay(viewer) - _srgb_bytes(stored * 2.0**stops))
+        assert diff.max() <= 1.01, (stops, diff.max())
+        field = viewer.js("() => Number(document.getElementById('exposure-input').value)")
+        assert field == stops
+        line = f"scene view · exposure {shown} stops"
+        viewer.wait(f"(l) => ({READOUT})().includes(l)", line)
+    sent = viewer.js("() => window.__sent.filter((m) => !['gaze', 'ack'].includes(m.type))")
+    assert sent == [], sent  # the exposure is this page's
+
+
+def test_the_false_colour_range_maps_a_known_radiance_to_its_colour(
+    live_server, open_viewer, tmp_path
+) -> None:
+    """A uniform 10 cd/m² scene (log10 Y = 1) in false colour: with the default range
+    (10⁻³…10⁷) it is viridis at 0.4; with the range set in the panel to 0…2, viridis at 0.5;
+    to 1…3, at 0 (the range's foot); to −1…1.5, at 0.8. The overlay's pixels are read back;
+    the legend's ends follow the range; a minimum above the maximum is refused. Guards the
+    mutation: the false colour drawn over LOG_RANGE whatever the range (`const [lo, hi] =
+    this.range` → `= LOG_RANGE` in falseImage)."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    _scene(srv, viewer, "ten", np.ones((H, W, 3), np.float32), 10.0, tmp_path)
+    page = viewer.page
+    page.keyboard.press("c")
+    log_y = np.log10(10.0 * sum(viewer.js("() => window.gazehdr.state.params.w_P")))
+
+    def colour(lo: float, hi: float) -> list[int]:
+        viewer.wait("(r) => window.gazehdr.inspector.drawn?.range.join() === r.join()", [lo, hi])
+        return [int(v) for v in _overlay(viewer)[H // 2, W // 2]]
+
+    assert colour(-3, 7) == _viridis((log_y + 3) / 10)
+    page.keyboard.press("p")
+    for lo, hi in [(0, 2), (1, 3), (-1, 1.5)]:
+        page.fill("#falsecolour-min", str(lo))
+        page.press("#falsecolour-min", "Enter")
+        page.fill("#falsecolour-max", str(hi))
+        page.press("#falsecolour-max", "Enter")
+        assert colour(lo, hi) == _viridis((log_y - lo) / (hi - lo)), (lo, hi)
+    labels = viewer.js(
+        "() => [...document.querySelectorAll('#inspector .legend .labels span')]"
+        ".map((s) => s.textContent)"
+    )
+    assert labels[0] == "≤10⁻¹" and labels[-1] == "≥3.2·10¹", labels
+    page.fill("#falsecolour-min", "5")
+    page.press("#falsecolour-min", "Enter")
+    invalid = "() => document.getElementById('falsecolour-min').classList.contains('invalid')"
+    assert viewer.js(invalid)
+    assert viewer.js("() => window.gazehdr.inspector.range") == [-1, 1.5]
+
+
+def test_zoom_draws_blocks_and_the_gaze_is_the_scene_point_under_the_pointer(
+    live_server, open_viewer
+) -> None:
+    """Inspector open, + twice at P0: the 160×96 frame, fitted 3× into 480×288, is magnified 4×
+    about P0, which stays put (the frame's rectangle: P0 − 4·P0, 1920×1152). (1) Blocks: a known
+    frame drawn zoomed and read back has, at every canvas pixel, the dithered value of the
+    frame pixel under it, nothing between. (2) The gaze sent for a pointer at P1 is the frame
+    point under P1 in that rectangle, the readout's pixel is the one it falls in, and the
+    overlay's block there has that scene pixel's colour. (3) The wheel zooms about the
+    pointer. (4) 0 resets, and the gaze is sent anew for the unzoomed point. Guards the
+    mutations: the zoomed frame sampled LINEAR (`this.view.scale === 1 &&` dropped in
+    renderer.draw), and the pointer mapped through the unzoomed rectangle in frameFraction."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, 3 * W, 3 * H)
+    assert (viewer.header()["width"], viewer.header()["height"]) == (W, H)
+    page = viewer.page
+    page.keyboard.press("i")
+    page.keyboard.press("c")
+    p0 = (241.0, 143.0)
+    page.mouse.move(*p0)
+    page.keyboard.press("+")
+    page.keyboard.press("+")
+    zoomed = "(z) => window.gazehdr.renderer.view.scale === z && window.gazehdr.renderer.cssRect()"
+    rect = viewer.wait(zoomed, 4)
+    assert rect == {"x": -3 * p0[0], "y": -3 * p0[1], "width": 1920, "height": 1152}
+
+    # (1) A known frame (RGB10A2: q/1023, neighbours far apart) drawn zoomed, read back.
+    yy, xx = np.mgrid[:H, :W]
+    q = np.stack([(xx * 37 + yy * 11) % 32 * 33, (xx * 7) % 16 * 68, (yy * 5) % 16 * 68], -1)
+    words = (q[..., 0] | q[..., 1] << 10 | q[..., 2] << 20).astype(np.uint32)
+    got = viewer.js(
+        """([b64, w, h]) => { const g = window.gazehdr; g.hold = true;
+          const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+          g.renderer.upload(w, h, 2, new Uint32Array(bytes.buffer));
+          g.renderer.draw(7);
+          return window.__b64(g.renderer.readPixels().buffer); }""",
+        [base64.b64encode(words.tobytes()).decode(), W, H],
+    )
+    px = np.frombuffer(base64.b64decode(got), np.uint8).reshape(3 * H, 3 * W, 4)[::-1, :, :3]
+    cy, cx = np.mgrid[: 3 * H, : 3 * W] + 0.5  # canvas pixel centres, from the top
+    fx = np.floor((cx - rect["x"]) / 12).astype(int)  # 12 canvas px a frame pixel
+    fy = np.floor((cy - rect["y"]) / 12).astype(int)
+    lo, hi = dither_levels(q[fy, fx] / 1023.0)
+    assert ((px >= lo) & (px <= hi)).all(), "zoomed pixels are not the frame's pixels as blocks"
+    viewer.js("() => { window.gazehdr.hold = false; }")
+
+    # (2) The gaze for a pointer at P1 under the zoom.
+    p1 = (100.3, 60.7)
+    h = viewer.move_gaze(*p1)
+    gaze = ((p1[0] - rect["x"]) / 1920, (p1[1] - rect["y"]) / 1152)
+    assert h["gaze_x"] == pytest.approx(gaze[0], abs=1e-5)
+    assert h["gaze_y"] == pytest.approx(gaze[1], abs=1e-5)
+    x, y = int(gaze[0] * W), int(gaze[1] * H)
+    assert (x, y) != (int(p1[0] / 3), int(p1[1] / 3))  # not where the unzoomed frame has it
+    viewer.wait(
+        "([x, y]) => { const r = window.gazehdr.inspector.last; return r?.x === x && r.y === y; }",
+        [x, y],
+    )
+    block = viewer.js(
+        """([px, py, x, y]) => {
+          const o = document.getElementById('falsecolour').getContext('2d');
+          const i = window.gazehdr.inspector.images.false.getContext('2d');
+          return [[...o.getImageData(px, py, 1, 1).data], [...i.getImageData(x, y, 1, 1).data]];
+        }""",
+        [int(p1[0]), int(p1[1]), x, y],
+    )
+    assert block[0] == block[1]
+
+    # (3) The wheel zooms about the pointer: the frame point under P1 stays under it.
+    page.mouse.wheel(0, -200)
+    rect = viewer.wait(zoomed, 8)
+    assert rect["width"] == 8 * 3 * W
+    assert (p1[0] - rect["x"]) / rect["width"] == pytest.approx(gaze[0], abs=1 / rect["width"])
+    assert (p1[1] - rect["y"]) / rect["height"] == pytest.approx(gaze[1], abs=1 / rect["height"])
+
+    # (4) 0: the whole frame again, and the gaze follows to the unzoomed point.
+    sent = viewer.js("() => window.gazehdr.stats.gazeSent")
+    page.keyboard.press("0")
+    h = _gaze_after(viewer, sent)
+    assert viewer.js("() => window.gazehdr.renderer.view.scale") == 1
+    assert h["gaze_x"] == pytest.approx(p1[0] / 480, abs=1e-5)
+    assert h["gaze_y"] == pytest.approx(p1[1] / 288, abs=1e-5)
+
+
+def test_the_readout_gives_the_file_pixel_in_file_units_and_in_cd_per_m2(
+    live_server, open_viewer, tmp_path
+) -> None:
+    """At 250 cd/m² per unit: a 160×96 file (the frame's size) reads out the file's own pixel,
+    its value in file units and × 250 in cd/m²; a 320×192 one the mean of the 2×2 file pixels
+    the frame pixel covers, said so; the bars around a 160×48 one read 0, black, with no file
+    pixel, and its image the file's own pixels, 24 rows down. Guards the mutations: the file
+    units shown without ÷ scale (`v / scale` → `v`), and the file's span taken as the frame's
+    (`x0: u * sx` → `x0: u`)."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, W, H)
+    viewer.page.keyboard.press("i")
+
+    def shown(part: str) -> str:
+        return viewer.wait(f"(p) => ({READOUT})().includes(p) && ({READOUT})()", part)
+
+    own = _image()
+    _scene(srv, viewer, "own", own, 250.0, tmp_path)
+    r = _readout(viewer, 80, 48)
+    assert r["file"] == {"kind": "own", "x": 80, "y": 48, "x0": 80, "x1": 81, "y0": 48, "y1": 49}
+    np.testing.assert_allclose(r["units"], own[48, 80], rtol=2**-10)
+    np.testing.assert_allclose(r["rgb"], own[48, 80] * 250.0, rtol=2**-10)
+    text = shown("file  px 80, 48 of 160×96: its own pixel")
+    assert f"RGB  {'  '.join(f'{v:.4g}' for v in r['units'])} file units" in text
+    assert f"RGB  {'  '.join(f'{v:.4g}' for v in r['rgb'])} cd/m²" in text
+
+    ramp = np.linspace(0.5, 1.5, 2 * W, dtype=np.float32)[None, :, None]
+    big = np.kron(_image(), np.ones((2, 2, 1), np.float32)) * ramp
+    _scene(srv, viewer, "big", big, 250.0, tmp_path)
+    r = _readout(viewer, 40, 30)
+    f = r["file"]
+    assert f["kind"] == "mean" and (f["x0"], f["x1"], f["y0"], f["y1"]) == (80, 82, 60, 62)
+    np.testing.assert_allclose(r["units"], big[60:62, 80:82].mean(axis=(0, 1)), rtol=0.01)
+    shown("file  mean of px 80–81, 60–61 of 320×192")
+
+    _scene(srv, viewer, "wide", _image()[:48], 250.0, tmp_path)
+    r = _readout(viewer, 80, 10)  # above the image: a bar
+    assert r["file"] == {"kind": "bar"} and r["Y"] == 0 and r["log10Y"] is None
+    text = shown("file  – (the bars around its 160×48: 0)")
+    assert "Y    0 cd/m² (black)" in text and "Infinity" not in text and "NaN" not in text
+    r = _readout(viewer, 80, 30)  # in it: the file's own pixel
+    assert r["file"]["kind"] == "own" and (r["file"]["x"], r["file"]["y"]) == (80, 6)
+
+
+def test_labels_fit_their_boxes_read_no_infinity_and_share_one_format(
+    live_server, open_viewer, tmp_path
+) -> None:
+    """With the false colour on, at the default range and at a fractional one (−2.5…3.7):
+    every legend label lies inside the legend's bar (bounding boxes compared), every histogram
+    axis label inside its canvas, both in the 10⁻³ style; the inspector inside the window, the
+    panel's inspector controls inside the panel; black under the pointer reads 0, and nothing
+    reads Infinity, NaN or 1e-3. Guards the mutations: the legend's end labels centred on the
+    bar's ends (the `.start`/`.end` rules of style.css dropped), and black's log10 printed
+    (`log10Y: Math.log10(Y)` and the readout's Y line always with it: "log10 -Infinity")."""
+    srv = live_server(size=(W, H))
+    viewer = open_viewer(srv.url, 880, 500)
+    image = _image()
+    image[:, :20] = 0
+    _scene(srv, viewer, "labels", image, 250.0, tmp_path)
+    page = viewer.page
+    page.keyboard.press("i")
+    page.keyboard.press("c")
+    page.mouse.move(40, 250)  # over the black columns
+    viewer.wait("() => window.gazehdr.inspector.last?.Y === 0")
+    for lo, hi in [(-3, 7), (-2.5, 3.7)]:
+        viewer.js("(r) => window.gazehdr.view.falseRange(r)", [lo, hi])
+        boxes = viewer.js(
+            """() => { const box = (e) => { const b = e.getBoundingClientRect();
+                return [b.left, b.top, b.right, b.bottom]; };
+              const legend = document.querySelector('#inspector .legend');
+              const spans = [...legend.querySelectorAll('.labels span')];
+              return {
+                bar: box(legend.querySelector('canvas')),
+                labels: spans.map((s) => [s.textContent, box(s)]),
+                axis: window.gazehdr.inspector.axisLabels,
+                histogram: document.querySelector('#inspector canvas.histogram').width,
+                inspector: box(document.getElementById('inspector')),
+                text: document.getElementById('inspector').textContent,
+              }; }"""
+        )
+        bar = boxes["bar"]
+        for text, (left, _, right, _) in boxes["labels"]:
+            assert bar[0] - 0.5 <= left and right <= bar[2] + 0.5, (text, left, right, bar)
+            assert TEN_TO_THE.match(text), text
+        assert boxes["labels"][0][0].startswith("≤") and boxes["labels"][-1][0].startswith("≥")
+        for label in boxes["axis"]:
+            assert 0 <= label["x"] and label["x"] + label["width"] <= boxes["histogram"], label
+            assert TEN_TO_THE.match(label["text"]), label
+        left, top, right, bottom = boxes["inspector"]
+        assert 0 <= left and 0 <= top and right <= 880 and bottom <= 500, boxes["inspector"]
+        for bad in ("Infinity", "NaN", "e-", "e+"):
+            assert bad not in boxes["text"], (bad, boxes["text"])
+        assert "Y    0 cd/m² (black)" in boxes["text"]
+    page.keyboard.press("p")
+    inside = viewer.js(
+        """() => { const panel = document.getElementById('panel').getBoundingClientRect();
+          const group = document.getElementById('inspector-group');
+          return [...group.querySelectorAll('input, button, span')].map((e) => {
+            const b = e.getBoundingClientRect();
+            return [e.id || e.textContent, b.left >= panel.left && b.right <= panel.right]; }); }"""
+    )
+    assert inside and all(ok for _, ok in inside), inside

@@ -333,6 +333,21 @@ def test_wheel_and_sdist_carry_the_viewer_and_the_licence(dist: dict[str, Path])
     with tarfile.open(dist["sdist"]) as sdist:
         members = {m.name.split("/", 1)[1] for m in sdist.getmembers() if "/" in m.name}
     assert {"LICENSE", "web/index.html", "web/main.js", "pyproject.toml"} <= members
+    pages = {str(p.relative_to(ROOT)) for p in (ROOT / "docs").rglob("*.md")}
+    assert pages <= members  # the sdist carries docs/
+    assert {f"gazehdr/{page}" for page in pages} <= names  # and the wheel, as gazehdr.docs
+
+
+def test_an_installed_user_finds_the_docs(installed: Path, elsewhere: Path) -> None:
+    """`gazehdr --help` says where the documentation is, and `gazehdr docs` (and `gazehdr docs
+    PAGE`) names the installed files, which exist. Guards docs that do not ship with the wheel
+    (the help texts named docs/*.md, which an installed user does not have)."""
+    run = lambda *args: _run(installed, "-m", "gazehdr", *args, cwd=elsewhere)  # noqa: E731
+    assert "'gazehdr docs'" in run("--help")
+    index = run("docs")
+    assert "server" in index and "model" in index
+    page = Path(run("docs", "server").strip())
+    assert page.is_file() and page.name == "server.md" and "site-packages" in str(page)
 
 
 @pytest.fixture

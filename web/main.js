@@ -5,7 +5,7 @@ import { ENCODING, binaryKind, decodeFrame, messages, parseText } from './protoc
 import { Renderer } from './renderer.js';
 import { VideoStream, unsupported } from './video.js';
 import { Hud, RateMeter, Ring, SplitOverlay } from './hud.js';
-import { Inspector } from './inspect.js';
+import { EXPOSURE_STEP, Inspector } from './inspect.js';
 import { Panel } from './panel.js';
 
 const BACKOFF_MIN_MS = 500;
@@ -163,22 +163,54 @@ const REFUSALS = {
 
 const conn = new Connection();
 const send = (msg) => conn.send(msg);
-/** Scene maps (10 bytes a pixel: 20 MB at 1080p) feed the inspector and the false colour: on a
- * raw connection always; on an av1 one, a remote viewer's, only while either is shown. */
+/** Scene maps (10 bytes a pixel: 20 MB at 1080p) feed the inspector, the false colour and the
+ * scene view: on a raw connection always; on an av1 one, a remote viewer's, only while one of
+ * them is shown. */
 function wantMaps() {
-  return wantedEncoding !== 'av1' || inspector.visible || inspector.falseColour;
+  return wantedEncoding !== 'av1' || inspector.visible || inspector.mode !== 'off';
+}
+
+/** The inspector's settings as the panel shows them. */
+function showInspector() {
+  panel.showView(inspector.falseColour, inspector.visible);
+  panel.showInspector({
+    sceneView: inspector.sceneView, exposure: inspector.exposure, range: inspector.range,
+    zoom: renderer.view.scale,
+  }); // prettier-ignore
 }
 
 const view = {
   falseColour(on = !inspector.falseColour) {
     inspector.setFalseColour(on);
     send(messages.sceneMaps(wantMaps()));
-    panel.showView(inspector.falseColour, inspector.visible);
+    showInspector();
+  },
+  /** The scene as tev shows its file (values × 2^exposure), over the simulation. */
+  sceneView(on = !inspector.sceneView) {
+    inspector.setSceneView(on);
+    send(messages.sceneMaps(wantMaps()));
+    showInspector();
   },
   inspector(on = !inspector.visible) {
     inspector.toggle(on);
+    if (!on) zoom.reset(); // the zoom is the inspector's: closing it shows the whole frame
     send(messages.sceneMaps(wantMaps()));
-    panel.showView(inspector.falseColour, inspector.visible);
+    showInspector();
+  },
+  /** The scene view's exposure in stops; 'fit': the brightest 1% at white. */
+  exposure(stops) {
+    inspector.setExposure(stops === 'fit' ? inspector.fitExposure() : stops);
+    showInspector();
+  },
+  /** The false colour's range [lo, hi] (log10 cd/m²); null: the default; 'fit': the scene's.
+   * False if refused. */
+  falseRange(range) {
+    const ok = inspector.setRange(range === 'fit' ? inspector.fitRange() : range);
+    showInspector();
+    return ok;
+  },
+  zoomReset() {
+    zoom.reset();
   },
   /** The late gaze warp on or off (the server switches this viewer's frames). */
   warp(on = !warpOn) {
@@ -190,6 +222,7 @@ const view = {
 };
 const panel = new Panel(document.getElementById('panel'), send, toast, view);
 panel.showWarp(warpOn);
+showInspector();
 
 /** What the page waits for, until the first frame: the first frame of a new session takes
  * the server a moment (its OpenCL kernels are built on first use). */
@@ -295,6 +328,7 @@ function onText(text) {
       const { type, ...rest } = msg;
       if (rest.gaze_source !== state.gaze_source) trackerGaze = null; // another tracker's, or none
       Object.assign(state, rest);
+      inspector.setScene(state.scene_info);
       trackers.clear();
       for (const t of state.trackers ?? []) trackers.set(t.name, t);
       panel.update(state);
@@ -351,12 +385,62 @@ window.addEventListener('pointermove', (ev) => {
   hover = pointer;
 });
 
-/** Client px → fractions of the drawn frame (outside [0, 1] over the bars). */
+/** Client px → fractions of the drawn frame (outside [0, 1] over the bars). The rectangle is
+ * the one drawn, zoomed included, so the gaze is the frame's point under the pointer. */
 function frameFraction(p) {
   const box = canvas.getBoundingClientRect();
   const r = renderer.cssRect();
   return [(p.x - box.left - r.x) / r.width, (p.y - box.top - r.y) / r.height];
 }
+
+// ---- the inspector's zoom ---------------------------------------------------------------
+
+/** Zoom (the wheel, + and -, 0: the whole frame; only while the inspector is open): the fitted
+ * frame magnified about the pointer, its pixels drawn as blocks (renderer.view: the scale and
+ * the offset, in fractions of the canvas). A zoomed frame always covers the canvas along a
+ * side it is longer than; the gaze stays the frame point under the pointer (frameFraction). */
+const ZOOM_MAX = 64;
+const zoom = {
+  /** Magnify by `factor` keeping the frame point under client px `p` (default: the middle
+   * of the canvas) where it is. */
+  by(factor, p = null) {
+    const box = canvas.getBoundingClientRect();
+    const v = renderer.view;
+    const [px, py] = p ? [(p.x - box.left) / box.width, (p.y - box.top) / box.height] : [0.5, 0.5];
+    const scale = Math.min(Math.max(v.scale * factor, 1), ZOOM_MAX, renderer.maxZoom());
+    const k = scale / v.scale;
+    this.set(scale, px - k * (px - v.x), py - k * (py - v.y));
+  },
+  /** Set the view, moved as little as keeps the frame covering the canvas. */
+  set(scale, x, y) {
+    if (scale <= 1) {
+      renderer.view = { scale: 1, x: 0, y: 0 };
+    } else {
+      const f = renderer.fitRect();
+      const { drawingBufferWidth: cw, drawingBufferHeight: ch } = renderer.gl;
+      const keep = (o, start, size) => { // o: the offset; start, size: the fitted side's
+        const [at, length] = [o + scale * start, scale * size]; // where the zoomed side lies
+        const want = length >= 1 ? Math.min(Math.max(at, 1 - length), 0) : (1 - length) / 2;
+        return want - scale * start;
+      };
+      renderer.view = { scale, x: keep(x, f.x / cw, f.width / cw), y: keep(y, f.y / ch, f.height / ch) };
+    }
+    inspector.zoom = renderer.view.scale;
+    if (hover) pointer = hover; // another frame point is under the pointer now: the gaze
+    showInspector();
+  },
+  reset() {
+    this.set(1, 0, 0);
+  },
+};
+
+// The wheel zooms about the pointer while the inspector is open (a pinch, ctrl+wheel, too).
+window.addEventListener('wheel', (ev) => {
+  if (!inspector.visible || (ev.target instanceof Element && ev.target.closest('#panel'))) return;
+  ev.preventDefault();
+  const lines = ev.deltaMode === 1 ? 33 : ev.deltaMode === 2 ? 400 : 1; // to px
+  zoom.by(2 ** (-(ev.deltaY * lines) / 200), { x: ev.clientX, y: ev.clientY });
+}, { passive: false });
 
 function flushGaze() {
   if (!pointer) return;
@@ -384,7 +468,18 @@ const TEXT_INPUTS = new Set(['text', 'number', 'search', 'email', 'url', 'passwo
 const typing = (ev) =>
   ev.target instanceof HTMLElement &&
   (ev.target.isContentEditable || ev.target.tagName === 'TEXTAREA' || (ev.target.tagName === 'INPUT' && TEXT_INPUTS.has(ev.target.type)));
-const KEYS = new Set(['h', 'p', 'f', 'r', 'i', 'c', 'escape']);
+const KEYS = new Set(['h', 'p', 'f', 'r', 'i', 'c', 's', 'escape']);
+/** The inspector's keys that repeat while held: exposure ([ ]) always, zoom (+ - 0) while the
+ * inspector is open. */
+const VIEW_KEYS = {
+  '[': () => view.exposure(inspector.exposure - EXPOSURE_STEP),
+  ']': () => view.exposure(inspector.exposure + EXPOSURE_STEP),
+  '+': () => inspector.visible && zoom.by(2, hover),
+  '=': () => inspector.visible && zoom.by(2, hover),
+  '-': () => inspector.visible && zoom.by(1 / 2, hover),
+  _: () => inspector.visible && zoom.by(1 / 2, hover),
+  0: () => inspector.visible && zoom.reset(),
+};
 
 // Capture: before a focused select's type-ahead or a checkbox's Space can take the key.
 window.addEventListener('keydown', (ev) => {
@@ -398,6 +493,11 @@ window.addEventListener('keydown', (ev) => {
   if (ev.code === 'Space') {
     ev.preventDefault();
     setEyes(false);
+    return;
+  }
+  if (Object.hasOwn(VIEW_KEYS, ev.key)) {
+    ev.preventDefault();
+    VIEW_KEYS[ev.key]();
     return;
   }
   if (!KEYS.has(ev.key.toLowerCase())) return;
@@ -422,6 +522,9 @@ window.addEventListener('keydown', (ev) => {
       break;
     case 'c':
       view.falseColour();
+      break;
+    case 's':
+      view.sceneView();
       break;
   }
 }, true);
@@ -510,7 +613,10 @@ function tick(now) {
     renderer.uploadYuv(pendingPlanes);
     pendingPlanes = null;
   }
-  renderer.fitToCSS();
+  if (renderer.fitToCSS() && renderer.view.scale !== 1) {
+    const v = renderer.view; // a resized canvas: the zoomed frame still covers it
+    zoom.set(v.scale, v.x, v.y);
+  }
   flushGaze();
   // Every display frame: the dither noise must change even without new frames, and a warp
   // frame's afterimages follow the newest pointer (when the pointer is the gaze).
@@ -519,7 +625,7 @@ function tick(now) {
   const rect = renderer.cssRect();
   hud.placeMarker(lastHeader, rect);
   splitOverlay.place(lastHeader, rect, state.model, state.split);
-  inspector.place(lastHeader, rect);
+  inspector.place(lastHeader, rect, canvas.getBoundingClientRect());
   if (now - hudAt >= HUD_INTERVAL_MS) {
     hudAt = now;
     hud.update(hudInfo(now));
@@ -532,7 +638,7 @@ function tick(now) {
 // For tests and debugging; keep it small.
 const api = {
   state, lastHeader, stats, lastPayload, renderer, connection: conn, trackers, inspector,
-  sceneMap: null, sceneMaps: 0, panel, view, hud, video, encodingRefused: null,
+  sceneMap: null, sceneMaps: 0, panel, view, zoom, hud, video, encodingRefused: null,
   shown: null,
   get trackerGaze() { return trackerGaze; }, // the newest forwarded tracker gaze (`gaze` notes)
   hold: false, // tests: keep showing the current frame (frames still arrive), as a stalled server

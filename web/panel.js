@@ -30,7 +30,7 @@ export class Panel {
     this.root = root;
     this.send = send;
     this.toast = toast;
-    this.view = view; // {falseColour(on), inspector(on)}: what the page shows
+    this.view = view; // main.js's: what the page shows (the views, the inspector's settings)
     this.visible = false;
     this.layoutKey = null; // rebuild parameter inputs only when the set of names changes
     this.inputs = new Map(); // name -> {update(value)}
@@ -117,6 +117,7 @@ export class Panel {
     const close = el('button', { type: 'button', class: 'close', id: 'panel-close', textContent: '×', title: 'close (Esc)' });
     close.addEventListener('click', () => this.toggle(false));
 
+    this.inspectorGroup = this.buildInspector();
     this.params = el('div', { class: 'params' });
     this.root.append(
       el('h2', {}, 'gazehdr', close),
@@ -127,6 +128,7 @@ export class Panel {
       el('label', { id: 'layer-row' }, 'layer ', this.layerSelect),
       el('label', {}, this.falseColourBox, ' false colour (C)'),
       el('label', {}, this.inspectorBox, ' inspector: readout, histogram (I)'),
+      this.inspectorGroup,
       el('label', { title: 'afterimages follow the pointer at display rate, between frames' }, this.warpBox, ' late gaze warp'),
       el('label', {}, 'afterimage ', this.afterimageSelect),
       el('label', {}, 'acuity ', this.acuitySelect),
@@ -140,6 +142,68 @@ export class Panel {
       this.params,
       el('p', { class: 'hint' }, 'H HUD · P panel · Esc close · I inspector · C false colour · F fullscreen · R reset · hold Space: eyes closed · drop a file anywhere to upload'),
     );
+  }
+
+  /** The inspector's controls: the scene view and its exposure, the false colour's range,
+   * the zoom. They change what this page draws, never the simulation or what is sent. */
+  buildInspector() {
+    const button = (text, title, click) => {
+      const b = el('button', { type: 'button', textContent: text, title });
+      b.addEventListener('click', click);
+      return b;
+    };
+    const number = (id, title, step) => el('input', { type: 'number', id, title, step, class: 'short' });
+    this.sceneViewBox = el('input', { type: 'checkbox', id: 'sceneview-toggle' });
+    this.sceneViewBox.addEventListener('change', () => this.view.sceneView(this.sceneViewBox.checked));
+    this.exposureInput = number('exposure-input', 'stops: the file\'s values × 2^exposure', 0.5);
+    this.exposureInput.addEventListener('change', () => {
+      const v = Number(this.exposureInput.value);
+      const ok = this.exposureInput.value.trim() !== '' && Number.isFinite(v);
+      this.exposureInput.classList.toggle('invalid', !ok);
+      if (ok) this.view.exposure(v);
+    });
+    this.rangeInputs = [
+      number('falsecolour-min', 'log10 cd/m² shown darkest', 0.5),
+      number('falsecolour-max', 'log10 cd/m² shown brightest', 0.5),
+    ];
+    const commitRange = () => {
+      const [lo, hi] = this.rangeInputs.map((f) => (f.value.trim() === '' ? NaN : Number(f.value)));
+      const ok = this.view.falseRange([lo, hi]);
+      for (const f of this.rangeInputs) f.classList.toggle('invalid', !ok);
+    };
+    for (const f of this.rangeInputs) f.addEventListener('change', commitRange);
+    this.zoomLabel = el('span', { id: 'zoom-label', class: 'hint' });
+    return el(
+      'fieldset', { class: 'inspector-group', id: 'inspector-group' },
+      el('legend', {}, 'inspector view (this page only)'),
+      el('label', { title: 'the file\'s values in its own units × 2^exposure, as tev shows them' },
+        this.sceneViewBox, ' scene view: the file × 2^exposure (S)'),
+      el('div', { class: 'row' },
+        el('label', {}, 'exposure ', this.exposureInput, ' stops ([ ])'),
+        button('0', 'exposure 0: the file\'s value 1 is white', () => this.view.exposure(0)),
+        button('fit', 'the brightest 1% of the scene at white', () => this.view.exposure('fit'))),
+      el('div', { class: 'row' },
+        el('label', {}, 'false colour ', this.rangeInputs[0], ' to ', this.rangeInputs[1], ' log10 cd/m²'),
+        button('default', 'log10 cd/m² −3 to 7', () => this.view.falseRange(null)),
+        button('fit', 'the scene\'s darkest to its brightest lit pixel', () => this.view.falseRange('fit'))),
+      el('div', { class: 'row' },
+        this.zoomLabel,
+        button('whole frame', 'zoom 1× (0)', () => this.view.zoomReset())),
+    ); // prettier-ignore
+  }
+
+  /** The inspector's settings as the page has them (keys change them too); a field being
+   * edited is left alone. */
+  showInspector({ sceneView, exposure, range, zoom }) {
+    this.sceneViewBox.checked = sceneView;
+    const show = (field, v) => {
+      if (document.activeElement === field) return;
+      field.value = String(v);
+      field.classList.remove('invalid');
+    };
+    show(this.exposureInput, exposure);
+    this.rangeInputs.forEach((f, i) => show(f, range[i]));
+    this.zoomLabel.textContent = `zoom ${Number(zoom.toPrecision(3))}× (wheel, + −; 0: whole frame)`;
   }
 
   /** The whole model choice as one message: the server applies it at once. */

@@ -74,6 +74,9 @@ export class Renderer {
     this.gl = gl;
     this.counter = 0;
     this.frame = null; // {width, height, encoding} of the uploaded texture
+    // The inspector's zoom: the fitted rectangle scaled by `scale` and moved by (x, y),
+    // fractions of the canvas. Zoomed, the frame's pixels are drawn as blocks (NEAREST).
+    this.view = { scale: 1, x: 0, y: 0 };
 
     this.raw = link(gl, RAW_SOURCE, ['u_counter']);
     this.yuv = link(gl, YUV_SOURCE, ['u_counter', 'u_y', 'u_cb', 'u_cr', 'u_size']);
@@ -149,8 +152,9 @@ export class Renderer {
     return true;
   }
 
-  /** The frame's rectangle in drawing-buffer pixels ("contain": keep aspect, centre, bars). */
-  deviceRect() {
+  /** The frame's rectangle in drawing-buffer pixels ("contain": keep aspect, centre, bars),
+   * unzoomed. */
+  fitRect() {
     const { drawingBufferWidth: cw, drawingBufferHeight: ch } = this.gl;
     if (!this.frame) return { x: 0, y: 0, width: cw, height: ch };
     const s = Math.min(cw / this.frame.width, ch / this.frame.height);
@@ -158,6 +162,25 @@ export class Renderer {
     const height = Math.max(1, Math.round(this.frame.height * s));
     // y from the top, like CSS; GL's viewport is converted in draw().
     return { x: Math.floor((cw - width) / 2), y: Math.floor((ch - height) / 2), width, height };
+  }
+
+  /** The frame's rectangle in drawing-buffer pixels as drawn: the fitted one, zoomed. */
+  deviceRect() {
+    const r = this.fitRect();
+    const { scale: s, x, y } = this.view;
+    if (s === 1 && x === 0 && y === 0) return r;
+    const { drawingBufferWidth: cw, drawingBufferHeight: ch } = this.gl;
+    return {
+      x: Math.round(x * cw + s * r.x), y: Math.round(y * ch + s * r.y),
+      width: Math.round(s * r.width), height: Math.round(s * r.height),
+    }; // prettier-ignore
+  }
+
+  /** The largest zoom GL can draw: the zoomed rectangle within MAX_VIEWPORT_DIMS. */
+  maxZoom() {
+    const [mw, mh] = this.gl.getParameter(this.gl.MAX_VIEWPORT_DIMS);
+    const r = this.fitRect();
+    return Math.max(1, Math.min(mw / r.width, mh / r.height));
   }
 
   /** The drawn frame rectangle in CSS pixels relative to the canvas's top-left corner. */
@@ -184,7 +207,8 @@ export class Renderer {
     const r = this.deviceRect();
     gl.viewport(r.x, ch - r.y - r.height, r.width, r.height);
     // Magnifying: LINEAR looks better; otherwise NEAREST keeps pixels (and dithering) exact.
-    const magnified = r.width > this.frame.width || r.height > this.frame.height;
+    // Zoomed (the inspector), NEAREST: the frame's pixels as blocks.
+    const magnified = this.view.scale === 1 && (r.width > this.frame.width || r.height > this.frame.height);
     if (this.frame.encoding === ENCODING.WARP) {
       this.warp.draw(counter, gaze, magnified);
       return;

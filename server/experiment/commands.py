@@ -56,7 +56,7 @@ def add_analyse_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentPars
         "analyse",
         aliases=["analyze"],
         help=what,
-        description=what + " (docs/experiment-analysis.md)",
+        description=what + " (gazehdr docs experiment-analysis)",
         epilog="examples:\n"
         "  gazehdr experiment analyse results/ --out report/report.html\n"
         "  gazehdr experiment analyse results/sub-01 results/sub-02 --bootstrap 2000 --seed 7",
@@ -126,7 +126,7 @@ def add_recovery_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentPar
     p = sub.add_parser(
         "recovery",
         help=what,
-        description=what + " (docs/experiment-analysis.md)",
+        description=what + " (gazehdr docs experiment-analysis)",
         epilog="example:\n  gazehdr experiment recovery --runs 200",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
