@@ -1,6 +1,7 @@
 """Shared fixtures: a real uvicorn server on loopback, started per test with the given settings;
-LSL outlets withdrawn safely after a test; and the suite's skip policy: under CI (CI set) a
-skipped test fails the run."""
+LSL outlets withdrawn safely after a test; the suite's two speeds (`pytest -m quick`, the daily
+subset; plain `pytest`, everything); and the suite's skip policy: under CI (CI set) a skipped
+test fails the run."""
 
 from __future__ import annotations
 
@@ -79,6 +80,41 @@ def sole_tracker(server: BackgroundServer) -> TrackerFeed:
 def samples_received(server: BackgroundServer) -> int:
     """Samples `server` received from its daemons so far (0 before any has connected)."""
     return sum(feed.samples for feed in server.hub.trackers.feeds())
+
+
+#: Modules left out of the quick subset, whole: a real browser, processes of their own (a
+#: daemon, a fuzzer, a built wheel, a Dask cluster, a decode worker), floods and huge uploads on
+#: a real server, the experiments' and figures' renders, the OpenAPI fuzzing of schemathesis.
+SLOW_MODULES = frozenset({
+    "test_browser.py", "test_browser_inspect.py", "test_browser_video.py", "test_browser_warp.py",
+    "test_experiment_browser.py", "test_palette.py", "test_packaging.py", "test_fuzz.py",
+    "test_lsl.py", "test_batch.py", "test_bench.py", "test_scene_limits.py", "test_fair_share.py",
+    "test_decode_worker.py", "test_figures.py", "test_daemon.py", "test_hid.py", "test_gaze.py",
+    "test_model_observer.py", "test_experiment_run.py", "test_experiment_analysis.py",
+    "test_video.py", "test_limits.py", "test_security.py", "test_live_pipeline.py",
+    "test_pupil.py", "test_xdf.py", "test_bids_dataset.py", "test_recording.py",
+})  # fmt: skip
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "quick: the daily subset (`pytest -m quick`, under 2 minutes on 2 cores)"
+    )
+    config.addinivalue_line("markers", "slow: left out of the quick subset")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Every test is `quick` unless its module is slow, it is marked `slow`, or it runs the
+    NumPy reference backend (the oracle: float64, minutes in all; the OpenCL run of the same
+    test stays quick)."""
+    for item in items:
+        params = getattr(getattr(item, "callspec", None), "params", {})
+        slow = (
+            Path(str(item.fspath)).name in SLOW_MODULES
+            or any(item.get_closest_marker(m) for m in ("slow", "docker", "hid_kernel"))
+            or any(isinstance(v, str) and v == "reference" for v in params.values())
+        )
+        item.add_marker(pytest.mark.slow if slow else pytest.mark.quick)
 
 
 def pytest_runtest_logstart(nodeid: str, location: tuple[str, int | None, str]) -> None:

@@ -202,6 +202,7 @@ def _mutate(lines: list[str], rng: random.Random) -> list[str]:
     return lines
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["cili_mono250", "pymovements_binocular"])
 def test_fuzzed_real_lines_give_a_log_or_a_clear_format_error(
     real: dict[str, Path], tmp_path: Path, name: str

@@ -563,6 +563,7 @@ def test_the_daemon_knows_the_servers_gaze_limits() -> None:
     assert delivery.DEFAULT_BURST < gaze_link.GAZE_BURST
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", FLOODS)
 def test_a_gaze_flood_is_rate_limited_without_harming_viewers(live_server, kind: str) -> None:
     message, limit, counter = FLOODS[kind]

@@ -162,6 +162,7 @@ def afterimage_peaks(display: DisplayModel) -> dict[str, float]:
     return peaks
 
 
+@pytest.mark.slow
 def test_sec41_afterimages_have_the_luminance_the_paper_measured() -> None:
     """With the defaults, on the display model the docs state (PAPER_DISPLAY: 100 cd/m^2
     white), 4.1's control and manipulated afterimages peak within 1.5x of what the authors
@@ -172,6 +173,7 @@ def test_sec41_afterimages_have_the_luminance_the_paper_measured() -> None:
         assert measured / 1.5 <= peaks[name] <= measured * 1.5, (name, peaks[name])
 
 
+@pytest.mark.slow
 def test_a_lab_monitor_shows_the_papers_luminances() -> None:
     """A lab enters its monitor's measured white and gamma: the stimuli are made for it, so its
     flash peaks at the standard's 27 cd/m^2 and its afterimages have the luminances they have on
