@@ -751,13 +751,18 @@ def test_list_devices_says_why(tmp_path: Any) -> None:
 
 
 def test_devices_main_prints_rule_and_status(capsys: pytest.CaptureFixture[str]) -> None:
+    """Listing is no failure, whatever it finds: 0 with or without a tracker; `--require`
+    makes a missing tracker 1, for scripts. Guards the old status (1 in ordinary use, when a
+    machine simply had no tracker plugged in)."""
     bus = FakeBus(make_tracker(), others=[KEYBOARD])
     assert devices_main([], backend=bus) == 0
     out = capsys.readouterr().out
     assert "ok   /dev/hidraw-test-0 2104:0127 Gaze 120: eye tracker" in out
     assert "skip /dev/hidraw-test-kbd 046d:c31c Keyboard: usage page 0x0001" in out
-    assert devices_main(["--trackers-only"], backend=FakeBus(others=[KEYBOARD])) == 1
+    assert devices_main(["--trackers-only"], backend=FakeBus(others=[KEYBOARD])) == 0
     assert "no HID eye trackers found" in capsys.readouterr().out
+    assert devices_main(["--require"], backend=FakeBus(others=[KEYBOARD])) == 1
+    assert devices_main(["--require"], backend=bus) == 0
 
 
 def test_drivers_hid_imports_neither_server_nor_pyopencl() -> None:

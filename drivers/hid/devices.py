@@ -104,7 +104,8 @@ def list_devices(
 
 
 def devices_main(argv: Sequence[str] | None = None, *, backend: Any = None) -> int:
-    """`gazehdr devices`: list HID interfaces; 0 when an eye tracker is usable, else 1."""
+    """`gazehdr devices`: list HID interfaces; 0 when the listing worked, whatever it found (1
+    with `--require` when no eye tracker is usable; 2 when devices cannot be listed)."""
     parser = argparse.ArgumentParser(
         prog="gazehdr devices",
         description="List HID devices and whether each is a usable eye tracker (usage page "
@@ -112,6 +113,11 @@ def devices_main(argv: Sequence[str] | None = None, *, backend: Any = None) -> i
     )
     parser.add_argument(
         "--trackers-only", action="store_true", help="list only usage page 0x12 devices"
+    )
+    parser.add_argument(
+        "--require",
+        action="store_true",
+        help="exit with 1 when no eye tracker is usable (for scripts; default: 0 once listed)",
     )
     args = parser.parse_args(list(argv) if argv is not None else None)
     try:
@@ -136,4 +142,4 @@ def devices_main(argv: Sequence[str] | None = None, *, backend: Any = None) -> i
             + "\nthen run 'sudo udevadm control --reload-rules && sudo udevadm trigger', be in "
             "the plugdev group, and re-plug the tracker."
         )
-    return 0 if any(d.usable for d in found) else 1
+    return 1 if args.require and not any(d.usable for d in found) else 0
