@@ -291,3 +291,18 @@ def test_the_outlet_flags_say_what_is_missing(tmp_path, monkeypatch, capsys) -> 
     assert "LSL outlet unavailable: Lab Streaming Layer needs pylsl: install gazehdr[lsl]" in (
         capsys.readouterr().err
     )
+
+
+def test_connecting_a_connected_or_closed_source_is_refused(lsl_outlet) -> None:
+    """`connect` only when DISCONNECTED: again while an inlet is open would leak it, after close
+    would open one nothing closes. Guards the state check."""
+    from gazehdr.drivers.states import InvalidStateError, Link
+
+    lsl_outlet(stream_info("Once", "Gaze", XY, source_id="once"))
+    source = open_source("lsl:Once", **FAST)
+    assert source.connection_state is Link.CONNECTED
+    with pytest.raises(InvalidStateError, match=r"connect\(\) in state CONNECTED"):
+        source.connect()
+    source.close()
+    with pytest.raises(InvalidStateError, match=r"connect\(\) in state CLOSED"):
+        source.connect()

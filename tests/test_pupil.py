@@ -478,3 +478,19 @@ def _wait(until: Callable[[], bool], what: str, timeout_s: float = 20.0) -> None
     while not until():
         assert time.monotonic() < deadline, f"{what}: not within {timeout_s} s"
         time.sleep(0.02)
+
+
+def test_connecting_a_connected_or_closed_source_is_refused(capture: Any) -> None:
+    """`connect` only when DISCONNECTED: again while connected would leave the first sockets
+    open (a leak), after close would open sockets nothing closes. Guards the state check."""
+    from gazehdr.drivers.states import InvalidStateError, Link
+
+    fake = capture()
+    source = open_source(fake.spec, **FAST)
+    assert source.connection_state is Link.CONNECTED
+    with pytest.raises(InvalidStateError, match=r"connect\(\) in state CONNECTED"):
+        source.connect()
+    source.close()
+    assert source.connection_state is Link.CLOSED
+    with pytest.raises(InvalidStateError, match=r"connect\(\) in state CLOSED"):
+        source.connect()

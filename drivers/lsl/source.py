@@ -38,6 +38,7 @@ from gazehdr.drivers.registry import SourceUnavailableError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sessionlog import Note
 from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.states import InvalidStateError, Link
 
 log = logging.getLogger(__name__)
 
@@ -142,9 +143,20 @@ class LslGazeSource:
             )
         return found[0]
 
+    @property
+    def connection_state(self) -> Link:
+        """The connection's state: CLOSED once closed, else whether it is connected."""
+        if self._closed:
+            return Link.CLOSED
+        return Link.DISCONNECTED if self.inlet is None else Link.CONNECTED
+
     def connect(self) -> ChannelLayout:
         """Resolve, open an inlet and read its description (its layout, returned) and clock
-        correction once."""
+        correction once. Refused while an inlet is open (it would leak) and once closed."""
+        if self.connection_state is not Link.DISCONNECTED:
+            raise InvalidStateError(
+                "LslGazeSource", "connect", self.connection_state, "not connected"
+            )
         found = self._resolve()
         inlet = self.lsl.StreamInlet(found, max_buflen=360, recover=False)
         try:

@@ -46,6 +46,7 @@ from gazehdr.drivers.registry import SourceUnavailableError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry, StreamRequest
 from gazehdr.drivers.sessionlog import Note
 from gazehdr.drivers.sources import SourceInfo
+from gazehdr.drivers.states import InvalidStateError, Link
 
 log = logging.getLogger(__name__)
 
@@ -232,9 +233,21 @@ class PupilGazeSource:
 
     # connection
 
+    @property
+    def connection_state(self) -> Link:
+        """The connection's state: CLOSED once closed, else whether it is connected."""
+        if self._closed:
+            return Link.CLOSED
+        return Link.DISCONNECTED if self._conn is None else Link.CONNECTED
+
     def connect(self) -> _Connection:
         """Connect once: Capture's version, its SUB port, the clock, the subscription
-        (OSError when Pupil Remote does not answer, or answers what Capture would not)."""
+        (OSError when Pupil Remote does not answer, or answers what Capture would not). Refused
+        while connected (its sockets would leak) and once closed (nothing would close them)."""
+        if self.connection_state is not Link.DISCONNECTED:
+            raise InvalidStateError(
+                "PupilGazeSource", "connect", self.connection_state, "not connected"
+            )
         conn = _Connection(self._ctx, self.address, self.timeout_s)
         try:
             version, _, _ = conn.request("v", self._clock_ns)
