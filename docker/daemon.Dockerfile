@@ -17,8 +17,22 @@
 # (docker/udev/) gives usage-page-0x12 trackers to group plugdev; --group-add passes the host's
 # plugdev gid in case it differs from the image's (46 on Debian and Ubuntu). See docker/README.md.
 
+# Build arguments (docker/README.md, "Offline builds"):
+#   BASE           the image both stages start from: python:3.11-slim-bookworm, or a Debian
+#                  bookworm base made from Debian's packages by docker/make-base.sh where no
+#                  image registry can be reached (it prints the tag to pass here).
+#   PIP_INDEX_URL, PIP_EXTRA_INDEX_URL
+#                  where the builder's pip finds packages, when not PyPI (a mirror or proxy such
+#                  as devpi or Artifactory). pip reads them from the environment; they exist in
+#                  the builder stage only, not in the image. Credentials in them stay in the
+#                  local build cache: prefer a netrc or an index without them.
+ARG BASE=python:3.11-slim-bookworm
+
 # --- builder: a virtual environment with gazehdr[daemon] -----------------------------------------
-FROM python:3.11-slim-bookworm AS builder
+FROM ${BASE} AS builder
+
+ARG PIP_INDEX_URL
+ARG PIP_EXTRA_INDEX_URL
 
 ENV PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
@@ -32,14 +46,15 @@ RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['p
     && pip install -r /tmp/requirements.txt
 
 # The whole package is pure Python; the command line imports what each subcommand needs.
-COPY README.md LICENSE ./
+COPY README.md LICENSE MANIFEST.in ./
 COPY server ./server
 COPY drivers ./drivers
 COPY web ./web
+COPY docs ./docs
 RUN pip install '.[daemon]'
 
 # --- runtime -------------------------------------------------------------------------------------
-FROM python:3.11-slim-bookworm AS runtime
+FROM ${BASE} AS runtime
 
 # The hidapi wheel bundles libudev and libusb: no system packages needed.
 RUN (getent group plugdev || groupadd --system plugdev) \

@@ -4,9 +4,11 @@
 #   docker run --rm -p 127.0.0.1:8000:8000 -v gazehdr-data:/data gazehdr-server
 #
 # No GPU and no system OpenCL are needed: the pyopencl wheel bundles its ICD loader (ocl-icd)
-# and the `pocl` extra brings PoCL with LLVM built in. PoCL links each compiled kernel with the
-# system `ld`, so the runtime stage installs binutils (without it: "Executable "ld" doesn't
-# exist!" and an abort at the first kernel build).
+# and the `pocl` extra brings PoCL with LLVM built in. PoCL links each compiled kernel into a
+# shared object with the system's `ld` against libc and libgcc, so the runtime stage installs
+# binutils, libc6-dev and libgcc-12-dev (without ld: "Executable "ld" doesn't exist!"; without
+# the others: "ld: cannot find -lgcc ... -lc", "Final linking of kernel ... failed"; either way
+# no frame is ever computed).
 #
 # GPU variant (NVIDIA; see docker/README.md and docker/compose.gpu.yaml): this same image. The
 # bundled ICD loader also reads /etc/OpenCL/vendors, so run it with the NVIDIA Container Toolkit,
@@ -30,8 +32,22 @@
 # mounts from the host, and not the CUDA runtime. The first GPU wins over PoCL; GAZEHDR_CL_DEVICE
 # (a substring of the device name) makes a missing GPU an error instead of a quiet CPU fallback.
 
+# Build arguments (docker/README.md, "Offline builds"):
+#   BASE           the image both stages start from: python:3.11-slim-bookworm, or a Debian
+#                  bookworm base made from Debian's packages by docker/make-base.sh where no
+#                  image registry can be reached (it prints the tag to pass here).
+#   PIP_INDEX_URL, PIP_EXTRA_INDEX_URL
+#                  where the builder's pip finds packages, when not PyPI (a mirror or proxy such
+#                  as devpi or Artifactory). pip reads them from the environment; they exist in
+#                  the builder stage only, not in the image. Credentials in them stay in the
+#                  local build cache: prefer a netrc or an index without them.
+ARG BASE=python:3.11-slim-bookworm
+
 # --- builder: a virtual environment with gazehdr[server] -----------------------------------------
-FROM python:3.11-slim-bookworm AS builder
+FROM ${BASE} AS builder
+
+ARG PIP_INDEX_URL
+ARG PIP_EXTRA_INDEX_URL
 
 ENV PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
@@ -45,19 +61,23 @@ COPY pyproject.toml ./
 RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; print('\n'.join(p['dependencies'] + p['optional-dependencies']['server']))" > /tmp/requirements.txt \
     && pip install -r /tmp/requirements.txt
 
-# Then the project itself, non-editable (kernels/*.cl and the viewer travel as package data).
-COPY README.md LICENSE ./
+# Then the project itself, non-editable (kernels/*.cl, the viewer and docs/ travel as package
+# data).
+COPY README.md LICENSE MANIFEST.in ./
 COPY server ./server
 COPY drivers ./drivers
 COPY web ./web
+COPY docs ./docs
 RUN pip install '.[server]'
 
 # --- runtime -------------------------------------------------------------------------------------
-FROM python:3.11-slim-bookworm AS runtime
+FROM ${BASE} AS runtime
 
-RUN apt-get update \
-    && apt-get install -y --no-install-recommends binutils \
-    && rm -rf /var/lib/apt/lists/*
+# What PoCL links each kernel with: `ld` (binutils) and -lc -lgcc -lgcc_s (libc6-dev,
+# libgcc-12-dev). A base that has them (docker/make-base.sh) needs no Debian mirror here.
+RUN dpkg -s binutils libc6-dev libgcc-12-dev >/dev/null 2>&1 || { apt-get update \
+    && apt-get install -y --no-install-recommends binutils libc6-dev libgcc-12-dev \
+    && rm -rf /var/lib/apt/lists/*; }
 
 # /var/cache/pocl exists and is gazehdr's, so that a volume mounted there starts out writable.
 RUN groupadd --system --gid 10001 gazehdr \

@@ -1,31 +1,46 @@
-"""The Docker images and the compose file, checked without a Docker engine.
+"""The Docker images and the compose file: checked without a Docker engine, and built and run
+where one answers.
 
 The Dockerfiles are parsed with `dockerfile` (Docker's own Go parser, from PyPI) and the compose
 files with PyYAML; the server's CMD goes through gazehdr's own argument parser, so a renamed
-option breaks this test rather than the container. What cannot be checked here (the images build,
-the container answers its health check) is left to a machine with Docker.
+option breaks this test rather than the container.
+
+The tests marked `docker` (at the end) build the images on a base made by docker/make-base.sh,
+run the server container and take a frame from it over /ws/view, and stream gaze into it from
+the daemon container. The default run leaves them out (pyproject.toml: `-m "not docker"`); run
+them with `pytest -m docker` where `docker info` answers (they skip, saying so, where it does
+not). See docker/README.md, "Checks".
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import json
 import os
 import re
 import shlex
 import shutil
 import subprocess
 import sys
+import time
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
 import dockerfile
+import numpy as np
 import pytest
+import websockets
 import yaml
 
 from gazehdr.cli import build_parser
 from gazehdr.drivers.daemon import gaze_url
 from gazehdr.drivers.daemon_cli import RECORD_DIR_ENV
 from gazehdr.drivers.daemon_cli import build_parser as daemon_parser
+from gazehdr.protocol import FrameHeader, decode_frame
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -47,18 +62,46 @@ PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 
 
 def stages(path: Path) -> list[tuple[str | None, list[dockerfile.Command]]]:
-    """The Dockerfile's stages in order: (name from `FROM … AS name`, instructions after FROM)."""
+    """The Dockerfile's stages in order: (name from `FROM … AS name`, instructions after FROM).
+    The ARGs before the first FROM are no stage's (`global_args`)."""
     result: list[tuple[str | None, list[dockerfile.Command]]] = []
     for command in dockerfile.parse_file(str(path)):
         if command.cmd == "FROM":
             value = command.value
             name = value[2] if len(value) == 3 and value[1].upper() == "AS" else None
             result.append((name, [command]))
-        else:
-            assert result, f"{path.name}:{command.start_line}: {command.cmd} before the first FROM"
+        elif result:
             result[-1][1].append(command)
+        else:
+            assert command.cmd == "ARG", (
+                f"{path.name}:{command.start_line}: {command.cmd} before the first FROM"
+            )
     assert result, f"{path.name}: no FROM"
     return result
+
+
+def global_args(path: Path) -> dict[str, str | None]:
+    """The ARGs before the first FROM (the only variables FROM can use), with their defaults."""
+    args: dict[str, str | None] = {}
+    for command in dockerfile.parse_file(str(path)):
+        if command.cmd == "FROM":
+            break
+        for item in command.value:
+            name, has_default, default = item.partition("=")
+            args[name] = default if has_default else None
+    return args
+
+
+def from_image(path: Path, image: str) -> str:
+    """A FROM's image with the global ARGs' defaults put in for `${NAME}` and `$NAME`."""
+    args = global_args(path)
+
+    def default(match: re.Match[str]) -> str:
+        name = match[1] or match[2]
+        assert args.get(name), f"{path.name}: FROM {image}: {name} is no global ARG with a default"
+        return args[name] or ""
+
+    return re.sub(r"\$\{(\w+)\}|\$(\w+)", default, image)
 
 
 def final_stage(path: Path) -> list[dockerfile.Command]:
@@ -182,10 +225,10 @@ def parse_daemon_args(command: list[str] | str, what: str) -> argparse.Namespace
 
 @pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
 def test_every_stage_starts_from_a_pinned_tag(path: Path) -> None:
+    """By default: a build argument's default is what a plain `docker build` pulls."""
     seen: list[str] = []
     for name, commands in stages(path):
-        image = commands[0].value[0]
-        assert "$" not in image, f"{path.name}: FROM {image}: build arguments hide the tag"
+        image = from_image(path, commands[0].value[0])
         if image not in seen and "@sha256:" not in image:  # not an earlier stage, not a digest
             repo, _, tag = image.rpartition(":")
             assert repo and "/" not in tag, f"{path.name}: FROM {image} has no tag"
@@ -226,13 +269,16 @@ def test_copy_sources_exist_and_reach_the_build_context(path: Path) -> None:
 
 @pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
 def test_builder_copies_what_pip_install_needs(path: Path) -> None:
-    """pyproject.toml, its readme, its licence files and every folder `package-dir` maps."""
+    """pyproject.toml, its readme, its licence files, MANIFEST.in (setuptools includes the package
+    data it names) and every folder `package-dir` maps."""
     copied = {
         Path(s).as_posix().strip("/") for _, sources, _ in local_copies(path) for s in sources
     }
     project, setuptools = PYPROJECT["project"], PYPROJECT["tool"]["setuptools"]
     needed = {"pyproject.toml", project["readme"], *project["license-files"]}
     needed |= set(setuptools["package-dir"].values())
+    if (ROOT / "MANIFEST.in").exists():
+        needed.add("MANIFEST.in")
     assert needed <= copied, f"{path.name}: not copied: {sorted(needed - copied)}"
 
 
@@ -343,6 +389,96 @@ def test_dockerignore_keeps_local_state_out() -> None:
         assert not dockerignore_excludes(rel), rel
 
 
+# --- the base image and offline builds -----------------------------------------------------------
+
+MAKE_BASE = DOCKER / "make-base.sh"
+DEFAULT_BASE = "python:3.11-slim-bookworm"
+
+
+def make_base_packages() -> set[str]:
+    """The Debian packages docker/make-base.sh puts into the base (its --include options)."""
+    found = re.findall(r"--include=([\w.+,-]+)", MAKE_BASE.read_text())
+    return {package for group in found for package in group.split(",")}
+
+
+def runs_of(commands: list[dockerfile.Command]) -> list[str]:
+    return [c.value[0] for c in commands if c.cmd == "RUN"]
+
+
+def apt_installs(command: str) -> set[str]:
+    """The packages a RUN's `apt-get install` names."""
+    names: set[str] = set()
+    for match in re.finditer(r"apt-get install((?:\s+[^\s&;|}]+)+)", command):
+        names |= {word for word in match[1].split() if not word.startswith("-")}
+    return names
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_every_stage_starts_from_the_base_build_argument(path: Path) -> None:
+    """One `--build-arg BASE=...` swaps the base of every stage (docker/make-base.sh's, offline);
+    without it the build takes python:3.11-slim-bookworm."""
+    assert global_args(path).get("BASE") == DEFAULT_BASE, f"{path.name}: ARG BASE={DEFAULT_BASE}"
+    names: list[str] = []
+    for name, commands in stages(path):
+        image = commands[0].value[0]
+        assert image in names or image in ("${BASE}", "$BASE"), f"{path.name}: FROM {image}"
+        if name:
+            names.append(name)
+
+
+def test_make_base_makes_the_default_bases_debian_and_a_supported_python() -> None:
+    """make-base.sh's suite is the default base's (bookworm); the Python of both (3.11, bookworm's
+    python3) is one that pyproject.toml's requires-python admits."""
+    text = MAKE_BASE.read_text()
+    suite = DEFAULT_BASE.rpartition("-")[2]
+    assert re.search(rf"^\s+{suite} \"\$work/rootfs.tar\"", text, re.M), "mmdebstrap SUITE"
+    assert f"gazehdr-base:{suite}-" in text
+    assert {"python3", "python3-venv", "python-is-python3", "passwd"} <= make_base_packages()
+    version = tuple(int(n) for n in re.search(r":(\d+)\.(\d+)", DEFAULT_BASE).groups())
+    floor = re.fullmatch(r">=(\d+)\.(\d+)", PYPROJECT["project"]["requires-python"])
+    assert floor and version >= (int(floor[1]), int(floor[2])), DEFAULT_BASE
+
+
+def test_make_base_holds_what_the_server_runtime_installs() -> None:
+    """PoCL links kernels with ld against libc and libgcc: the runtime stage installs them unless
+    the base has them, and the made base has them, so an offline build needs no Debian mirror."""
+    (command,) = [r for r in runs_of(final_stage(SERVER)) if "apt-get" in r]
+    installs = apt_installs(command)
+    assert {"binutils", "libc6-dev", "libgcc-12-dev"} <= installs, installs
+    assert installs <= make_base_packages(), sorted(installs - make_base_packages())
+    skip = re.match(r"dpkg -s ([\w.+ -]+?) >/dev/null 2>&1 \|\| \{", command)
+    assert skip and set(skip[1].split()) == installs, command
+
+
+@pytest.mark.parametrize("path", DOCKERFILES, ids=lambda p: p.name)
+def test_pip_index_is_a_builder_argument_never_baked_in(path: Path) -> None:
+    """PIP_INDEX_URL / PIP_EXTRA_INDEX_URL reach the builder's pip as build arguments (ARGs are
+    environment variables to RUN); no ENV sets them and the final stage never declares them."""
+    (builder_name, builder), *_, (_, final) = stages(path)
+    assert builder_name == "builder"
+    declared = {item.partition("=")[0] for c in builder if c.cmd == "ARG" for item in c.value}
+    assert {"PIP_INDEX_URL", "PIP_EXTRA_INDEX_URL"} <= declared, declared
+    for _, commands in stages(path):
+        assert not {"PIP_INDEX_URL", "PIP_EXTRA_INDEX_URL"} & set(env(commands)), path.name
+    assert not any(c.cmd == "ARG" and "PIP_" in c.original for c in final), path.name
+
+
+def test_dockerignore_keeps_package_data_in_the_build_context() -> None:
+    """Every file pyproject.toml's package-data ships reaches the image's `pip install .`
+    (`**/*.exr` must not take Fig. 7's photographs along)."""
+    setuptools = PYPROJECT["tool"]["setuptools"]
+    folders = setuptools["package-dir"]
+    for package, patterns in setuptools["package-data"].items():
+        root = max((p for p in folders if package == p or package.startswith(p + ".")), key=len)
+        folder = Path(folders[root], *package.removeprefix(root).split(".")[1:])
+        for pattern in patterns:
+            files = sorted((ROOT / folder).glob(pattern))
+            assert files, f"{package}: no {folder / pattern}"
+            for file in files:
+                rel = file.relative_to(ROOT).as_posix()
+                assert not dockerignore_excludes(rel), f".dockerignore keeps {rel} out"
+
+
 # --- compose ------------------------------------------------------------------------------------
 
 
@@ -353,6 +489,18 @@ def test_compose_builds_both_images_from_the_repo_root() -> None:
         context = (COMPOSE.parent / build["context"]).resolve()
         assert context == ROOT, f"{service}: context {context}"
         assert (context / build["dockerfile"]).resolve() == path.resolve()
+
+
+def test_compose_builds_on_the_dockerfiles_base_unless_told_another() -> None:
+    """GAZEHDR_BASE (unset: the Dockerfiles' own default) and the pip index pass-throughs reach
+    both builds, so `GAZEHDR_BASE=<make-base.sh's tag> docker compose up --build` builds offline."""
+    services = compose()["services"]
+    for service, path in (("server", SERVER), ("daemon", DAEMON)):
+        args = services[service]["build"]["args"]
+        assert re.fullmatch(r"\$\{GAZEHDR_BASE:-[^}]+\}", args["BASE"]), args
+        assert interpolate(args["BASE"]) == global_args(path)["BASE"], service
+        # No value: the shell's, or no build argument at all where it is unset.
+        assert args["PIP_INDEX_URL"] is None and args["PIP_EXTRA_INDEX_URL"] is None, args
 
 
 def test_plain_compose_up_runs_only_the_server() -> None:
@@ -501,3 +649,227 @@ def test_udev_rule_runs_the_matcher_and_hands_the_node_to_plugdev() -> None:
     assert 'SUBSYSTEM=="hidraw"' in rule
     assert f'PROGRAM="/usr/local/libexec/{MATCH.name} %p"' in rule
     assert 'GROUP="plugdev"' in rule and 'MODE="0660"' in rule
+
+
+# --- built and run, where a Docker engine answers (pytest -m docker) -----------------------------
+#
+# Left out of the default run (pyproject.toml's addopts: -m "not docker"): they need a Docker
+# engine, and take minutes. Module-scoped fixtures make the base (once per make-base.sh, mirrors
+# and CA files: REUSE=1), build the server image and run one container for both tests.
+#
+# GAZEHDR_DOCKER_BASE   an image to build on instead of making one (e.g. python:3.11-slim-bookworm
+#                       where a registry is reachable).
+# GAZEHDR_DOCKER_CA_CERTS   CA files for make-base.sh's CA_CERTS (space-separated); default: the
+#                       ones this host added to its own store (/usr/local/share/ca-certificates),
+#                       so that the build's pip trusts what this host's pip does.
+# PIP_INDEX_URL, PIP_EXTRA_INDEX_URL   passed on to the build when set (they must name an index
+#                       the build can reach: not a file: URL of this host).
+
+DOCKER_TIMEOUT = 1500  # s, setup included: a cold run makes the base and builds both images
+SERVER_TAG = "gazehdr-server:test"
+DAEMON_TAG = "gazehdr-daemon:test"
+LIST_PACKAGE_DATA = (
+    "from importlib.resources import files\n"
+    "for module in 'gazehdr.sim.kernels', 'gazehdr.web', 'gazehdr.figures.data', 'gazehdr.docs':\n"
+    "    print(*(p.name for p in files(module).iterdir()))"
+)
+TOKEN_LINE = re.compile(r"^gazehdr: token \(.*\): (\S+)$", re.M)
+Completed = subprocess.CompletedProcess
+
+
+def docker(*args: str, timeout: float = 120, check: bool = True, **kw) -> Completed:
+    result = subprocess.run(
+        ["docker", *args], capture_output=True, text=True, timeout=timeout, **kw
+    )
+    if check and result.returncode != 0:
+        pytest.fail(f"docker {' '.join(args[:3])} … exited {result.returncode}:\n{tail(result)}")
+    return result
+
+
+def tail(result: Completed, lines: int = 40) -> str:
+    return "\n".join((result.stdout + result.stderr).splitlines()[-lines:])
+
+
+def poll(predicate, what: str, timeout: float, every: float = 0.5):
+    """`predicate()`'s first true value, asked every `every` s; fails naming `what`."""
+    deadline = time.monotonic() + timeout
+    while not (value := predicate()):
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(every)
+    return value
+
+
+def build(path: Path, tag: str, base: str) -> None:
+    # `--build-arg NAME` without a value passes this environment's NAME, and nothing where unset.
+    pip = [a for n in ("PIP_INDEX_URL", "PIP_EXTRA_INDEX_URL") for a in ("--build-arg", n)]
+    args = ["--build-arg", f"BASE={base}", *pip, "-f", str(path), "-t", tag, str(ROOT)]
+    docker("build", *args, timeout=900)
+
+
+def http_get(url: str, **headers: str) -> bytes:
+    request = urllib.request.Request(url, headers=headers)
+    with urllib.request.urlopen(request, timeout=10) as response:
+        return response.read()
+
+
+def http_json(url: str, **headers: str) -> dict:
+    return json.loads(http_get(url, **headers))
+
+
+@dataclass
+class Container:
+    name: str
+    url: str  # http://127.0.0.1:PORT, published from the container's 8000
+    token: str
+
+
+@pytest.fixture(scope="module")
+def docker_engine() -> None:
+    if shutil.which("docker") is None:
+        pytest.skip("no Docker engine answers: no docker command")
+    try:
+        info = docker("info", "--format", "{{.ServerVersion}}", timeout=30, check=False)
+    except subprocess.TimeoutExpired:
+        pytest.skip("no Docker engine answers: `docker info` took over 30 s")
+    if info.returncode != 0:
+        why = (info.stderr.strip().splitlines() or ["no output"])[-1]
+        pytest.skip(f"no Docker engine answers: `docker info` failed: {why}")
+
+
+@pytest.fixture(scope="module")
+def base_image(docker_engine: None) -> str:
+    if given := os.environ.get("GAZEHDR_DOCKER_BASE"):
+        return given
+    if os.geteuid() != 0 or shutil.which("mmdebstrap") is None:
+        pytest.skip(
+            "docker/make-base.sh needs root and mmdebstrap (apt-get install mmdebstrap); "
+            "or name a base image in GAZEHDR_DOCKER_BASE"
+        )
+    certs = os.environ.get("GAZEHDR_DOCKER_CA_CERTS")
+    if certs is None:
+        local = Path("/usr/local/share/ca-certificates")
+        certs = " ".join(str(p) for p in sorted(local.rglob("*.crt")))
+    reuse = {**os.environ, "REUSE": "1", "CA_CERTS": certs}
+    result = subprocess.run(
+        ["sh", str(MAKE_BASE)], env=reuse, capture_output=True, text=True, timeout=900
+    )
+    assert result.returncode == 0, f"docker/make-base.sh failed:\n{tail(result)}"
+    return result.stdout.split()[-1]
+
+
+@pytest.fixture(scope="module")
+def server_container(base_image: str) -> Iterator[Container]:
+    build(SERVER, SERVER_TAG, base_image)
+    name = f"gazehdr-test-server-{os.getpid()}"
+    # A free port on the host's loopback, as compose publishes it; the token is the server's own.
+    docker("run", "-d", "--name", name, "-p", "127.0.0.1::8000", SERVER_TAG)
+    try:
+
+        def token() -> str | None:
+            state = docker("inspect", "-f", "{{.State.Running}}", name).stdout.strip()
+            logs = docker("logs", name)
+            assert state == "true", f"the server container stopped:\n{tail(logs)}"
+            found = TOKEN_LINE.search(logs.stdout + logs.stderr)
+            return found and found[1]
+
+        # The token line comes once the kernels are built: PoCL's first build takes seconds.
+        secret = poll(token, "the server to print its token", timeout=300)
+        ports = docker("port", name, "8000/tcp").stdout
+        (address,) = re.findall(r"^127\.0\.0\.1:\d+$", ports, re.M)
+        yield Container(name, f"http://{address}", secret)
+    finally:
+        docker("rm", "-f", "-v", name, check=False)
+
+
+def gaze_samples(server: Container) -> float:
+    """The server's count of gaze samples received (/metrics, with the token: from the host the
+    container sees no loopback client)."""
+    text = http_get(server.url + "/metrics", Authorization=f"Bearer {server.token}").decode()
+    return float(re.search(r"^gazehdr_gaze_samples_total (\S+)$", text, re.M)[1])
+
+
+async def first_frame(url: str, token: str) -> tuple[dict, FrameHeader, np.ndarray]:
+    """A viewer on another machine, as the container sees the host: the bearer token in the
+    handshake. The session's hello and its first frame."""
+    headers = {"Authorization": f"Bearer {token}"}
+    async with websockets.connect(url, additional_headers=headers, max_size=None) as ws:
+        hello = None
+        while True:
+            message = await ws.recv()
+            if isinstance(message, str):
+                hello = hello or json.loads(message)
+                continue
+            header, v = decode_frame(message)
+            return hello, header, v
+
+
+async def refusal(url: str) -> tuple[int, str]:
+    """The close code and reason a viewer without the token gets."""
+    async with websockets.connect(url) as ws:
+        try:
+            await ws.recv()
+        except websockets.ConnectionClosed as e:
+            return e.rcvd.code, e.rcvd.reason
+    raise AssertionError("a viewer without the token was let in")
+
+
+@pytest.mark.docker
+@pytest.mark.timeout(DOCKER_TIMEOUT)
+def test_server_container_serves_frames_over_ws_view(server_container: Container) -> None:
+    c = server_container
+    assert http_json(c.url + "/api/health")["status"] == "ok"
+    # The image's own HEALTHCHECK, now rather than after its 30 s interval.
+    check = json.loads(docker("inspect", "-f", "{{json .Config.Healthcheck.Test}}", c.name).stdout)
+    assert check[0] == "CMD"
+    docker("exec", c.name, *check[1:])
+    assert docker("exec", c.name, "id", "-u").stdout.strip() == "10001"
+    # Package data the context must carry (.dockerignore): kernels, viewer, Fig. 7's EXRs, docs.
+    data = docker("exec", c.name, "python", "-c", LIST_PACKAGE_DATA).stdout.split()
+    assert {"index.html", "courtyard.exr", "studio.exr", "server.md"} <= set(data), data
+    assert any(name.endswith(".cl") for name in data), data
+
+    ws_url = c.url.replace("http://", "ws://") + "/ws/view"
+    hello, header, v = asyncio.run(asyncio.wait_for(first_frame(ws_url, c.token), 120))
+    assert hello and hello["type"] == "hello", hello
+    assert header.frame == 0 and header.width > 0 and header.height > 0, header
+    assert v.shape == (header.height, header.width, 3)
+    assert 0.0 <= v.min() and v.max() <= 1.0 and v.std() > 0.01, "a blank or broken frame"
+    # From the host the viewer is no loopback client of the container: no token, no frames.
+    code, reason = asyncio.run(asyncio.wait_for(refusal(ws_url), 30))
+    assert code == 4401, (code, reason)
+
+
+@pytest.mark.docker
+@pytest.mark.timeout(DOCKER_TIMEOUT)
+def test_daemon_container_streams_gaze_to_the_server_container(
+    base_image: str, server_container: Container
+) -> None:
+    """The compose file's pairing: the daemon reaches the server as ws://server:8000 on a
+    network of their own (a synthetic scan path stands in for the tracker), records into its
+    volume, and stops cleanly on SIGTERM."""
+    build(DAEMON, DAEMON_TAG, base_image)
+    network, name = f"gazehdr-test-{os.getpid()}", f"gazehdr-test-daemon-{os.getpid()}"
+    server = server_container
+    docker("network", "create", network)
+    try:
+        docker("network", "connect", "--alias", "server", network, server.name)
+        # The token from the environment, as docker/README.md runs it (not on a command line).
+        options = ["-d", "--name", name, "--network", network, "-e", "GAZEHDR_TOKEN"]
+        command = ["--source", "synthetic", "--server", "ws://server:8000"]
+        docker(
+            "run", *options, DAEMON_TAG, *command, env={**os.environ, "GAZEHDR_TOKEN": server.token}
+        )
+        poll(lambda: gaze_samples(server) > 0, "gaze samples at the server", timeout=60)
+        assert http_json(server.url + "/api/health")["trackers"] == 1
+        docker("stop", name, timeout=30)
+        assert docker("inspect", "-f", "{{.State.ExitCode}}", name).stdout.strip() == "0"
+        logs = docker("logs", name)
+        text = logs.stdout + logs.stderr
+        delivered = re.search(r"delivered (\d+) samples", text)
+        assert delivered and int(delivered[1]) > 0, text
+        assert "recording to /data/recordings/gaze-" in text, text
+    finally:
+        docker("rm", "-f", "-v", name, check=False)
+        docker("network", "disconnect", "-f", network, server.name, check=False)
+        docker("network", "rm", network, check=False)
