@@ -65,3 +65,25 @@ def test_bench_live_measures_a_client_in_this_process_and_in_its_own(capsys) -> 
         assert float(fps) > 0 and float(steps) > 0 and int(kib) == 20
     with pytest.raises(SystemExit):
         bench_live.main(["--clients", "socket,telnet"])
+
+
+def test_first_draw_times_each_new_tab_in_order(capsys) -> None:
+    """`python -m gazehdr.bench.first_draw`: a real server and headless Chromium, two new tabs
+    one after another; each row's marks come in the page's order (its socket, opened, the hello,
+    the first frame, drawn). Nothing timed is asserted."""
+    import os
+
+    from gazehdr.bench import first_draw
+    from gazehdr.bench.live import CHROMIUM
+
+    pytest.importorskip("playwright")
+    if not os.access(CHROMIUM, os.X_OK):
+        pytest.skip(f"no Chromium at {CHROMIUM} (apt-get install chromium)")
+    assert first_draw.main(["--tabs", "2", "--burn", "0", "--size", "96x54"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines()[2:4]]
+    assert len(rows) == 2 and "2 new tabs, 0 CPU burner(s), 96x54" in out
+    for row in rows:
+        marks = [float(x) for x in row]
+        assert marks == sorted(marks) and marks[0] > 0, out
+    assert re.search(r"^median first draw \d+ ms$", out, re.M)
