@@ -326,11 +326,104 @@ def test_unplug_reconnects_with_backoff_and_loses_nothing_read(
     assert [s.x for s in got[:5]] == pytest.approx(
         [10_000 * (i + 1) / 527_040 * 1920 for i in range(5)]
     )
-    assert sleeps == [0.25, 0.5, 0.75]  # doubling, capped
+    # The back-off's second wait (0.5 s) ends at the first look after the re-plug.
+    assert sleeps == [0.25, 0.25, 0.25]
+    assert "retrying in 0.25 s" in caplog.text and "retrying in 0.50 s" in caplog.text
     assert src.reconnects == 1 and bus.opened == 2
     assert t.sent == [[0x14, 3], [0x14, 3]]  # the mode is set again after the re-plug
     assert "5 samples recorded so far are kept" in caplog.text
     src.close()
+
+
+def test_a_replug_is_noticed_at_the_next_look_whatever_the_backoff(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Waiting out a back-off of 8 s, the source lists the HID devices every REPLUG_POLL_S and
+    opens a tracker plugged back in at the next look; the messages keep the back-off's pace
+    (one per attempt). The real kernel's re-plug test needs this: the gap a server sees is
+    the unplug plus at most a second."""
+    t = make_tracker()
+    timed_stream(2).queue(t)
+    t.unplug_after = 2
+    bus = FakeBus(t)
+    now = [0.0]
+
+    def sleep(s: float) -> None:
+        now[0] += s
+        if now[0] >= 1.1 and not t.plugged:
+            t.plugged = True
+            timed_stream(1, host0_ns=HOST0_NS + 2_000_000_000).queue(t)
+
+    src = HidGazeSource(
+        backend=bus, sleep=sleep, clock=lambda: now[0], clock_ns=lambda: t.now_ns,
+        backoff_initial_s=8.0, backoff_max_s=8.0,
+    )  # fmt: skip
+    with caplog.at_level(logging.INFO, logger="gazehdr.drivers.hid"):
+        got = list(itertools.islice(src, 3))
+    assert len(got) == 3 and bus.opened == 2
+    assert now[0] == pytest.approx(1.25)  # the first look after the re-plug at 1.1 s
+    assert caplog.text.count("retrying in 8.00 s") == 1
+    src.close()
+
+
+def test_a_tracker_listed_but_not_openable_is_retried_briefly_then_at_the_backoffs_pace() -> None:
+    """A tracker that appears but cannot be opened yet (its udev rule not applied) is tried at
+    each look for REPLUG_SETTLE_S, then at the back-off's pace again: a lasting refusal
+    (permissions) is not tried four times a second."""
+    t = make_tracker()
+    t.plugged = False
+    now = [0.0]
+    opens: list[float] = []
+
+    class Refusing(FakeBus):
+        def device(self) -> Any:
+            dev = super().device()
+
+            def open_path(path: bytes) -> None:
+                opens.append(now[0])
+                raise PermissionError(13, "Permission denied")
+
+            dev.open_path = open_path
+            return dev
+
+    def sleep(s: float) -> None:
+        now[0] += s
+        t.plugged = t.plugged or now[0] >= 0.6
+
+    src = HidGazeSource(
+        backend=Refusing(t), sleep=sleep, clock=lambda: now[0], open_now=False,
+        backoff_initial_s=0.25, backoff_max_s=4.0, give_up_after_s=12.0,
+    )  # fmt: skip
+    with pytest.raises(OSError, match="Permission denied"):
+        src.wait_for_tracker()
+    assert opens[:4] == pytest.approx([0.75, 1.0, 1.25, 1.5])  # at each look, for 1 s
+    assert [b - a for a, b in itertools.pairwise(opens[3:])] == pytest.approx([4.0, 4.0, 4.0])
+
+
+def test_reports_lost_or_faster_than_declared_are_counted_from_the_sensor_timestamp(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """At the declared 120 Hz (Status feature report), a Sensor Timestamp that steps 3 periods
+    is 2 reports lost before they were read (the kernel drops what its 64-report buffer cannot
+    hold); one stepping under half a period came faster than declared. Both are logged, with the
+    totals, when the iteration ends; the samples themselves are all yielded."""
+    t = make_tracker()
+    stream = timed_stream(8)
+    period_us = 8_333
+    sensor = [0, 1, 4, 5, 9, 10, 10.1, 10.2]  # in periods: lost 2 + 3, then 2 early
+    stream.reports = [
+        tracking_report(1_000_000 + round(k * period_us), (0, 0, 0), (1_000, 1_000)) for k in sensor
+    ]
+    stream.queue(t)
+    src = timed_source(t)
+    with caplog.at_level(logging.WARNING, logger="gazehdr.drivers.hid"):
+        got = list(itertools.islice(src, 8))
+        src.close()
+        assert list(src) == []  # the iteration ends: the totals are logged
+    assert len(got) == 8
+    assert (src.gaps.lost, src.gaps.early) == (5, 2)
+    assert "5 in all; Sensor Timestamp gaps at 120 Hz" in caplog.text
+    assert "2 reports faster than its declared 120 Hz" in caplog.text
 
 
 def test_clock_restart_after_replug_reanchors() -> None:
@@ -647,7 +740,8 @@ def test_daemon_records_every_sample_across_an_unplug(live_server, tmp_path, mon
 
 
 #: `gazehdr daemon --source hid` in a process of its own, hidapi replaced by the fake bus with a
-#: tracker that is plugged in at the third look and then sends `timed_stream(N)`.
+#: tracker that is plugged in at the fourth look (the first three: an attempt, the look while
+#: the source waits 0.25 s, the next attempt) and then sends `timed_stream(N)`.
 LATE_TRACKER_DAEMON = """
 import sys
 
@@ -666,7 +760,7 @@ class LateBus(hid_device.FakeBus):
 
     def enumerate(self):
         self.looks += 1
-        if self.looks == 3:
+        if self.looks == 4:
             tracker.plugged = True
             hid_device.timed_stream(int(sys.argv[2])).queue(tracker)
         return super().enumerate()

@@ -17,6 +17,7 @@ and never later than the read. A tracker without a Sensor Timestamp gets the hos
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 
 from gazehdr.drivers.errors import InputError
@@ -70,6 +71,9 @@ class ReportClock:
         self._wraps = 0
         self._last_sensor_ns: int | None = None
         self._last_t_ns: int | None = None
+        #: The Sensor Timestamp's step from the previous report to the last one (ns); None
+        #: for the first since a (re)start, or without a timestamp.
+        self.step_ns: int | None = None
 
     def _sensor_ns(self, ts: Value) -> int:
         """The Sensor Timestamp in ns, unwrapped when the counter is narrower than 64 bits."""
@@ -88,6 +92,7 @@ class ReportClock:
     def time_ns(self, ts: Value | None, host_ns: int, reconnected: bool = False) -> int:
         """Host time of a report with Sensor Timestamp `ts` (None: the tracker has none) read at
         `host_ns`, the first since a reconnect when `reconnected`."""
+        self.step_ns = None
         if ts is None:
             t_ns = host_ns  # tracker without a Sensor Timestamp
         else:
@@ -101,9 +106,49 @@ class ReportClock:
                     self._last_sensor_ns - sensor_ns,
                 )
                 self.tracker_clock.restart()
+            elif self._last_sensor_ns is not None:
+                self.step_ns = sensor_ns - self._last_sensor_ns
             self._last_sensor_ns = sensor_ns
             t_ns = self.tracker_clock.to_host(sensor_ns, host_ns)
         if self._last_t_ns is not None and t_ns <= self._last_t_ns:
             t_ns = self._last_t_ns + 1  # a coarse host clock, or a repeated timestamp
         self._last_t_ns = t_ns
         return t_ns
+
+
+class ReportGaps:
+    """Reports that never reached the reader, and reports closer together than the tracker's
+    declared rate, from the steps of its Sensor Timestamp at its Sampling Frequency.
+
+    Linux keeps at most 64 unread reports per open hidraw node (drivers/hid/hidraw.c) and drops
+    what comes beyond them without a word: a reader that stalls for half a second of a 120 Hz
+    tracker, or a tracker that sends a backlog at once, loses reports nobody counts. A step of
+    k periods (k ≥ 2, rounded) is k − 1 reports lost; a step under half a period is a report
+    faster than declared (the tracker's rate is wrong, or it sends a backlog with honest
+    timestamps: then what the kernel drops cannot be counted). Nothing is counted for a tracker
+    that declares no rate or has no Sensor Timestamp.
+    """
+
+    def __init__(self) -> None:
+        self.period_ns: float | None = None
+        self.lost = 0
+        self.early = 0
+
+    def declared(self, rate_hz: float | None) -> None:
+        """The tracker's declared Sampling Frequency (a new connection may declare another)."""
+        ok = rate_hz is not None and math.isfinite(rate_hz) and rate_hz > 0
+        self.period_ns = 1e9 / rate_hz if ok and rate_hz is not None else None
+
+    def add(self, step_ns: int | None) -> int:
+        """Count one report whose timestamp stepped `step_ns` from the previous one: the
+        number of reports lost between them."""
+        p = self.period_ns
+        if step_ns is None or p is None:
+            return 0
+        if step_ns > 1.5 * p:
+            lost = round(step_ns / p) - 1
+            self.lost += lost
+            return lost
+        if step_ns < 0.5 * p:
+            self.early += 1
+        return 0

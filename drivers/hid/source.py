@@ -16,7 +16,14 @@ Windows the `hid` module uses the native backend, so it is the one used there.
 
 Unplug shows as an `OSError` from `read`: the source closes the device and reconnects with
 exponential back-off; samples already yielded stay yielded (the generator never buffers), and a
-note with the count so far is logged.
+note with the count so far is logged. The back-off spaces the attempts and their messages, not
+the noticing of a re-plug: while it waits, the HID devices are listed every `REPLUG_POLL_S`
+(a walk of sysfs), and a tracker that appears is opened at once.
+
+Reports lost before they were read (the kernel keeps 64 unread reports per reader) and reports
+faster than the tracker's declared rate are counted from the Sensor Timestamp
+(`gazehdr.drivers.hid.clock.ReportGaps`) and logged, at most every `GAP_LOG_S`, and on `close`
+and when the iteration ends.
 
 The source's state (`HidState`) says whether a tracker is open:
 
@@ -43,7 +50,7 @@ from typing import Any
 
 from gazehdr.drivers.backoff import retry
 from gazehdr.drivers.errors import InputError
-from gazehdr.drivers.hid.clock import ReportClock
+from gazehdr.drivers.hid.clock import ReportClock, ReportGaps
 from gazehdr.drivers.hid.descriptor import DecodedReport, Descriptor, DescriptorError, ReportError
 from gazehdr.drivers.hid.tracker import (
     TrackerInfo,
@@ -60,6 +67,16 @@ from gazehdr.drivers.sources import SourceInfo
 from gazehdr.drivers.states import InvalidStateError
 
 log = logging.getLogger(__name__)
+
+#: While waiting to reconnect, how often the HID devices are listed for a tracker plugged in.
+REPLUG_POLL_S = 0.25
+#: For this long after a tracker appeared, a failed open is retried at each look (a udev rule
+#: may not have given access to its node yet), before the back-off's own pace again.
+REPLUG_SETTLE_S = 1.0
+#: Lost and early reports are logged at most this often (and when the iteration ends).
+GAP_LOG_S = 10.0
+#: What Linux's hidraw keeps per reader before it drops reports (drivers/hid/hidraw.c).
+HIDRAW_BUFFER_REPORTS = 64
 
 
 def default_backend() -> Any:
@@ -206,6 +223,11 @@ class HidGazeSource:
         self._lock = threading.Lock()  # close() may come from another thread than the reads
         self.samples_yielded = 0
         self.reconnects = 0
+        #: Reports lost before they were read, and faster than declared (`ReportGaps`).
+        self.gaps = ReportGaps()
+        self._gaps_logged = (0, 0, -math.inf)  # lost, early, when
+        self._seen_present = False  # whether a tracker was listed at the last look
+        self._appeared_at = -math.inf
         self._running = False
         if open_now:
             self.connect()
@@ -289,6 +311,7 @@ class HidGazeSource:
                 dev.close()
             return None
         self.tracker_info = tracker.info
+        self.gaps.declared(tracker.info.sampling_hz)
         self._geometry = self._screen_geometry()
         calibrated = tracker.info.calibrated_screen_um
         g = self.geometry
@@ -331,9 +354,31 @@ class HidGazeSource:
             initial_s=self.backoff_initial_s,
             max_s=self.backoff_max_s,
             give_up_after_s=self.give_up_after_s,
-            sleep=self._sleep,
+            sleep=self._wait_for_replug,
             clock=self._clock,
         )
+
+    def _present(self) -> bool:
+        try:
+            self._pick()
+        except OSError:
+            return False
+        return True
+
+    def _wait_for_replug(self, delay_s: float) -> None:
+        """The back-off's wait of `delay_s`, cut short when a tracker appears (listed every
+        `REPLUG_POLL_S`), and at each look for `REPLUG_SETTLE_S` after it appeared."""
+        looks = max(1, math.ceil(delay_s / REPLUG_POLL_S - 1e-9))
+        for i in range(looks):
+            if self._closed:
+                return
+            self._sleep(min(REPLUG_POLL_S, delay_s - i * REPLUG_POLL_S))
+            present, now = self._present(), self._clock()
+            if present and not self._seen_present:
+                self._appeared_at = now
+            self._seen_present = present
+            if present and now - self._appeared_at < REPLUG_SETTLE_S:
+                return
 
     def _drop(self) -> None:
         """Close the device: OPEN → DISCONNECTED, CLOSING → CLOSED."""
@@ -350,7 +395,9 @@ class HidGazeSource:
     def close(self) -> None:
         """Stop: the running iteration ends at its next read (within `read_timeout_ms`) and
         closes the device itself (CLOSING), so no device is closed under a read in another
-        thread; else the device is closed now. Again: nothing more happens."""
+        thread; else the device is closed now. Again: nothing more happens. Lost and early
+        reports not yet logged are logged now (a daemon may exit before the iteration ends)."""
+        self._log_gaps(force=True)
         with self._lock:
             if self._closed:
                 return
@@ -379,6 +426,36 @@ class HidGazeSource:
         finally:
             self._running = False
             self._drop()
+            self._log_gaps(force=True)
+
+    def _log_gaps(self, force: bool = False) -> None:
+        """Say how many reports were lost or came early, when that changed, at most every
+        GAP_LOG_S (`force`: now, at the end)."""
+        g, (lost, early, at) = self.gaps, self._gaps_logged
+        now = self._clock()
+        if (g.lost, g.early) == (lost, early) or (not force and now - at < GAP_LOG_S):
+            return
+        self._gaps_logged = (g.lost, g.early, now)
+        rate = f"{1e9 / g.period_ns:g} Hz" if g.period_ns else "its declared rate"
+        if g.lost > lost:
+            log.warning(
+                "HID tracker: %d reports lost before they were read (%d in all; Sensor "
+                "Timestamp gaps at %s): the kernel keeps %d unread reports, the reader fell "
+                "behind or the tracker sent a backlog at once",
+                g.lost - lost,
+                g.lost,
+                rate,
+                HIDRAW_BUFFER_REPORTS,
+            )
+        if g.early > early:
+            log.warning(
+                "HID tracker: %d reports faster than its declared %s (%d in all): reports "
+                "beyond the kernel's %d unread ones are lost without a count",
+                g.early - early,
+                rate,
+                g.early,
+                HIDRAW_BUFFER_REPORTS,
+            )
 
     def _stream(self) -> Iterator[GazeSample]:
         reconnected = False
@@ -419,6 +496,8 @@ class HidGazeSource:
                 continue
             s = self.sample(decoded, host_ns, reconnected)
             reconnected = False
+            if self.gaps.add(self._report_clock.step_ns) or self.gaps.early:
+                self._log_gaps()
             self.samples_yielded += 1
             yield s
 
