@@ -120,8 +120,9 @@ KINDS: tuple[SourceKind, ...] = (
         "replay",
         stream=Opening(
             "replay:FILE[@SPEED]",
-            "a session log or any recording 'gazehdr import' reads, at recorded speed or SPEED "
-            "times it: 2, 0.5, or max (as fast as it is read)",
+            "a session log or any recording 'gazehdr import' reads (a BIDS dataset, a folder "
+            "in one or a physio file; FILE#sub-01_run-2 picks a run), at recorded speed or "
+            "SPEED times it: 2, 0.5, or max (as fast as it is read)",
             f"{_D}.replay:open_replay",
         ),
         track=Opening(

@@ -14,14 +14,30 @@ A replay also knows what a live stream cannot: where each fixation is before it 
 `SessionLog.fixation_track` holds), so that a consumer can place the fixation starts that
 recorders such as EyeLink (`SFIX`) and BIDS physioevents leave without a position.
 
-`open_replay` is the `replay:FILE[@SPEED]` stream of `gazehdr.drivers.registry`.
+Where a recording's fixations have no position at all (BIDS physioevents rows without
+`x_coordinate`) the daemon's detector runs on the samples, as `fixation_track` does; where it
+finds no fixation either (samples too sparse for I-VT, as EEGEyeNet's 10 Hz data), each of the
+recording's fixations gets the mean of the valid samples inside it (of its eye where the
+samples have per-eye data), so that a replay still sends fixations; one with no valid sample
+inside it stays unplaced, and `unplaced` counts them.
+
+An imported recording ends at its last valid sample: records more than `END_GAP_NS` after it
+(an EyeLink END, messages long after the samples stop) are not replayed, and an invalid sample
+ends the gaze, so that a replay does not hold the last gaze through the gap.
+
+`open_replay` is the `replay:PATH[#ENTITIES][@SPEED]` stream of `gazehdr.drivers.registry`:
+PATH a native log, any file `gazehdr import` reads, or a BIDS dataset, a `sub-*`/`ses-*`
+folder in one or a physio file; `#sub-01_ses-1_run-2` picks the run where PATH holds several.
 """
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import json
 import math
-from collections.abc import Iterator
+import re
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -37,10 +53,14 @@ from gazehdr.drivers.sessionlog import (
     SessionLogReader,
     decode_record,
     fixation_places,
+    read_session_log,
+    write_session_log,
 )
 from gazehdr.drivers.sources import Clock, Pacer, Sleep, SourceInfo
 
 _EVENT_MARKERS = (b'"k":"fixation_', b'"k":"blink_')
+#: How long after an imported recording's last valid sample its replay may go on.
+END_GAP_NS = 1_000_000_000
 _FIXATION_MARKER = b"fixation_"  # on every fixation event's line, on no sample's
 
 
@@ -127,15 +147,16 @@ class ReplaySource:
         self._log: SessionLog | None = None
         self._path: Path | None = None
         self._places: dict[tuple[int, str | None], FixationPlace] | None = None
+        self.unplaced = 0  # fixations neither their events nor their samples place
         if isinstance(recording, SessionLog):
             self._log = recording
             where = str(recording.path) if recording.path else "a recording"
             self.info = _info(recording.header, bool(recording.events), where)
             return
         path = Path(recording)
-        if not path.is_file():
+        if not path.exists():
             raise FileNotFoundError(2, "no such recording", str(path))
-        if fmt in ("auto", "native") and is_session_log(path):
+        if fmt in ("auto", "native") and path.is_file() and is_session_log(path):
             self._path = path
             with SessionLogReader(path) as reader:
                 header = reader.header
@@ -145,6 +166,13 @@ class ReplaySource:
 
         if geometry is not None:
             import_options.setdefault("geometry", geometry)
+        select = import_options.pop("select", None)
+        if select:
+            from gazehdr.drivers.formats import detect_format
+
+            if (fmt if fmt != "auto" else detect_format(path)) != "bids":
+                raise InputError(f"{path}: picking a run (#{select}) is for BIDS datasets")
+            import_options["select"] = select
         self._log = import_recording(path, fmt, **import_options)
         self.info = _info(self._log.header, bool(self._log.events), path.name)
 
@@ -164,15 +192,62 @@ class ReplaySource:
             if not self.info.has_events:
                 self._places = {}
             elif self._log is not None:
-                self._places = fixation_places(self._log.events)
+                self._places = self._placed(self._log.events, lambda: self._log.samples)
             else:
                 assert self._path is not None
-                self._places = fixation_places(_fixation_events(self._path))
+                events = list(_fixation_events(self._path))
+                self._places = self._placed(events, lambda: _samples_of(self._path))
         return self._places
+
+    def _placed(
+        self, events: list[GazeEvent], samples: Any
+    ) -> dict[tuple[int, str | None], FixationPlace]:
+        """`fixation_places`, and for the fixations no event places, the mean of their samples
+        (`samples()` is called only when some fixation needs it)."""
+        places = fixation_places(events)
+        if places:  # the events place fixations: those are sent, as `fixation_track` follows
+            return places
+        spans: dict[tuple[int, str | None], list[int | None]] = {}
+        for e in events:
+            if e.kind == "fixation_start":
+                spans.setdefault((e.id, e.eye), [None, None])[0] = e.t_ns
+            elif e.kind == "fixation_end":
+                span = spans.setdefault((e.id, e.eye), [None, None])
+                span[1] = e.t_ns
+                if span[0] is None and e.duration_ns is not None:
+                    span[0] = e.t_ns - e.duration_ns
+        needed = {k: v for k, v in spans.items() if k not in places}
+        if not needed:
+            return places
+        held = list(samples())
+        from gazehdr.drivers.fixations import detect  # only recordings that place none need it
+
+        increasing = [s for i, s in enumerate(held) if i == 0 or s.t_ns > held[i - 1].t_ns]
+        if any(e.kind == "fixation_start" for e in detect(increasing, "ivt", self.info.geometry)):
+            return places  # the daemon's detector finds fixations in the samples: it runs
+        times = [s.t_ns for s in held]
+        for key, (start, end) in needed.items():
+            if start is None or end is None:
+                self.unplaced += 1
+                continue
+            points = []
+            for s in held[bisect.bisect_left(times, start) : bisect.bisect_right(times, end)]:
+                eye = s.left if key[1] == "left" else s.right if key[1] == "right" else None
+                if eye is not None and math.isfinite(eye.x) and math.isfinite(eye.y):
+                    points.append((eye.x, eye.y))
+                elif eye is None and s.valid:
+                    points.append((s.x, s.y))
+            if not points:
+                self.unplaced += 1
+                continue
+            x = sum(p[0] for p in points) / len(points)
+            y = sum(p[1] for p in points) / len(points)
+            places[key] = FixationPlace(start, x, y)
+        return places
 
     def _unpaced(self) -> Iterator[Record]:
         if self._log is not None:
-            yield from self._log.records()
+            yield from _until_gap(self._log)
             self.truncated = self._log.truncated
             return
         assert self._path is not None
@@ -190,6 +265,32 @@ class ReplaySource:
 
     def __iter__(self) -> Iterator[GazeSample]:
         return (r for r in self.records() if isinstance(r, GazeSample))
+
+
+def _samples_of(path: Path) -> Iterator[GazeSample]:
+    """A native log's samples, streamed."""
+    with SessionLogReader(path) as reader:
+        yield from (r for r in reader if isinstance(r, GazeSample))
+
+
+def _until_gap(log: SessionLog) -> Iterable[Record]:
+    """The log's records up to `END_GAP_NS` after its last valid sample; when any are left out,
+    an invalid sample just after the last one given ends the gaze."""
+    last_valid = next((s.t_ns for s in reversed(log.samples) if s.valid), None)
+    records = log.records()
+    if last_valid is None:
+        yield from records
+        return
+    cut = last_valid + END_GAP_NS
+    last_sample: GazeSample | None = None
+    for record in records:
+        if record.t_ns > cut:
+            if last_sample is not None and last_sample.valid:
+                yield GazeSample(last_sample.t_ns + 1, math.nan, math.nan, False)
+            return
+        if isinstance(record, GazeSample):
+            last_sample = record
+        yield record
 
 
 def replay(
@@ -231,14 +332,84 @@ def split_replay_spec(rest: str) -> tuple[str, float]:
     return rest, 1.0
 
 
+_SELECTABLE = ("sub", "ses", "task", "acq", "run")
+
+
+def split_run(path: str) -> tuple[str, dict[str, str]]:
+    """`PATH[#sub-01_run-2]` → (PATH, {"sub": "01", "run": "2"}): which run of a BIDS dataset,
+    as its files name it; a `#` that is part of an existing path stays in it."""
+    if "#" not in path or Path(path).exists():
+        return path, {}
+    name, _, entities = path.rpartition("#")
+    select = {}
+    for part in entities.split("_"):
+        key, sep, value = part.partition("-")
+        if not sep or key not in _SELECTABLE or not value:
+            raise InputError(
+                f"replay run {entities!r}: expected entities such as sub-01_ses-1_run-2 "
+                f"({', '.join(_SELECTABLE)})"
+            )
+        select[key] = value
+    return name, select
+
+
 def open_replay(request: StreamRequest) -> ReplaySource:
-    """The `replay:FILE[@SPEED]` stream; the request's geometry (with its `screen` fields) fills
-    in what an imported recording does not record."""
+    """The `replay:PATH[#ENTITIES][@SPEED]` stream; the request's geometry (with its `screen`
+    fields) fills in what an imported recording does not record."""
     if not request.arg:
         raise InputError("replay needs a file: replay:FILE[@SPEED]")
     path, speed = split_replay_spec(request.arg)
+    path, select = split_run(path)
     options = dict(request.options)
+    if select:
+        options["select"] = select
     geometry = request.screen_geometry()
     if geometry is not None:
         options.setdefault("geometry", geometry)
     return ReplaySource(path, speed=speed, clock=request.clock, sleep=request.sleep, **options)
+
+
+def library_recording(spec: str, folder: Path) -> str:
+    """`serve --gaze replay:PATH[#RUN]`: the recording PATH names (a native log, anything
+    `gazehdr import` reads, a BIDS dataset or a folder or file in one), kept in the server's
+    recordings `folder` as a session log, and the name it is replayed by (`replay:NAME`).
+    A NAME the folder has already is that recording. Its name is the source's (its stem, or
+    the run's entities); a recording of that name with other contents is kept, and this one
+    takes the next free `NAME-2`, `NAME-3`, ... (a source that changed between starts too)."""
+    rest = spec.removeprefix("replay:")
+    if not rest:
+        raise InputError("replay needs a recording: replay:NAME or replay:PATH")
+    path_text, select = split_run(rest)
+    path = Path(path_text)
+    if not select and (folder / f"{rest}.jsonl").is_file() and not path.exists():
+        return rest
+    if not path.exists():
+        known = sorted(p.stem for p in folder.glob("*.jsonl")) if folder.is_dir() else []
+        raise InputError(
+            f"replay:{rest}: no such recording, neither a file or folder nor one of the "
+            f"server's ({', '.join(known) or 'none'})"
+        )
+    source = ReplaySource(path, **({"select": select} if select else {}))
+    log = source._log
+    if log is None:  # a native log: kept as it is
+        assert source._path is not None
+        log = read_session_log(source._path)
+    name = (
+        "_".join(f"{k}-{v}" for k, v in select.items())
+        if select
+        else (path.name.split(".", 1)[0] if path.is_file() else path.resolve().name)
+    )
+    name = re.sub(r"[^A-Za-z0-9_.-]", "_", name).strip("._-")[:64] or "recording"
+    folder.mkdir(parents=True, exist_ok=True)
+    fresh = folder / f".{name}.importing"
+    write_session_log(fresh, log, overwrite=True)
+    for n in itertools.count(1):  # the same recording again, or the first free name
+        candidate = name if n == 1 else f"{name}-{n}"
+        kept = folder / f"{candidate}.jsonl"
+        if not kept.exists():
+            fresh.replace(kept)
+            return candidate
+        if kept.read_bytes() == fresh.read_bytes():
+            fresh.unlink()
+            return candidate
+    raise AssertionError("unreachable")

@@ -140,7 +140,9 @@ def configure_serve(p: argparse.ArgumentParser) -> None:
         metavar="SOURCE",
         help="gaze of new sessions: mouse (the viewer's pointer), remote:TRACKER (the gaze "
         "daemon whose hello names TRACKER), remote (the tracker, once exactly one is "
-        "connected), or a track: "
+        "connected), replay:PATH (a recording, EyeLink ASC, BIDS dataset or run, or one of the "
+        "server's recordings by name: imported into DATA_DIR/recordings and followed), or a "
+        "track: "
         + ", ".join(f"{k.name} ({k.track.help})" for k in registry.named_tracks() if k.track)
         + " (default: mouse)",
     )

@@ -73,9 +73,14 @@ def build_config(
     if not 0 <= port <= 65535:
         raise InputError(f"port must be in [0, 65535], got {port}")
     check_frame_size(*size)
-    if gaze not in GAZE_SOURCES and not is_tracker_source(gaze):
+    if gaze.startswith("replay:"):  # a recording of the server's, or any PATH import reads
+        from gazehdr.drivers.replay import library_recording
+
+        gaze = "replay:" + library_recording(gaze, data_dir / "recordings")
+    elif gaze not in GAZE_SOURCES and not is_tracker_source(gaze):
         raise InputError(
-            f"gaze source {gaze!r}: choose {', '.join(GAZE_SOURCES)} or remote:TRACKER"
+            f"gaze source {gaze!r}: choose {', '.join(GAZE_SOURCES)}, remote:TRACKER or "
+            "replay:PATH (a recording, a BIDS dataset, or one of the server's recordings)"
         )
     model = Models(afterimage, acuity)  # unknown names: a ValueError listing the choices
     right = Models.parse(split) if split else None  # the right pane's, in split view

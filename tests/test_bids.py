@@ -9,6 +9,7 @@ import json
 import math
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_formats import DATA, NAN, approx_rows, assert_names, events, xyv
@@ -69,16 +70,20 @@ def test_bids_binocular_eyelink_style_dataset(tmp_path: Path) -> None:
         ("fixation_start", 1, 7186799 * ms, None, None, None, "left"),
         ("fixation_start", 2, 7186799 * ms, None, None, None, "right"),
         ("fixation_end", 1, 7186803 * ms, None, None, 4 * ms, "left"),
-        ("blink_start", 1, 7186803 * ms, None, None, None, "left"),  # saccade with blink = 1
-        ("blink_end", 1, 7186805 * ms, None, None, 2 * ms, "left"),  # at one time: L, then R
+        ("saccade_start", 1, 7186803 * ms, None, None, None, "left"),  # a saccade row with
+        ("blink_start", 1, 7186803 * ms, None, None, None, "left"),  # blink = 1: both
+        ("blink_end", 1, 7186805 * ms, None, None, 2 * ms, "left"),  # at one time: L, then R;
+        ("saccade_end", 1, 7186805 * ms, None, None, 2 * ms, "left"),  # ends, the blink first
         ("fixation_start", 3, 7186805 * ms, None, None, None, "left"),
         ("fixation_end", 2, 7186805 * ms, None, None, 6 * ms, "right"),
         ("fixation_end", 3, 7186809 * ms, None, None, 4 * ms, "left"),
     ]
-    # the two eyes' files repeat the device messages: kept once, quotes removed
+    # the two eyes' files repeat the device messages: kept once, quotes removed; the
+    # _events.tsv row at the first sample's time (onset 0, StartTime 0), its values named
     assert log.notes == [
         Note(7184392 * ms, "RECCFG CR 500 2 1 LR"),
         Note(7186771 * ms, "First task trigger"),
+        Note(7186799 * ms, "events: duration=0.01 trial_number=1"),
     ]
     screen = log.header.screen  # from task-freeview_events.json, inherited from the root
     assert (screen.screen_width_px, screen.screen_height_px) == (1280, 1024)
@@ -126,7 +131,8 @@ def test_bids_implicit_indexing_by_zero_based_row(tmp_path: Path, first_column: 
             f.write("-2\tn/a\tn/a\tn/a\tReady\n0\t4\tfixation\t0\tn/a\n3\tn/a\tn/a\tn/a\tend\n")
     log = read_bids(root / f"{EYE1}.tsv.gz")
     ms = 1_000_000
-    assert log.notes == [Note(7186795 * ms, "Ready"), Note(7186805 * ms, "end")]  # 500 Hz
+    physio_notes = [n for n in log.notes if not n.text.startswith("events: ")]
+    assert physio_notes == [Note(7186795 * ms, "Ready"), Note(7186805 * ms, "end")]  # 500 Hz
     assert [(e.kind, e.t_ns, e.eye) for e in log.events if e.eye == "left"] == [
         ("fixation_start", 7186799 * ms, "left"),  # row 0: the first sample
         ("fixation_end", 7186803 * ms, "left"),
@@ -167,7 +173,8 @@ def test_bids_explicit_indexing_third_party_files(tmp_path: Path) -> None:
             with gzip.open(root / f"{eye}events.tsv.gz", "wt") as f:
                 f.write(f'{rows[0]}\t"Recalibrate"\n{rows[1]}\tNew block\n')
         log = read_bids(root / f"{EYE1}.tsv.gz")
-        assert log.notes == [Note(times[0], "Recalibrate"), Note(times[1], "New block")], case
+        physio_notes = [n for n in log.notes if not n.text.startswith("events: ")]
+        assert physio_notes == [Note(times[0], "Recalibrate"), Note(times[1], "New block")], case
 
 
 def test_bids_screen_origin_and_distance_vector(tmp_path: Path) -> None:
@@ -196,10 +203,10 @@ def test_bids_messages_unescaped_only_where_the_sidecar_says(tmp_path: Path) -> 
     for eye in (EYE1, EYE2):
         with gzip.open(root / f"{eye}events.tsv.gz", "wt") as f:
             f.write("7186771\tn/a\tn/a\tn/a\tC:\\new\\tab\n")
-    assert [n.text for n in read_bids(root).notes] == ["C:\\new\\tab"]
+    assert [n.text for n in read_bids(root).notes][:1] == ["C:\\new\\tab"]
     side = root / "task-freeview_physioevents.json"
     side.write_text(json.dumps({**json.loads(side.read_text()), "GazehdrEscapedText": True}))
-    assert [n.text for n in read_bids(root).notes] == ["C:\new\tab"]
+    assert [n.text for n in read_bids(root).notes][:1] == ["C:\new\tab"]
 
 
 @pytest.mark.parametrize(
@@ -243,6 +250,33 @@ def test_bids_sidecar_errors_name_the_field(
         read_bids(root / f"{EYE1}.tsv.gz")
     assert info.value.field == field
     assert info.value.path == str(side)
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("ScreenResolution", [0.4, 1080]),  # rounds to no pixels
+        ("ScreenResolution", [1e400, 1080]),  # JSON's overflow: inf, which no int holds
+        ("ScreenResolution", [True, 1080]),
+        ("ScreenResolution", [70_000, 1080]),  # wider than any display
+        ("ScreenSize", [1e400, 0.3]),
+        ("ScreenDistance", 1e400),
+    ],
+)
+def test_bids_screen_values_no_display_has_are_refused_naming_the_field(
+    tmp_path: Path, key: str, value: Any
+) -> None:
+    """The events sidecar's StimulusPresentation, out of any display's range: a FormatError
+    naming the file and the key, not an OverflowError from round(inf) or a screen of 0 pixels
+    from 0.4."""
+    root = bids_copy(tmp_path)
+    events = root / "task-freeview_events.json"
+    sidecar = json.loads(events.read_text())
+    sidecar["StimulusPresentation"][key] = value
+    events.write_text(json.dumps(sidecar).replace("Infinity", "1e400"))
+    with pytest.raises(FormatError, match="expected") as info:
+        read_bids(root)
+    assert (info.value.path, info.value.field) == (str(events), key)
 
 
 def test_bids_errors_name_the_file_that_gave_the_key_or_should_have(tmp_path: Path) -> None:
@@ -337,7 +371,7 @@ def test_native_bids_native_round_trip(tmp_path: Path) -> None:
         f"{run}_events.json",
         *(
             f"{run}_recording-{eye}_{kind}{ext}"
-            for eye in ("eye1", "eye2", "eye3")
+            for eye in ("eye1", "eye2")  # the gaze is the eyes' mean: no cyclopean copy
             for kind in ("physio", "physioevents")
             for ext in (".tsv.gz", ".json")
         ),
@@ -350,21 +384,22 @@ def test_native_bids_native_round_trip(tmp_path: Path) -> None:
     ]
     assert side["SamplingFrequency"] == pytest.approx(240, rel=1e-6)
     assert side["Manufacturer"] == "Acme"
-    with gzip.open(root / f"{run}_recording-eye3_physio.tsv.gz", "rt") as f:
+    with gzip.open(root / f"{run}_recording-eye1_physio.tsv.gz", "rt") as f:
         first = f.readline().rstrip("\n").split("\t")
-    assert first == ["1234567890123", "800.0", "400.0"]  # header-less, cyclopean, ns
+    assert first == ["1234567890123", "790.0", "395.0", "3.5"]  # header-less, left, ns
 
     back = read_bids(root / f"{run}_recording-eye2_physio.tsv.gz")
     assert comparable(back) == comparable(log)
-    # fixations and blinks come back as start/end pairs; updates and start positions do not
+    # fixations and blinks come back as start/end pairs with their ids; updates and start
+    # positions do not
     assert events(back) == [
         ("fixation_start", 1, log.events[0].t_ns, None, None, None, None),
         ("fixation_end", 1, log.events[2].t_ns, 800.2, 399.9, 16_666_668, None),
-        ("blink_start", 1, log.events[3].t_ns, None, None, None, None),
-        ("blink_end", 1, log.events[4].t_ns, None, None, 8_333_334, None),
-        ("fixation_start", 2, log.events[5].t_ns, None, None, None, "right"),
-        ("fixation_end", 2, log.events[6].t_ns, 801.0, 402.0, 10_000_000, "right"),
-        ("fixation_start", 3, log.events[7].t_ns, None, None, None, None),
+        ("blink_start", 2, log.events[3].t_ns, None, None, None, None),
+        ("blink_end", 2, log.events[4].t_ns, None, None, 8_333_334, None),
+        ("fixation_start", 3, log.events[5].t_ns, None, None, None, "right"),
+        ("fixation_end", 3, log.events[6].t_ns, 801.0, 402.0, 10_000_000, "right"),
+        ("fixation_start", 4, log.events[7].t_ns, None, None, None, None),
     ]
     assert [e.dispersion_deg for e in back.events if e.kind == "fixation_end"] == [0.07, 0.1]
 
@@ -407,9 +442,11 @@ def test_bids_export_onsets_on_the_timestamp_clock_durations_in_seconds(tmp_path
         assert side["onset"]["Units"] == physio_side["timestamp"]["Units"] == "ns"
         assert side["duration"]["Units"] == "s"
         assert side["Columns"][0] == "onset" and "timestamp" not in side["Columns"]
-    eye3 = next(p for p in written if p.name.endswith("eye3_physioevents.tsv.gz"))
-    side = json.loads(eye3.with_name(eye3.name.replace(".tsv.gz", ".json")).read_text())
-    rows = [dict(zip(side["Columns"], row, strict=True)) for row in gz_rows(eye3)]
+    # the gaze is the mean of the eyes: no cyclopean recording; eye1 holds the events of no eye
+    assert not any("eye3" in p.name for p in written)
+    eye1 = next(p for p in written if p.name.endswith("eye1_physioevents.tsv.gz"))
+    side = json.loads(eye1.with_name(eye1.name.replace(".tsv.gz", ".json")).read_text())
+    rows = [dict(zip(side["Columns"], row, strict=True)) for row in gz_rows(eye1)]
     first, last = log.samples[0].t_ns, log.samples[-1].t_ns
     onsets = [int(r["onset"]) for r in rows]
     assert onsets == sorted(onsets) and min(onsets) < first and max(onsets) > last
@@ -451,3 +488,23 @@ def test_round_trip_without_per_eye_data_and_reproducible_gzip(tmp_path: Path) -
     with pytest.raises(ValueError, match="--sub 'subject one': a BIDS sub is letters and digits"):
         write_bids(log, tmp_path / "c", sub="subject one")
     assert not (tmp_path / "c").exists()
+
+
+def test_bids_round_trip_keeps_each_events_id_whatever_its_eye(tmp_path: Path) -> None:
+    """A right-eye fixation numbered before a left-eye one that starts at the same time (as
+    EDF2ASC writes them when the right eye's event comes first) keeps its id through export and
+    import (`event_id`), instead of the ids swapping between the eyes. Guards: the importer
+    numbering gazehdr's own rows anew."""
+    log = native_log()
+    t = log.samples[2].t_ns
+    log.events = [
+        GazeEvent("fixation_start", 1, t, eye="right"),
+        GazeEvent("fixation_start", 2, t, eye="left"),
+        GazeEvent("fixation_end", 2, t + 8_333_334, 790.0, 395.0, 8_333_334, eye="left"),
+        GazeEvent("fixation_end", 1, t + 8_333_334, 810.0, 405.0, 8_333_334, eye="right"),
+    ]
+    write_bids(log, tmp_path / "ds")
+    back = read_bids(tmp_path / "ds")
+    assert sorted((e.kind, e.id, e.eye) for e in back.events) == sorted(
+        (e.kind, e.id, e.eye) for e in log.events
+    )

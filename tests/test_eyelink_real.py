@@ -17,6 +17,7 @@ import os
 import random
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -24,6 +25,7 @@ from gazehdr.cli import main
 from gazehdr.drivers.daemon_cli import daemon_main
 from gazehdr.drivers.formats import import_recording
 from gazehdr.drivers.formats.eyelink import read_eyelink_asc
+from gazehdr.drivers.samples import ScreenGeometry
 from gazehdr.drivers.sessionlog import FormatError, read_session_log, write_session_log
 
 REAL = Path(__file__).parent / "data" / "formats" / "eyelink_real"
@@ -109,7 +111,13 @@ def test_calibration_report_and_validation_of_an_eyelink_1000(real: dict[str, Pa
     ]
     tracker = log.header.tracker
     assert tracker["validations"] == [
-        {"eye": "left", "result": "GOOD", "error_avg_deg": 0.38, "error_max_deg": 0.69}
+        {
+            "eye": "left",
+            "type": "HV13",
+            "result": "GOOD",
+            "error_avg_deg": 0.38,
+            "error_max_deg": 0.69,
+        }
     ]
     assert (tracker["tracking"], tracker["mount"], tracker["pupil"]) == ("CR", "MTABLER", "area")
     assert tracker["model"] == "EYELINK II CL v5.03 Jul  3 2014"
@@ -250,7 +258,7 @@ def test_a_real_recording_imports_replays_through_the_daemon_and_renders(
     imported = import_recording(asc)
     log = tmp_path / "mono250.jsonl"
     assert main(["import", str(asc), "--out", str(log)]) == 0
-    assert "918 samples (4 invalid), 18 events" in capsys.readouterr().out
+    assert "918 samples (4 invalid), 28 events" in capsys.readouterr().out
     assert read_session_log(log).samples == imported.samples
     frames = tmp_path / "frames"
     tiny = ["--size", "32x18", "--fps", "10", "--seconds", "0.5", "--backend", "reference"]
@@ -266,3 +274,402 @@ def test_a_real_recording_imports_replays_through_the_daemon_and_renders(
     assert [(e.kind, e.t_ns) for e in replayed.events] == [
         (e.kind, e.t_ns) for e in imported.events
     ]
+
+
+# --- EDF2ASC's options ------------------------------------------------------------------------
+#
+# SR Research's EDF2ASC cannot run here, so each option's output is derived from a real default
+# conversion by the rules its usage text and the manual give (EDF2ASC 3.0's `-h`, EyeLink 1000
+# Plus User Manual §4.8 and §4.9; docs/formats.md has the table). The reference is the default
+# conversion of the same EDF: import must give the same samples, invalid samples and events, or
+# refuse, naming the option to convert with.
+
+
+def _is_sample(line: str) -> bool:
+    return line[:1].isdigit()
+
+
+def _fields(line: str) -> list[str]:
+    return line.split()
+
+
+def _flags_at(tokens: list[str]) -> int | None:
+    """The index of the CR flags field of a sample's tokens (None without one)."""
+    for i, token in enumerate(tokens[1:], 1):
+        if set(token) <= set(".ICR") and len(token) in (3, 5) and token != ".":
+            return i
+    return None
+
+
+def _with_values(lines: list[str], make: Any) -> list[str]:
+    """Each sample line with `make(tokens)` values inserted before its flags (or at its end)."""
+    out = []
+    for line in lines:
+        if not _is_sample(line):
+            out.append(line)
+            continue
+        tokens = _fields(line)
+        at = _flags_at(tokens) or len(tokens)
+        out.append("\t".join([*tokens[:at], *make(tokens), *tokens[at:]]))
+    return out
+
+
+def opt_miss(value: str) -> Any:
+    """`-miss VALUE`: a missing x or y written as VALUE (the pupil is not replaced)."""
+
+    def apply(lines: list[str]) -> list[str]:
+        out = []
+        for line in lines:
+            if _is_sample(line):
+                tokens = _fields(line)
+                positions = (1, 2, 4, 5) if len(tokens) >= 8 else (1, 2)
+                for i in positions:
+                    if tokens[i] == ".":
+                        tokens[i] = value
+                line = "\t".join(tokens)
+            out.append(line)
+        return out
+
+    return apply
+
+
+def opt_samples_only(lines: list[str]) -> list[str]:
+    """`-s`: sample lines only."""
+    return [line for line in lines if _is_sample(line)]
+
+
+def opt_events_only(lines: list[str]) -> list[str]:
+    """`-e`: no sample lines, no SAMPLES lines; START says EVENTS only."""
+    out = []
+    for line in lines:
+        if _is_sample(line) or line.startswith("SAMPLES"):
+            continue
+        if line.startswith("START"):
+            line = "\t".join(t for t in _fields(line) if t != "SAMPLES")
+        out.append(line)
+    return out
+
+
+def opt_right(lines: list[str]) -> list[str]:
+    """`-r` of a binocular file: the right eye's columns, flags and events only."""
+    out = []
+    for line in lines:
+        tokens = _fields(line)
+        if _is_sample(line):
+            at = _flags_at(tokens)
+            flags = tokens[at]
+            tokens = [tokens[0], *tokens[4:7], *tokens[7:at], flags[0] + flags[3:5]]
+            line = "\t".join(tokens)
+        elif tokens and tokens[0] in ("START", "SAMPLES", "EVENTS"):
+            line = "\t".join(t for t in tokens if t != "LEFT")
+        elif tokens and tokens[0][:1] in "SE" and tokens[1:2] == ["L"]:
+            continue  # a left-eye event
+        out.append(line)
+    return out
+
+
+def opt_vel(lines: list[str]) -> list[str]:
+    """`-vel`: x, y velocity per eye after the pupils (missing where the eye is)."""
+
+    def velocity(tokens: list[str]) -> list[str]:
+        eyes = ((1, 2), (4, 5)) if (_flags_at(tokens) or 0) >= 7 else ((1, 2),)
+        return [v for i, _ in eyes for v in (("." if tokens[i] == "." else "12.5"), "-3.0")]
+
+    return _with_values(lines, velocity)
+
+
+def opt_res(lines: list[str]) -> list[str]:
+    """`-res`: x, y resolution after the pupils (and velocity); RES on the SAMPLES line."""
+    lines = _with_values(lines, lambda tokens: ["23.20", "23.40"])
+    return [
+        line.replace("SAMPLES\tGAZE", "SAMPLES\tGAZE\tRES") if line.startswith("SAMPLES") else line
+        for line in lines
+    ]
+
+
+def opt_input(lines: list[str]) -> list[str]:
+    """`-input`: the input port's value after the other values."""
+    return _with_values(lines, lambda tokens: ["127.0"])
+
+
+def opt_nflags(lines: list[str]) -> list[str]:
+    """`-nflags`: no CR flags field."""
+    out = []
+    for line in lines:
+        if _is_sample(line) and (at := _flags_at(tokens := _fields(line))) is not None:
+            line = "\t".join(tokens[:at] + tokens[at + 1 :])
+        out.append(line)
+    return out
+
+
+def opt_ftime(lines: list[str]) -> list[str]:
+    """`-ftime`: times with their fraction (the second row of a 2000 Hz stamp at .5)."""
+    out, last = [], None
+    for line in lines:
+        if _is_sample(line):
+            tokens = _fields(line)
+            stamp = tokens[0]
+            tokens[0] = f"{stamp}.5" if stamp == last else f"{stamp}.0"
+            last = stamp
+            line = "\t".join(tokens)
+        out.append(line)
+    return out
+
+
+def opt_avg(lines: list[str]) -> list[str]:
+    """`-avg` (derived, not seen in a real file): a binocular sample as the mean of the eyes
+    with a position, in one eye's layout and flags."""
+    out = []
+    for line in lines:
+        if _is_sample(line):
+            t = _fields(line)
+            at = _flags_at(t)
+            eyes = [(float(t[i]), float(t[i + 1]), float(t[i + 2])) for i in (1, 4) if t[i] != "."]
+            if eyes:
+                mean = [repr(sum(e[k] for e in eyes) / len(eyes)) for k in range(3)]
+            else:
+                mean = [".", ".", "0.0"]
+            line = "\t".join([t[0], *mean, t[at][0] + t[at][1:3]])
+        out.append(line)
+    return out
+
+
+def opt_nse(lines: list[str]) -> list[str]:
+    """`-nse`: no start events (SFIX, SSACC, SBLINK)."""
+    return [x for x in lines if not x.startswith(("SFIX", "SSACC", "SBLINK"))]
+
+
+def opt_nmsg(lines: list[str]) -> list[str]:
+    """`-nmsg`: no messages (nor the lines that continue them)."""
+    keep = []
+    for line in lines:
+        first = line[:1]
+        if line.startswith("MSG") or (line.strip() and not (first.isalnum() or first == "*")):
+            continue
+        keep.append(line)
+    return keep
+
+
+def opt_href(lines: list[str]) -> list[str]:
+    """`-sh`: HREF samples."""
+    return [x.replace("SAMPLES\tGAZE", "SAMPLES\tHREF") for x in lines]
+
+
+def _variant(real: dict[str, Path], tmp_path: Path, name: str, *options: Any) -> Path:
+    lines = real[name].read_text(encoding="utf-8").splitlines()
+    for option in options:
+        lines = option(lines)
+    path = tmp_path / f"{name}-{len(list(tmp_path.iterdir()))}.asc"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def _xyv(log: Any) -> list[tuple]:
+    return [(s.t_ns, repr(s.x), repr(s.y), s.valid) for s in log.samples]
+
+
+def _eye_data(log: Any) -> list[tuple]:
+    def eye(e: Any) -> Any:
+        return None if e is None else (repr(e.x), repr(e.y))
+
+    return [(s.t_ns, eye(s.left), eye(s.right)) for s in log.samples]
+
+
+def _events(log: Any) -> list[tuple]:
+    return [(e.kind, e.id, e.t_ns, repr(e.x), repr(e.y), e.duration_ns, e.eye) for e in log.events]
+
+
+def _without_end_markers(log: Any) -> list[tuple]:
+    """The samples of sample lines: the END markers (invalid, no eye's data, 1 ns or more after
+    the block's last sample) left out."""
+    ends = {s.t_ns for s in log.samples if not s.valid and s.left is None and s.right is None}
+    lines = [s for s in log.samples if s.t_ns not in ends or s.left or s.right]
+    return [(s.t_ns, repr(s.x), repr(s.y), s.valid) for s in lines]
+
+
+SCREEN = {"pymovements_binocular": (1921, 1081), "syelink_left_eye_excerpt": (1280, 1024)}
+
+
+@pytest.mark.parametrize("name", ["pymovements_binocular", "syelink_left_eye_excerpt"])
+@pytest.mark.parametrize("value", ["-1", "0", "NaN"])
+def test_edf2asc_miss_gives_the_default_conversion(
+    real: dict[str, Path], tmp_path: Path, name: str, value: str
+) -> None:
+    """`edf2asc -miss VALUE` writes a lost eye's x, y as VALUE and its pupil as 0.0: read as
+    missing whether `--missing VALUE` is given or not (a pupil of 0 is lost track), so the
+    samples are the default conversion's; the header says what lost track was written as.
+    Guards: a pupil of 0 read as a valid gaze at (-1, -1) or (0, 0)."""
+    reference = read_eyelink_asc(real[name])
+    path = _variant(real, tmp_path, name, opt_miss(value))
+    text = path.read_text(encoding="utf-8")
+    assert f"\t{value}\t{value}\t" in text  # the variant does write lost track so
+    for missing in (None, value):
+        log = read_eyelink_asc(path, missing=missing, strict=True)
+        assert _xyv(log) == _xyv(reference) and _eye_data(log) == _eye_data(reference)
+        assert _events(log) == _events(reference)
+        if missing is None and value != "NaN":  # NaN is no number: missing by its value alone
+            assert log.header.tracker["lost_track_written_as"][value] > 0
+
+
+@pytest.mark.parametrize(
+    ("options", "what"),
+    [
+        ((opt_vel,), "-vel"),
+        ((opt_res,), "-res"),
+        ((opt_input,), "-input"),
+        ((opt_nflags,), "-nflags"),
+        ((opt_vel, opt_res, opt_input, opt_nflags), "-vel -res -input -nflags"),
+        ((opt_ftime,), "-ftime"),
+        ((opt_nse,), "-nse"),
+    ],
+)
+@pytest.mark.parametrize("name", ["pymovements_binocular", "syelink_left_eye_excerpt"])
+def test_edf2asc_options_that_add_columns_or_leave_lines_out_change_nothing(
+    real: dict[str, Path], tmp_path: Path, name: str, options: tuple, what: str
+) -> None:
+    """With events (the SAMPLES lines name the eyes): `-vel`, `-res`, `-input`, `-nflags`,
+    `-ftime` and `-nse` give the default conversion's samples, eyes and events. Guards: a
+    column read at a shifted place; a start event needed for its end."""
+    reference = read_eyelink_asc(real[name])
+    log = read_eyelink_asc(_variant(real, tmp_path, name, *options), strict=True)
+    assert _xyv(log) == _xyv(reference), what
+    assert _eye_data(log) == _eye_data(reference), what
+    expected = _events(reference)
+    if opt_nse in options:  # a start whose end the file does not hold has no line left
+        ended = {(e[0].partition("_")[0], e[1], e[-1]) for e in expected if "_end" in e[0]}
+        expected = [e for e in expected if (e[0].partition("_")[0], e[1], e[-1]) in ended]
+    assert _events(log) == expected, what
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        (),
+        (opt_vel,),
+        (opt_input,),
+        (opt_res,),
+        (opt_vel, opt_res, opt_input),
+        (opt_vel, opt_nflags),
+    ],
+    ids=["-s", "-s -vel", "-s -input", "-s -res", "-s -vel -res -input", "-s -vel -nflags"],
+)
+def test_edf2asc_sample_only_files_tell_binocular_samples_by_their_flags(
+    real: dict[str, Path], tmp_path: Path, options: tuple
+) -> None:
+    """`edf2asc -s` of a binocular recording, with extra columns: the 5-character CR flags (or,
+    without them, 6 values) say both eyes, so the samples are the default's (less the END
+    marker: no line says where the block ends). Guards: refusing `-s -vel`/`-s -input` by
+    their count of values; one eye's columns taken for the other's."""
+    name = "pymovements_binocular"
+    reference = read_eyelink_asc(real[name])
+    path = _variant(real, tmp_path, name, opt_samples_only, *options)
+    log = read_eyelink_asc(path, geometry=ScreenGeometry(0.6, *SCREEN[name]), strict=True)
+    assert _xyv(log) == _without_end_markers(reference)
+    assert _eye_data(log) == [e for e in _eye_data(reference) if e[1] or e[2]]
+    assert log.header.tracker["eyes"] == ["left", "right"] and log.events == []
+
+
+def test_edf2asc_sample_only_files_of_one_eye_need_the_eye(
+    real: dict[str, Path], tmp_path: Path
+) -> None:
+    """`edf2asc -s -r` (a binocular recording's right eye, samples only) names no eye: refused,
+    saying to pass --eye; with `eye="right"` the samples are the right eye's of the default
+    conversion. `-s -nflags` of both eyes (6 values; 7 with `-input`) is refused as ambiguous
+    unless `eye="both"`. Guards: a monocular sample-only file labelled left."""
+    name = "pymovements_binocular"
+    screen = ScreenGeometry(0.6, *SCREEN[name])
+    reference = read_eyelink_asc(real[name])
+    path = _variant(real, tmp_path, name, opt_right, opt_samples_only)
+    with pytest.raises(FormatError, match="--eye left or --eye right") as info:
+        read_eyelink_asc(path, geometry=screen)
+    assert (info.value.line, info.value.field) == (1, "eye")
+    log = read_eyelink_asc(path, geometry=screen, eye="right")
+    right = [
+        (s.t_ns, repr(s.right.x), repr(s.right.y), math.isfinite(s.right.x))
+        for s in reference.samples
+        if s.right is not None
+    ]
+    assert [(t, x, y, v) for t, x, y, v in _xyv(log)] == [
+        (t, x if v else "nan", y if v else "nan", v) for t, x, y, v in right
+    ]
+    assert log.header.tracker["eyes"] == ["right"]
+    for extra in ((), (opt_input,)):  # 6 or 7 values: both eyes, or one with -vel -input...
+        ambiguous = _variant(real, tmp_path, name, opt_samples_only, opt_nflags, *extra)
+        with pytest.raises(FormatError, match="without -nflags"):
+            read_eyelink_asc(ambiguous, geometry=screen)
+        both = read_eyelink_asc(ambiguous, geometry=screen, eye="both")
+        assert _xyv(both) == _without_end_markers(reference)
+
+
+def test_edf2asc_one_eye_with_events_avg_and_href(real: dict[str, Path], tmp_path: Path) -> None:
+    """`-r` with events: the SAMPLES line names the right eye, so its samples and events are
+    the default's right eye's; `-avg` (derived): one eye's layout in a binocular block is the
+    gaze without per-eye data, the default's gaze; `-sh`: refused, naming `-sg`. Guards: a
+    `-r` file's eye taken from the column count; an averaged sample refused or misread."""
+    name = "pymovements_binocular"
+    reference = read_eyelink_asc(real[name])
+    right = read_eyelink_asc(_variant(real, tmp_path, name, opt_right), strict=True)
+    assert right.header.tracker["eyes"] == ["right"]
+    expected = [
+        (s.t_ns, *((repr(s.right.x), repr(s.right.y)) if s.right else ("nan", "nan")))
+        for s in reference.samples
+    ]
+    assert [(t, x, y) for t, x, y, _ in _xyv(right)] == expected
+    assert _events(right) == [e for e in _events(reference) if e[-1] == "right"]
+    avg = read_eyelink_asc(_variant(real, tmp_path, name, opt_avg), strict=True)
+    assert [(t, v) for t, _, _, v in _xyv(avg)] == [(t, v) for t, _, _, v in _xyv(reference)]
+    for a, b in zip(avg.samples, reference.samples, strict=True):
+        assert a.left is None and (not b.valid or (a.x, a.y) == pytest.approx((b.x, b.y)))
+    assert avg.header.tracker["averaged_samples"] == 368
+    with pytest.raises(FormatError, match="edf2asc -sg"):
+        read_eyelink_asc(_variant(real, tmp_path, name, opt_href))
+
+
+def test_edf2asc_events_only_and_no_messages(
+    real: dict[str, Path], tmp_path: Path, live_server: Any
+) -> None:
+    """`-e`: a log of the default's events and notes with no sample, which the daemon replays
+    (its fixations are sent); `-nmsg`: no screen in the file, so `geometry` gives it, and the
+    samples and events are the default's. Guards: an events-only file refused; a replay that
+    sends nothing without samples."""
+    name = "pymovements_binocular"
+    reference = read_eyelink_asc(real[name])
+    path = _variant(real, tmp_path, name, opt_events_only)
+    events = read_eyelink_asc(path, strict=True)
+    assert events.samples == [] and _events(events) == _events(reference)
+    assert events.notes == reference.notes
+    assert events.header.tracker["events_only"] is True
+    assert events.header.tracker["eyes"] == ["left", "right"]
+    quiet = _variant(real, tmp_path, name, opt_nmsg)
+    with pytest.raises(FormatError, match="--screen"):
+        read_eyelink_asc(quiet)
+    log = read_eyelink_asc(quiet, geometry=ScreenGeometry(0.6, *SCREEN[name]), strict=True)
+    assert _xyv(log) == _xyv(reference) and _events(log) == _events(reference)
+
+    server = live_server(token="t")
+    sent = tmp_path / "sent.jsonl"
+    argv = ["--source", f"replay:{path}@max", "--server", server.ws_url, "--token", "t", "-q"]
+    assert daemon_main([*argv, "--record", str(sent)]) == 0
+    replayed = read_session_log(sent)
+    fixations = [e for e in replayed.events if e.kind.startswith("fixation")]
+    assert fixations and replayed.samples == []
+
+
+def test_an_end_long_after_the_last_sample_ends_the_block_there(
+    real: dict[str, Path], tmp_path: Path
+) -> None:
+    """An END 52 minutes after its block's last sample (MNE's test file has one): the END
+    marker goes one sample period after the last sample, with a note, so a replay does not
+    hold the last gaze for 52 minutes. Guards: the marker at the END's time."""
+    lines = real["syelink_left_eye_excerpt"].read_text(encoding="utf-8").splitlines()
+    i = next(i for i, line in enumerate(lines) if line.startswith("END"))
+    tokens = _fields(lines[i])
+    last = int(_fields(next(x for x in reversed(lines[:i]) if _is_sample(x)))[0])
+    tokens[1] = str(last + 52 * 60 * 1000)
+    lines[i] = "\t".join(tokens)
+    path = tmp_path / "late_end.asc"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    log = read_eyelink_asc(path, strict=True)
+    marker = next(s for s in log.samples if not s.valid and s.t_ns > last * MS)
+    assert marker.t_ns == last * MS + 2 * MS  # 500 Hz
+    assert any("s after its block's last sample" in n.text for n in log.notes)

@@ -97,10 +97,15 @@ def test_eyelink_monocular() -> None:
     assert events(log) == [
         ("fixation_start", 1, 2154556 * ms, None, None, None, "left"),
         ("fixation_end", 1, 2154560 * ms, 640.6, 512.1, 6 * ms, "left"),
+        # a saccade: where it began on its start, where it landed on its end
+        ("saccade_start", 1, 2154562 * ms, 700.5, 480.0, None, "left"),
+        ("saccade_end", 1, 2154564 * ms, 820.3, 400.2, 4 * ms, "left"),
         ("fixation_start", 2, 2154566 * ms, None, None, None, "left"),
         ("fixation_end", 2, 2154568 * ms, 830.5, 395.8, 4 * ms, "left"),
+        ("saccade_start", 2, 2154570 * ms, 830.9, 396.1, None, "left"),  # file order
         ("blink_start", 1, 2154570 * ms, None, None, None, "left"),
         ("blink_end", 1, 2154572 * ms, None, None, 4 * ms, "left"),
+        ("saccade_end", 2, 2154574 * ms, 831.0, 396.0, 6 * ms, "left"),
         ("fixation_start", 3, 2154576 * ms, None, None, None, "left"),
         ("fixation_end", 3, 2154576 * ms, 831.4, 396.4, 2 * ms, "left"),
     ]
@@ -137,12 +142,13 @@ def test_eyelink_binocular_2000hz_fractional_times() -> None:
         EyeSample(950.0, 540.0),
         EyeSample(962.0, 544.0),
     )
-    # edf2asc -nse: no SFIX lines; the starts come from the EFIX lines' <stime>
+    # edf2asc -nse: no SFIX lines; the starts come from the EFIX lines' <stime>; ids are
+    # numbered per kind and eye, in the order the events start
     assert events(log) == [
         ("fixation_start", 1, 5_000_001_000_000, None, None, None, "left"),
-        ("fixation_start", 2, 5_000_001_000_000, None, None, None, "right"),
+        ("fixation_start", 1, 5_000_001_000_000, None, None, None, "right"),
         ("fixation_end", 1, 5_000_001_500_000, 950.3, 540.3, 1_000_000, "left"),
-        ("fixation_end", 2, 5_000_003_000_000, 962.9, 544.9, 2_500_000, "right"),
+        ("fixation_end", 1, 5_000_003_000_000, 962.9, 544.9, 2_500_000, "right"),
     ]
     assert log.header.screen.screen_width_px == 1920
     assert log.header.tracker["eyes"] == ["left", "right"]
@@ -275,24 +281,39 @@ def test_eyelink_velocity_resolution_and_blocks_that_differ(tmp_path: Path) -> N
 
 
 def test_eyelink_sample_only_files(tmp_path: Path) -> None:
-    """`edf2asc -s` (manual §4.9.1): sample lines only, no data specification; 3 values are
-    one eye, 6 both (GAZE, EDF2ASC's default); the screen must be given. Other counts cannot
-    be told apart (`-vel`, `-res`, `-input` add columns): refused, naming the first line."""
+    """`edf2asc -s` (manual §4.9.1): sample lines only, no data specification, GAZE (EDF2ASC's
+    default); the screen must be given. The CR flags say one eye (3 characters) or both (5),
+    whatever `-vel`, `-res`, `-input` add; no line names the eye of monocular samples, so
+    `eye` (`--eye`) must. Without flags (`-nflags`) 6 to 8 values are one eye with extra
+    columns or both: refused, naming the line, unless `eye` says. Guards: reading monocular
+    samples as the left eye without being told; counting values instead of reading the flags."""
     screen = ScreenGeometry(0.5, 1024, 768)
     mono = _asc(tmp_path, "10|  1.0|  2.0|  3.0|...\n12|  .|  .|  0.0|...\n", "m.asc")
-    assert xyv(read_eyelink_asc(mono, geometry=screen)) == [
-        (10_000_000, 1.0, 2.0, True),
-        (12_000_000, None, None, False),
-    ]
+    with pytest.raises(FormatError, match="--eye left or --eye right") as info:
+        read_eyelink_asc(mono, geometry=screen)
+    assert_names(info.value, mono, 1, "eye")
+    right = read_eyelink_asc(mono, geometry=screen, eye="right")
+    assert xyv(right) == [(10_000_000, 1.0, 2.0, True), (12_000_000, None, None, False)]
+    assert right.header.tracker["eyes"] == ["right"]
     bino = _asc(tmp_path, "10|  1.0|  2.0|  3.0|  5.0|  6.0|  3.0|.....\n", "b.asc")
     log = read_eyelink_asc(bino, geometry=screen)
     assert (log.samples[0].x, log.samples[0].y, log.header.tracker["eyes"]) == (
         3.0, 4.0, ["left", "right"],
     )  # fmt: skip
-    odd = _asc(tmp_path, "10|  1.0|  2.0|  3.0|  0.5|  0.6|...\n", "o.asc")
-    with pytest.raises(FormatError, match="cannot tell which eyes") as info:
+    with pytest.raises(FormatError, match="pass --eye both"):
+        read_eyelink_asc(bino, geometry=screen, eye="left")
+    # -s -vel of one eye (5 values, 3-character flags), of both (10 values, 5 characters)
+    vel = _asc(tmp_path, "10|  1.0|  2.0|  3.0|  0.5|  0.6|...\n", "v.asc")
+    assert xyv(read_eyelink_asc(vel, geometry=screen, eye="left")) == [(10_000_000, 1.0, 2.0, True)]
+    row = "10|  1.0|  2.0|  3.0|  5.0|  6.0|  3.0|  0.1|  0.2|  0.3|  0.4|....."
+    vel2 = _asc(tmp_path, row + "\n", "v2.asc")
+    assert xyv(read_eyelink_asc(vel2, geometry=screen)) == [(10_000_000, 3.0, 4.0, True)]
+    # -s -nflags -input of both eyes: 7 values, as one eye with -vel -res
+    odd = _asc(tmp_path, "10|  1.0|  2.0|  3.0|  5.0|  6.0|  3.0|  127\n", "o.asc")
+    with pytest.raises(FormatError, match="without -nflags") as info:
         read_eyelink_asc(odd, geometry=screen)
     assert_names(info.value, odd, 1, "time")
+    assert xyv(read_eyelink_asc(odd, geometry=screen, eye="both")) == [(10_000_000, 3.0, 4.0, True)]
 
 
 def test_eyelink_lines_not_understood_become_notes(tmp_path: Path) -> None:
@@ -336,7 +357,8 @@ def test_eyelink_lines_not_understood_become_notes(tmp_path: Path) -> None:
 
 def test_eyelink_files_with_no_sample_to_place_are_refused(tmp_path: Path) -> None:
     """Refused only when no sample can be placed: every block HREF (the SAMPLES line's reason),
-    or events only (`edf2asc -e`); a HREF block beside a GAZE one loses only its own samples."""
+    or neither samples nor eye events (an events-only file, `edf2asc -e`, is read:
+    tests/test_eyelink_real.py); a HREF block beside a GAZE one loses only its own samples."""
     head = "MSG|1 DISPLAY_COORDS 0 0 1023 767\nSTART|2 |LEFT|SAMPLES|EVENTS\n"
     href = (
         "SAMPLES|HREF|LEFT|RATE|1000.00\n2|  -512|  1024|  900.0|...\n3|  -510|  1020|  900.0|...\n"
@@ -351,10 +373,10 @@ def test_eyelink_files_with_no_sample_to_place_are_refused(tmp_path: Path) -> No
     log = read_eyelink_asc(_asc(tmp_path, head + href + gaze, "mixed.asc"))
     assert [s.t_ns for s in log.samples] == [10_000_000]
     assert log.header.tracker["unread_lines"] == 3  # the SAMPLES line and its two samples
-    events = _asc(tmp_path, head + "EVENTS|GAZE|LEFT|RATE|1000.00\nSFIX L   2\n", "e.asc")
-    with pytest.raises(FormatError, match="edf2asc -e") as info:
-        read_eyelink_asc(events)
-    assert_names(info.value, events, None, "samples")
+    nothing = _asc(tmp_path, "MSG|1 DISPLAY_COORDS 0 0 1023 767\nMSG|2 hello\n", "n.asc")
+    with pytest.raises(FormatError, match="no sample and no eye event") as info:
+        read_eyelink_asc(nothing)
+    assert_names(info.value, nothing, None, "samples")
 
 
 # --- Pupil Player -----------------------------------------------------------------------------
@@ -406,6 +428,47 @@ def test_pupil_malformed_rows_name_line_and_field(
     with pytest.raises(FormatError, match=reason) as info:
         read_pupil_gaze_csv(path)
     assert_names(info.value, path, line, field)
+
+
+def test_pupil_player_export_whole_blank_lines_fixations_and_blinks(tmp_path: Path) -> None:
+    """A `gaze_positions.csv` whose first line is blank (as a spreadsheet may save it) is read;
+    `fixations.csv` and `blinks.csv` beside it (Pupil Player's Fixation and Blink Detector
+    exports) give fixations (start, start + duration ms, mean position flipped as gaze is,
+    dispersion) and blinks (start, end), with Pupil's ids. Guards: the blank line refused; the
+    exports beside it ignored."""
+    folder = tmp_path / "exports" / "000"
+    folder.mkdir(parents=True)
+    gaze = (DATA / "gaze_positions.csv").read_text(encoding="utf-8")
+    (folder / "gaze_positions.csv").write_text("\n" + gaze, encoding="utf-8")
+    (folder / "fixations.csv").write_text(
+        "id,start_timestamp,duration,start_frame_index,end_frame_index,norm_pos_x,norm_pos_y,"
+        "dispersion,confidence,method,gaze_point_3d_x,gaze_point_3d_y,gaze_point_3d_z,"
+        "base_data\n"
+        "7,329.378961,8.328,10,11,0.5,0.25,0.82,0.97,2d gaze,,,,329.378961-0\n",
+        encoding="utf-8",
+    )
+    (folder / "blinks.csv").write_text(
+        "id,start_timestamp,duration,end_timestamp,start_frame_index,index,end_frame_index,"
+        "confidence,filter_response,base_data\n"
+        "\n"
+        "3,329.387289,0.004166,329.391455,12,12,13,0.8,0.6,329.387289\n",
+        encoding="utf-8",
+    )
+    screen = ScreenGeometry(0.6, 1280, 720)
+    log = read_pupil_gaze_csv(folder / "gaze_positions.csv", geometry=screen)
+    plain = read_pupil_gaze_csv(DATA / "gaze_positions.csv", geometry=screen)
+    assert log.samples == plain.samples
+    assert events(log) == [
+        ("fixation_start", 7, 329_378_961_000, 640.0, 540.0, None, None),
+        ("fixation_end", 7, 329_387_289_000, 640.0, 540.0, 8_328_000, None),
+        ("blink_start", 3, 329_387_289_000, None, None, None, None),
+        ("blink_end", 3, 329_391_455_000, None, None, 4_166_000, None),
+    ]
+    assert [e.dispersion_deg for e in log.events if e.kind == "fixation_end"] == [0.82]
+    (folder / "blinks.csv").write_text("id,start_timestamp,end_timestamp\n3,x,1\n")
+    with pytest.raises(FormatError) as info:
+        read_pupil_gaze_csv(folder / "gaze_positions.csv", geometry=screen)
+    assert_names(info.value, folder / "blinks.csv", 2, "start_timestamp")
 
 
 def test_pupil_old_timestamp_column(tmp_path: Path) -> None:
@@ -592,12 +655,29 @@ def test_import_command_line_says_what_was_not_read_and_strict_refuses(
     assert not (tmp_path / "strict.jsonl").exists()
 
 
+def test_import_command_line_missing_and_eye(tmp_path: Path, capsys) -> None:
+    """`gazehdr import --missing VALUE` (edf2asc -miss) reads VALUE as missing, `--eye` says
+    what a sample-only file holds; both are refused for other formats. Guards: the options
+    not reaching the EyeLink reader."""
+    asc = tmp_path / "s.asc"
+    asc.write_text("10\t-1\t-1\t5.0\t...\n12\t1.0\t2.0\t3.0\t...\n", encoding="utf-8")
+    out = tmp_path / "s.jsonl"
+    argv = [str(asc), "--out", str(out), "--screen", "800x600"]
+    assert import_main([*argv, "--eye", "right", "--missing", "-1"]) == 0
+    assert "2 samples (1 invalid)" in capsys.readouterr().out
+    log = read_session_log(out)
+    assert log.header.tracker["eyes"] == ["right"] and not log.samples[0].valid
+    with pytest.raises(SystemExit):
+        import_main([str(DATA / "gaze_positions.csv"), "--out", str(out), "--eye", "left"])
+    assert "--eye is for EyeLink ASC files" in capsys.readouterr().err
+
+
 def test_import_and_export_command_lines(tmp_path: Path, capsys) -> None:
     out = tmp_path / "s01.jsonl"
     assert (
         import_main([str(DATA / "eyelink_mono.asc"), "--out", str(out), "--distance", "0.7"]) == 0
     )
-    assert "15 samples (4 invalid), 8 events, 7 notes, screen 1280x1024" in capsys.readouterr().out
+    assert "15 samples (4 invalid), 12 events, 7 notes, screen 1280x1024" in capsys.readouterr().out
     log = read_session_log(out)
     assert log.header.screen == ScreenGeometry(0.6, 1280, 1024, 0.7)
     assert len(log.samples) == 15 and log.samples[0].t_ns == 2_154_556_000_000
@@ -616,9 +696,10 @@ def test_import_and_export_command_lines(tmp_path: Path, capsys) -> None:
     bids = tmp_path / "bids"
     assert export_main([str(out), "--out", str(bids), "--sub", "02", "--task", "x"]) == 0
     printed = capsys.readouterr().out
-    assert "wrote 17 files to the dataset" in printed  # 3 of the dataset, 2 events, 12 per eye
+    # 3 of the dataset, 2 events, 4 per eye (the gaze is their mean: no cyclopean recording)
+    assert "wrote 13 files to the dataset" in printed
     assert "  sub-02/beh/sub-02_task-x_events.tsv\n" in printed
-    back = import_recording(bids / "sub-02" / "beh" / "sub-02_task-x_recording-eye3_physio.tsv.gz")
+    back = import_recording(bids / "sub-02" / "beh" / "sub-02_task-x_recording-eye2_physio.tsv.gz")
     assert len(back.samples) == len(read_session_log(out).samples)
     assert import_main([str(bids), "--sub", "02", "--out", str(tmp_path / "b.jsonl")]) == 0
     assert read_session_log(tmp_path / "b.jsonl").samples == back.samples

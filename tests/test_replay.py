@@ -16,6 +16,7 @@ from gazehdr.drivers.replay import ReplaySource, is_session_log, parse_speed, re
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import (
     GazeEvent,
+    Note,
     SessionHeader,
     SessionLogWriter,
     encode_record,
@@ -244,3 +245,126 @@ def test_imported_geometry_passes_through(tmp_path: Path) -> None:
     assert rep.info.geometry.screen_width_px == 1280
     log = read_session_log(_record(tmp_path / "g.jsonl", rep, list(rep.records())))
     assert log.header.screen.screen_width_px == 1280
+
+
+# --- recordings gazehdr imported: BIDS runs, fixations without a place, a long tail ------------
+
+
+def _two_runs(tmp_path: Path) -> Path:
+    """A dataset of two runs of one subject, exported from the fixture's imported log and a copy
+    of it one hour later."""
+    from gazehdr.drivers.formats.bids import read_bids, write_bids
+
+    log = read_bids(DATA / "bids")
+    root = tmp_path / "ds"
+    write_bids(log, root, sub="01", task="free", run="1")
+    hour = 3600 * 10**9
+    log.samples = [
+        GazeSample(s.t_ns + hour, s.x, s.y, s.valid, s.left, s.right) for s in log.samples
+    ]
+    log.events, log.notes = [], []
+    write_bids(log, root, sub="01", task="free", run="2")
+    return root
+
+
+def test_a_bids_dataset_replays_with_its_run_picked(tmp_path: Path) -> None:
+    """`replay:DATASET#run-2` streams run 2 of a dataset (`#sub-01_run-2`, as the files name
+    it); without the run, the error lists them; a folder of the dataset works as a file does.
+    Guards: a BIDS folder refused as "no such recording"; no way to pick the run."""
+    root = _two_runs(tmp_path)
+    with pytest.raises(ValueError, match="2 eye-tracking runs; pick one with --run"):
+        open_source(f"replay:{root}@max")
+    run2 = [r for r in open_source(f"replay:{root}#run-2@max").records()]
+    run1 = [r for r in open_source(f"replay:{root / 'sub-01'}#sub-01_run-1@max").records()]
+    assert [s.t_ns for s in run2 if isinstance(s, GazeSample)] == [
+        s.t_ns + 3600 * 10**9 for s in run1 if isinstance(s, GazeSample)
+    ]
+    with pytest.raises(ValueError, match="expected entities such as"):
+        open_source(f"replay:{root}#take-2@max")
+
+
+def test_fixations_without_a_place_are_placed_at_their_samples_mean(tmp_path: Path) -> None:
+    """The fixture's physioevents fixations have no position (eye2bids writes none, nor does
+    EEGEyeNet's 10 Hz dataset), and its samples are too few for I-VT: a replay places each at
+    the mean of its eye's valid samples inside it, so the daemon sends the recording's fixations
+    instead of none (where I-VT finds fixations the daemon's detector runs, as before:
+    tests/test_daemon.py). Guards: a replay whose fixations have no position sending no
+    fixation at all."""
+    source = ReplaySource(DATA / "bids", speed=math.inf)
+    places = source.fixation_places()
+    log = import_recording(DATA / "bids")
+    starts = [e for e in log.events if e.kind == "fixation_start"]
+    assert {(e.id, e.eye) for e in starts} == set(places)
+    first = places[(1, "left")]
+    ends = {(e.id, e.eye): e.t_ns for e in log.events if e.kind == "fixation_end"}
+    inside = [
+        s.left
+        for s in log.samples
+        if first.start_ns <= s.t_ns <= ends[(1, "left")] and math.isfinite(s.left.x)
+    ]
+    assert (first.x, first.y) == pytest.approx(
+        (sum(e.x for e in inside) / len(inside), sum(e.y for e in inside) / len(inside))
+    )
+    assert source.unplaced == 0
+    detector = make_detector("ivt", source.info.geometry)
+    sent = [r for r in sources.records_of(source) if getattr(r, "kind", "").startswith("fix")]
+    assert sent and detector is not None
+
+
+def test_an_imported_recording_ends_at_its_last_sample(tmp_path: Path) -> None:
+    """Records more than a second after an imported recording's last valid sample (an END or
+    messages 52 minutes later) are not replayed: an invalid sample just after the last one ends
+    the gaze. Guards: a replay holding the last gaze through the gap."""
+    log = import_recording(DATA / "eyelink_mono.asc")
+    late = log.samples[-1].t_ns + 52 * 60 * 10**9
+    log.samples.append(GazeSample(late, math.nan, math.nan, False))
+    log.notes.append(Note(late, "the end, 52 minutes on"))
+    out = replay(log, include_all=True)
+    last_valid = max(s.t_ns for s in log.samples if s.valid)
+    assert max(r.t_ns for r in out) <= last_valid + 10**9
+    assert isinstance(out[-1], GazeSample) and not out[-1].valid
+
+
+def test_serve_gaze_replay_takes_a_bids_dataset_and_drives_the_gaze(tmp_path: Path) -> None:
+    """`gazehdr serve --gaze replay:PATH#RUN`: the run is imported into the server's recordings
+    and new sessions follow it (`replay:NAME`); the track it gives is the recording's gaze.
+    Importing the same run again makes no copy; another recording of the same name is kept
+    beside, never over, the first. Guards: `serve --gaze replay:PATH` refused, a recording of
+    the server's overwritten by a namesake."""
+    from gazehdr.recordings import RecordingLibrary
+    from gazehdr.serve import build_config
+
+    root = _two_runs(tmp_path)
+    options = dict(
+        host="127.0.0.1", port=0, scene="flash", scale=None, fps=30.0, size=(96, 54),
+        fit_viewport=False, params_file=None, token="t", data_dir=tmp_path / "data",
+        allow_origins=(), encoding="rgb10a2", backend="reference", seed=0,
+    )  # fmt: skip
+    config = build_config(**options, gaze=f"replay:{root}#run-1")
+    assert config.session.gaze_source == "replay:run-1"
+    track, _ = RecordingLibrary(tmp_path / "data").replay("run-1")
+    log = import_recording(root, select={"run": "1"})
+    w, h = log.header.screen.screen_width_px, log.header.screen.screen_height_px
+    expected = log.fixation_track().at(0.0)
+    assert (track.at(0.0).x, track.at(0.0).y) == pytest.approx((expected.x, expected.y))
+    assert 0 < track.at(0.0).x * w < w and 0 < track.at(0.0).y * h < h
+    again = build_config(**options, gaze="replay:run-1")  # the server's recording by its name
+    assert again.session.gaze_source == "replay:run-1"
+    kept = (tmp_path / "data" / "recordings" / "run-1.jsonl").read_bytes()
+    restarted = build_config(**options, gaze=f"replay:{root}#run-1")  # the same run: no copy
+    assert restarted.session.gaze_source == "replay:run-1"
+    other = build_config(**options, gaze=f"replay:{root}#run-2")
+    assert other.session.gaze_source == "replay:run-2"
+    # Another recording named run-1 (a second dataset's) takes run-1-2; the first is kept.
+    second = tmp_path / "second"
+    second.mkdir()
+    (tmp_path / "data" / "recordings" / "run-2.jsonl").rename(second / "run-1.jsonl")
+    moved = build_config(**options, gaze=f"replay:{second / 'run-1.jsonl'}")
+    assert moved.session.gaze_source == "replay:run-1-2"
+    assert (tmp_path / "data" / "recordings" / "run-1.jsonl").read_bytes() == kept
+    assert sorted(p.name for p in (tmp_path / "data" / "recordings").iterdir()) == [
+        "run-1-2.jsonl",
+        "run-1.jsonl",
+    ]
+    with pytest.raises(ValueError, match="no such recording"):
+        build_config(**options, gaze=f"replay:{tmp_path / 'nothing'}")

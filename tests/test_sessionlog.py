@@ -167,7 +167,7 @@ def test_file_layout_is_the_documented_one(tmp_path: Path) -> None:
     lines = path.read_text(encoding="utf-8").splitlines()
     assert json.loads(lines[0]) == {
         "format": "gazehdr-session",
-        "version": 2,
+        "version": 3,
         "created": "2024-05-01T12:00:00.000+00:00",
         "tracker": {"name": "test tracker", "serial": "T-1"},
         "screen": {
@@ -369,8 +369,8 @@ def test_a_whole_but_malformed_last_line_is_an_error_not_a_truncation(tmp_path: 
     ("change", "field", "reason"),
     [
         ({"format": "other"}, "format", "not a gazehdr session log"),
-        ({"version": 3}, "version", "this reader reads versions 1 and 2"),
-        ({"version": True}, "version", "this reader reads versions 1 and 2"),
+        ({"version": 4}, "version", "this reader reads versions 1, 2, 3"),
+        ({"version": True}, "version", "this reader reads versions 1, 2, 3"),
         ({"screen": {"screen_width_px": 10}}, "screen", "exactly"),
         # an int too large for a float: a clear error, not math.isfinite's OverflowError (fuzz)
         (

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,8 @@ from gazehdr.drivers.cli_args import OneLineParser, positive_arg, screen_size_ar
 from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.bids.layout import SELECTABLE
 from gazehdr.drivers.formats.common import geometry_with
-from gazehdr.drivers.sessionlog import FormatError, SessionLog, write_session_log
+from gazehdr.drivers.samples import GazeSample
+from gazehdr.drivers.sessionlog import FormatError, GazeEvent, Note, SessionLog, SessionLogWriter
 
 IMPORTERS: dict[str, tuple[str, str]] = {
     "bids": ("gazehdr.drivers.formats.bids", "read_bids"),
@@ -76,9 +78,10 @@ def import_recording(path: str | Path, fmt: str = "auto", **options: Any) -> Ses
 
     `options` go to the importer: `geometry` (a `ScreenGeometry` for what the file does not
     record) for all; `select` (bids: {"sub": .., "ses": .., "task": .., "acq": .., "run": ..},
-    which run of a dataset); `min_confidence` (pupil); `units` (tobii, psychopy_tobii_controller
-    files); `missing` and `strict` (eyelink: the `edf2asc -miss` string; refuse a file at its
-    first line not understood).
+    which run of a dataset) and `strict` (refuse an empty recording); `min_confidence` (pupil);
+    `units` (tobii, psychopy_tobii_controller files); `missing`, `eye` and `strict` (eyelink:
+    the `edf2asc -miss` string; the eye of a sample-only file; refuse a file at its first line
+    not understood).
     """
     if fmt == "auto":
         fmt = detect_format(path)
@@ -131,7 +134,19 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         "--strict",
         action="store_true",
         help="refuse an EyeLink file at its first line not understood (by default such a line "
-        "becomes a note saying why, and the rest is read)",
+        "becomes a note saying why, and the rest is read), and a BIDS run with an empty "
+        "recording (by default a warning)",
+    )
+    p.add_argument(
+        "--missing",
+        metavar="VALUE",
+        help="EyeLink: the string the file was converted with for missing values (edf2asc "
+        "-miss VALUE); '.' is always missing, and a pupil of 0 is lost track whatever x, y say",
+    )
+    p.add_argument(
+        "--eye",
+        choices=["left", "right", "both"],
+        help="EyeLink: what a sample-only file's samples hold (edf2asc -s names no eye)",
     )
     p.add_argument(
         "--min-confidence",
@@ -176,26 +191,57 @@ def import_main(argv: Sequence[str] | None = None) -> int:
         p.error("--stream is for XDF files")
     if fmt == "tobii":
         options["units"] = args.units
-    if fmt == "eyelink":
+    if fmt in ("eyelink", "bids"):
         options["strict"] = args.strict
+    if fmt == "eyelink":
+        options["missing"] = args.missing
+        options["eye"] = args.eye
+    else:
+        for flag in ("missing", "eye"):
+            if getattr(args, flag) is not None:
+                p.error(f"--{flag} is for EyeLink ASC files; {args.file} is {fmt}")
     try:
-        log = import_recording(args.file, fmt, **options)
+        if fmt == "bids":  # streamed: memory does not grow with the samples
+            from gazehdr.drivers.formats.bids.reader import BidsRun
+
+            geometry_option = options.pop("geometry")
+            run = BidsRun(Path(args.file), geometry=geometry_option, **options)
+            header, records, warnings = run.header, run.records(), run.warnings
+        else:
+            log = import_recording(args.file, fmt, **options)
+            header, records = log.header, log.records()
+            warnings = []
     except ImportError as e:  # an optional reader's package (pyxdf) is not installed
         p.error(str(e))
+    for warning in warnings:
+        print(f"gazehdr import: warning: {warning}", file=sys.stderr)
+    counts = {"samples": 0, "invalid": 0, "events": 0, "notes": 0}
     try:
-        out = write_session_log(args.out, log, overwrite=args.overwrite)
+        with SessionLogWriter(args.out, header, overwrite=args.overwrite) as writer:
+            for record in records:
+                if isinstance(record, GazeSample):
+                    counts["samples"] += 1
+                    counts["invalid"] += not record.valid
+                elif isinstance(record, GazeEvent):
+                    counts["events"] += 1
+                elif isinstance(record, Note):
+                    counts["notes"] += 1
+                writer.write(record)
     except FileExistsError as e:  # name the option that allows it
         raise FileExistsError(
             e.errno,
             "session log already exists; choose another --out, or pass --overwrite",
             e.filename,
         ) from None
-    invalid = sum(not s.valid for s in log.samples)
-    screen = log.header.screen
-    unread = log.header.tracker.get("unread_lines")
+    except BaseException:  # a row refused while streaming: no half-written log is left
+        Path(args.out).unlink(missing_ok=True)
+        raise
+    out = Path(args.out)
+    screen = header.screen
+    unread = header.tracker.get("unread_lines")
     print(
-        f"{args.file} ({fmt}): {len(log.samples)} samples ({invalid} invalid), "
-        f"{len(log.events)} events, {len(log.notes)} notes"
+        f"{args.file} ({fmt}): {counts['samples']} samples ({counts['invalid']} invalid), "
+        f"{counts['events']} events, {counts['notes']} notes"
         + (
             f" ({unread} line{'s' * (unread > 1)} not read: see the notes 'line N not read')"
             if unread

@@ -1,5 +1,6 @@
 """What the importers share: exact decimal times, finite floats, telling numbers from labels, the
-mean of two eyes, and a screen geometry with what a file records put in."""
+mean of two eyes, the order of events at one time, and a screen geometry with what a file
+records put in."""
 
 from __future__ import annotations
 
@@ -50,6 +51,33 @@ def mean_of_eyes(*eyes: EyeSample | None) -> tuple[float, float] | None:
     if not found:
         return None
     return sum(e.x for e in found) / len(found), sum(e.y for e in found) / len(found)
+
+
+#: Pixels on a side beyond any display: a screen resolution this large is garbled, and would make
+#: every later conversion to degrees meaningless. The readers refuse it.
+MAX_SCREEN_PX = 65_536
+
+_END_ORDER = {"blink": 0, "saccade": 1, "fixation": 2}
+_START_ORDER = {"saccade": 0, "blink": 1, "fixation": 2}
+
+
+def sort_events(events: list[Any]) -> list[Any]:
+    """Events in the order importers give them at one time, so that every format gives one log
+    the same order: left eye (or none) before right; ends before starts, but an event that
+    starts and ends at one time starts first; a blink ends before the saccade around it, and
+    that saccade starts before the blink (EyeLink nests them so)."""
+    starts = {
+        (e.kind.partition("_")[0], e.id, e.eye, e.t_ns) for e in events if e.kind.endswith("_start")
+    }
+
+    def key(e: Any) -> tuple[int, bool, int, int]:
+        family, _, phase = e.kind.partition("_")
+        if phase != "end":
+            return (e.t_ns, e.eye == "right", 1, _START_ORDER.get(family, 3))
+        instant = (family, e.id, e.eye, e.t_ns) in starts
+        return (e.t_ns, e.eye == "right", 2 if instant else 0, _END_ORDER.get(family, 3))
+
+    return sorted(events, key=key)
 
 
 def geometry_with(

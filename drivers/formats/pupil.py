@@ -17,7 +17,15 @@ monotonic clock with an arbitrary epoch; "2D Normalized Space" has its origin at
   `ScreenGeometry()`, 1920×1080).
 - Validity: a sample whose `confidence` is below `min_confidence` (0.6, the default of Pupil
   Player's `min_data_confidence`, below which its exporter leaves data out) is invalid.
-- Other columns (3d gaze, eye centres, normals) are not used.
+- Other columns (3d gaze, eye centres, normals) are not used. Blank lines (a first line left
+  blank by a spreadsheet, say) are skipped wherever they are.
+- Beside it, Pupil Player's other exports of the same recording, when they are there:
+  `fixations.csv` (Fixation Detector: `id`, `start_timestamp` s, `duration` ms, `norm_pos_x`,
+  `norm_pos_y`, `dispersion` degrees, ...) gives `fixation_start` and `fixation_end` (at the
+  start plus the duration, at its mean position, flipped as gaze is); `blinks.csv` (Blink
+  Detector: `id`, `start_timestamp`, `end_timestamp` s, ...) gives `blink_start` and
+  `blink_end`. Their ids are Pupil's. A row that is malformed is refused, naming the file, the
+  line and the field.
 """
 
 from __future__ import annotations
@@ -25,11 +33,18 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from typing import Any
 
 from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.formats.common import decimal_ns, finite_float
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
-from gazehdr.drivers.sessionlog import ClockInfo, FormatError, SessionHeader, SessionLog
+from gazehdr.drivers.sessionlog import (
+    ClockInfo,
+    FormatError,
+    GazeEvent,
+    SessionHeader,
+    SessionLog,
+)
 
 MIN_CONFIDENCE = 0.6
 _REQUIRED = ("confidence", "norm_pos_x", "norm_pos_y")
@@ -66,7 +81,7 @@ def read_pupil_gaze_csv(
     # Bytes that are not UTF-8 become U+FFFD: a number holding one is refused by its field.
     with path.open(newline="", encoding="utf-8-sig", errors="replace") as f:
         rows = csv.reader(f)
-        header = [name.strip() for name in next(rows, [])]
+        header = _header(rows)
         time_column = "gaze_timestamp" if "gaze_timestamp" in header else "timestamp"
         for name in (time_column, *_REQUIRED):
             if name not in header:
@@ -112,6 +127,8 @@ def read_pupil_gaze_csv(
             samples.append(gaze_sample(t, nx, ny, confidence, screen, min_confidence))
     if not samples:
         raise FormatError(path, None, None, "no gaze rows")
+    events = _fixations(path.with_name("fixations.csv"), screen)
+    events += _blinks(path.with_name("blinks.csv"))
     header_ = SessionHeader(
         tracker={
             "format": "pupil-player-gaze-positions",
@@ -122,4 +139,84 @@ def read_pupil_gaze_csv(
         screen=screen,
         clock=ClockInfo(source="Pupil Time"),
     )
-    return SessionLog(header_, samples, path=path)
+    log = SessionLog(header_, samples, path=path)
+    log.events = sorted(events, key=lambda e: (e.t_ns, e.kind.endswith("_start")))
+    return log
+
+
+def _header(rows: Any) -> list[str]:
+    """The first row that is not blank, as column names."""
+    for row in rows:
+        if any(field.strip() for field in row):
+            return [name.strip() for name in row]
+    return []
+
+
+def _table(path: Path, needed: tuple[str, ...]) -> list[tuple[int, dict[str, str]]]:
+    """(line, {column: text}) of a Pupil Player CSV export; [] when there is none."""
+    if not path.is_file():
+        return []
+    with path.open(newline="", encoding="utf-8-sig", errors="replace") as f:
+        rows = csv.reader(f)
+        header = _header(rows)
+        for name in needed:
+            if name not in header:
+                raise FormatError(path, 1, name, f"missing column; expected {', '.join(needed)}")
+        out = []
+        for row in rows:
+            if not any(field.strip() for field in row):
+                continue
+            if len(row) != len(header):
+                raise FormatError(
+                    path, rows.line_num, None, f"{len(row)} fields; the header names {len(header)}"
+                )
+            out.append((rows.line_num, dict(zip(header, row, strict=True))))
+    return out
+
+
+def _field(path: Path, line: int, row: dict[str, str], name: str, unit_ns: int = 0) -> Any:
+    """A number (a time in ns with `unit_ns`), or `FormatError` naming file, line, field."""
+    text = row[name].strip()
+    try:
+        return decimal_ns(text, unit_ns) if unit_ns else finite_float(text)
+    except ValueError:
+        raise FormatError(path, line, name, f"expected a number, got {text!r}") from None
+
+
+def _ident(path: Path, line: int, row: dict[str, str]) -> int:
+    text = row["id"].strip()
+    if not text.isdigit() or len(text) > 18:
+        raise FormatError(path, line, "id", f"expected a whole number, got {text!r}")
+    return int(text)
+
+
+def _fixations(path: Path, screen: ScreenGeometry) -> list[GazeEvent]:
+    needed = ("id", "start_timestamp", "duration", "norm_pos_x", "norm_pos_y")
+    events = []
+    for line, row in _table(path, needed):
+        ident = _ident(path, line, row)
+        start = _field(path, line, row, "start_timestamp", 10**9)
+        duration = _field(path, line, row, "duration", 10**6)  # milliseconds
+        if duration < 0:
+            raise FormatError(path, line, "duration", "a fixation's duration is not negative")
+        nx, ny = (_field(path, line, row, name) for name in ("norm_pos_x", "norm_pos_y"))
+        x, y = nx * screen.screen_width_px, (1.0 - ny) * screen.screen_height_px
+        dispersion = _field(path, line, row, "dispersion") if "dispersion" in row else None
+        events.append(GazeEvent("fixation_start", ident, start, x, y))
+        events.append(
+            GazeEvent("fixation_end", ident, start + duration, x, y, duration, dispersion)
+        )
+    return events
+
+
+def _blinks(path: Path) -> list[GazeEvent]:
+    events = []
+    for line, row in _table(path, ("id", "start_timestamp", "end_timestamp")):
+        ident = _ident(path, line, row)
+        start = _field(path, line, row, "start_timestamp", 10**9)
+        end = _field(path, line, row, "end_timestamp", 10**9)
+        if end < start:
+            raise FormatError(path, line, "end_timestamp", "a blink ends before it starts")
+        events.append(GazeEvent("blink_start", ident, start))
+        events.append(GazeEvent("blink_end", ident, end, duration_ns=end - start))
+    return events

@@ -45,7 +45,13 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr.drivers.errors import InputError
-from gazehdr.drivers.formats.common import decimal_ns, geometry_with, is_number, mean_of_eyes
+from gazehdr.drivers.formats.common import (
+    MAX_SCREEN_PX,
+    decimal_ns,
+    geometry_with,
+    is_number,
+    mean_of_eyes,
+)
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
 from gazehdr.drivers.sessionlog import ClockInfo, FormatError, Note, SessionHeader, SessionLog
 
@@ -76,8 +82,6 @@ PTC_COLUMNS = (
     "GazePointY",
 )
 UNITS = ("pix", "norm", "height")
-#: Pixels on a side beyond any screen (as the EyeLink reader): a resolution line past it is refused.
-MAX_SCREEN_PX = 65_536
 _META = {
     "resolution": re.compile(r"Recording resolution:?\t(\d+) x (\d+)"),
     "size_cm": re.compile(r"display size in cm: ([\d.]+)x([\d.]+)"),

@@ -5,7 +5,7 @@ read back after a crash: `writer` and `reader`).
 
 Line 1, the header::
 
-    {"format": "gazehdr-session", "version": 2, "created": "2024-05-01T12:00:00.000+00:00",
+    {"format": "gazehdr-session", "version": 3, "created": "2024-05-01T12:00:00.000+00:00",
      "tracker": {...free-form: name, model, serial, where it was imported from...},
      "screen": {"screen_diagonal_m": 0.6, "screen_width_px": 1920, "screen_height_px": 1080,
                 "viewing_distance_m": 1.0},
@@ -22,10 +22,12 @@ Then records, each with its kind `k` and its time `t` (integer nanoseconds on th
   `[x, y]` or `[x, y, pupil_mm]`, or null for an eye the tracker lost. Sample times never go
   back.
 - events, `k` one of `fixation_start`, `fixation_update`, `fixation_end`, `blink_start`,
-  `blink_end`: `{"k":"fixation_end","id":7,"t":T,"x":X,"y":Y,"duration":NS,"dispersion":DEG}`;
-  `x`, `y` (pixels), `duration` (ns), `dispersion` (degrees, Salvucci and Goldberg's
-  (max x − min x) + (max y − min y)) and `eye` (`"left"`/`"right"`) are optional. The events of
-  one fixation or blink share their `id` (the fields of `gazehdr.drivers.fixations.Event`).
+  `blink_end`, `saccade_start`, `saccade_end`: `{"k":"fixation_end","id":7,"t":T,"x":X,"y":Y,
+  "duration":NS,"dispersion":DEG}`; `x`, `y` (pixels), `duration` (ns), `dispersion` (degrees,
+  Salvucci and Goldberg's (max x − min x) + (max y − min y)) and `eye` (`"left"`/`"right"`) are
+  optional. The events of one fixation, blink or saccade share their `id` (the fields of
+  `gazehdr.drivers.fixations.Event`). Saccades come from imported recordings (a saccade's start
+  holds where it began, its end where it landed); a daemon does not send them.
 - `{"k":"scene","t":T,"name":"lamp"}`, `{"k":"params","t":T,"values":{...}}` (the parameters
   that changed, by their `gazehdr.sim.Params` names), `{"k":"model","t":T,"model":"jacobs+
   stochastic","split":null}` (the simulation's models, `AFTERIMAGE+ACUITY`, and the right
@@ -38,7 +40,8 @@ simulation clock (`clock.source` "simulation_ns"), each change and gaze at the e
 step it drove, and the gaze it followed as samples plus one `fixation_start` per position.
 
 Unknown kinds and unknown fields are errors: a reader never guesses what a newer version meant
-(it bumps `version`). Version 2 added `model` and `reset`; this reader reads 1 and 2.
+(it bumps `version`). Version 2 added `model` and `reset`, version 3 `saccade_start` and
+`saccade_end`; this reader reads 1, 2 and 3.
 """
 
 from __future__ import annotations
@@ -284,7 +287,7 @@ def decode_header(obj: Any, path: Path) -> SessionHeader:
     f.only(("k", "format", "version", "created", "tracker", "screen", "clock"))
     version = obj.get("version")
     if version not in READS or isinstance(version, bool):
-        readable = " and ".join(map(str, READS))
+        readable = ", ".join(map(str, READS))
         raise f.error("version", f"version {version!r}; this reader reads versions {readable}")
     created = f.text("created")
     tracker = obj.get("tracker")

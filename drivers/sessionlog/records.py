@@ -17,14 +17,16 @@ from gazehdr.drivers.errors import InputError
 from gazehdr.drivers.samples import GazeSample, ScreenGeometry
 
 FORMAT = "gazehdr-session"
-VERSION = 2
-READS = (1, 2)  # versions this reader understands
+VERSION = 3
+READS = (1, 2, 3)  # versions this reader understands
 EVENT_KINDS: tuple[str, ...] = (
     "fixation_start",
     "fixation_update",
     "fixation_end",
     "blink_start",
     "blink_end",
+    "saccade_start",
+    "saccade_end",
 )
 EYES = ("left", "right")
 
@@ -78,9 +80,12 @@ class SessionHeader:
 
 @dataclass(frozen=True)
 class GazeEvent:
-    """A fixation or blink event, as `gazehdr.drivers.fixations.Event` plus the eye it came from.
+    """A fixation, blink or saccade event, as `gazehdr.drivers.fixations.Event` plus the eye it
+    came from.
 
-    Unknown positions are NaN (blinks have none; an EyeLink fixation start has none either).
+    Unknown positions are NaN (blinks have none; an EyeLink fixation start has none either). A
+    saccade's start holds where it began, its end where it landed; saccades come only from
+    imported recordings (EyeLink `ESACC`, BIDS physioevents), never from the wire.
     """
 
     kind: str

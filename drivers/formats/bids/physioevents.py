@@ -2,29 +2,35 @@
 
 What import assumes (BIDS 1.11.1 "Physiology events"; the drafts before it, and eye2bids):
 
-- Event times: `"OnsetSource": "timestamp"`: `onset` is on the physio timestamp's clock, in
-  its unit. `"OnsetSource": "n/a"`: `onset` is the zero-based physio row, negative before the
-  first (at SamplingFrequency). Drafts: `ForeignIndexColumn` naming `timestamp`, the events'
-  column of that name (or `onset`, eye2bids) holding a physio timestamp, or without it a
-  `foreign_index` column (zero-based row), or lacking one `onset` as the one-based row. Where
-  the timestamp column names a sample, a file that also has an `onset` with `Units` (gazehdr's
-  exports before BIDS 1.11) gives the exact time from it, provided every onset lies in the
-  sample interval its timestamp names (the sample at or before it, or the first sample for an
-  earlier one); otherwise (an onset on another clock, such as seconds from the start) the
-  timestamp column is used.
-- Events: a `fixation` row gives `fixation_start` at `onset` and `fixation_end` at
-  `onset + duration`; a `blink` row, or any row with `blink` = 1 (eye2bids marks the saccade
-  around an EyeLink blink so), a blink over the row's interval; other trial types (saccades)
-  are skipped; a `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}`,
-  `gazehdr model {json}`, `gazehdr reset` and `gazehdr clock {json}` messages become scene,
-  parameter, model, reset and clock records; escapes undone where the sidecar says
-  `GazehdrEscapedText`). A message that several eyes' files hold (eye2bids writes each in
-  both) is read once; one repeated within a file, as often as it is there. Event ids are
-  numbered 1, 2, ... per kind in onset order; at one time, left-eye events come before
-  right-eye ones (as EyeLink writes them). An end's duration is gazehdr's
-  `tracker_duration` where a row has one (the tracker's own, EyeLink's), else `duration`
-  is in its sidecar `Units`, else in the onset's units when OnsetSource names the timestamp
-  (as the specification's example and eye2bids write it), else seconds.
+- Event times: `"OnsetSource": "timestamp"`: `onset` is on the physio timestamp's clock, in its
+  unit. `"OnsetSource": "n/a"`: `onset` is the zero-based physio row, negative before the first
+  (at SamplingFrequency). Drafts: `ForeignIndexColumn` naming `timestamp`, the events' column of
+  that name (or `onset`, eye2bids) holding a physio timestamp, or without it a `foreign_index`
+  column (zero-based row), or lacking one `onset` as the one-based row. Where the timestamp
+  column names a sample, a file that also has an `onset` with `Units` (gazehdr's exports before
+  BIDS 1.11) gives the exact time from it, provided every onset lies in the sample interval its
+  timestamp names (the sample at or before it, or the first sample for an earlier one);
+  otherwise (an onset on another clock, such as seconds from the start) the timestamp column is
+  used.
+- Events: a `fixation` row gives `fixation_start` at `onset` and `fixation_end` at `onset +
+  duration`; a `saccade` row `saccade_start` and `saccade_end` (landing at its `x_coordinate`,
+  `y_coordinate`, starting at gazehdr's `start_x_coordinate`, `start_y_coordinate` where a row
+  has them); a `blink` row, or any row with `blink` = 1 (eye2bids marks the saccade around an
+  EyeLink blink so), a blink over the row's interval (and, for a saccade row, the saccade too).
+  Any other row (another trial type, or none) becomes a note at its onset, `physioevents:
+  column=value ...` with the row's values that are not n/a, so that no row is dropped. A
+  `message` becomes a note (`gazehdr scene NAME`, `gazehdr params {json}`, `gazehdr model
+  {json}`, `gazehdr reset` and `gazehdr clock {json}` messages become scene, parameter, model,
+  reset and clock records; escapes undone where the sidecar says `GazehdrEscapedText`). A
+  message that several eyes' files hold (eye2bids writes each in both) is read once; one
+  repeated within a file, as often as it is there. Event ids are gazehdr's `event_id` where a
+  row has one (its exports: ids as the log had them), else numbered 1, 2, ... per kind in onset
+  order; at one time, left-eye events come before right-eye ones. A row's `eye` column says its
+  eye; without one (n/a) the recording's eye, except in gazehdr's exports, where n/a is an event
+  of no particular eye. An end's duration is gazehdr's `tracker_duration` where a row has one
+  (the tracker's own, EyeLink's), else `duration` is in its sidecar `Units`, else in the onset's
+  units when OnsetSource names the timestamp (as the specification's example and eye2bids write
+  it), else seconds.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ from gazehdr.drivers.formats.bids.physio import (
     _sidecar,
     _units,
 )
-from gazehdr.drivers.formats.common import decimal_ns
+from gazehdr.drivers.formats.common import decimal_ns, sort_events
 from gazehdr.drivers.sessionlog import (
     ClockUpdate,
     EyeReset,
@@ -67,10 +73,26 @@ def _sample_at(times: list[int], t: int) -> int:
     return times[max(bisect.bisect_right(times, t) - 1, 0)]
 
 
-def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None) -> None:
-    intervals: list[
-        tuple[int, str, int | None, int | None, float, float, float | None, str | None]
-    ] = []
+_KNOWN = frozenset({"fixation", "blink", "saccade"})
+_ROW_TEXT_SKIPS = frozenset({"onset", "message"})
+
+
+def _row_note(source: str, columns: list[str], row: dict[str, str]) -> str:
+    """A row that is no event, as a note: its values that are not n/a, named."""
+    values = [
+        f"{c}={row[c]}"
+        for c in columns
+        if c not in _ROW_TEXT_SKIPS and row.get(c, NA) not in (NA, "")
+    ]
+    return f"{source}: {' '.join(values)}" if values else f"{source}: (a row of n/a)"
+
+
+def _read_events(
+    log: SessionLog, recordings: list[_Recording], flip: int | None, native: bool = False
+) -> None:
+    """The run's physioevents into `log` (events, notes, and the records gazehdr's messages
+    carry). `native`: a run gazehdr exported, whose `eye` column is the whole truth."""
+    intervals: list[tuple] = []
     messages: Counter[tuple[int, str]] = Counter()  # the most of each in any one file
     for r in recordings:
         stem = r.path.name.split(".", 1)[0]
@@ -118,7 +140,7 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
             ]
             if all(_sample_at(r.times, o) == t for o, (_, _, t) in zip(exact, timed, strict=True)):
                 timed = [(line, row, o) for o, (line, row, _) in zip(exact, timed, strict=True)]
-        file_eye = r.eye if r.eye in ("left", "right") else None
+        file_eye = r.eye if r.eye in ("left", "right") and not native else None
         reported_unit = _unit_ns(side, "tracker_duration") or duration_unit
         read_here: Counter[tuple[int, str]] = Counter()
         for line, row, t in timed:
@@ -130,6 +152,40 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
             eye = eye if eye in ("left", "right") else file_eye
             message = row.get("message", NA)
             message = unescape_text(message) if escaped else message
+            ident = _event_id(path, line, row)
+            if kind == "saccade":
+                x = _float(path, line, row, "x_coordinate") if "x_coordinate" in row else None
+                y = _float(path, line, row, "y_coordinate") if "y_coordinate" in row else None
+                sx = (
+                    _float(path, line, row, "start_x_coordinate")
+                    if "start_x_coordinate" in row
+                    else None
+                )
+                sy = (
+                    _float(path, line, row, "start_y_coordinate")
+                    if "start_y_coordinate" in row
+                    else None
+                )
+                if flip is not None:
+                    y = None if y is None else flip - y
+                    sy = None if sy is None else flip - sy
+                nan = math.nan
+                intervals.append(
+                    (
+                        t,
+                        "saccade",
+                        duration,
+                        reported,
+                        nan if x is None or y is None else x,
+                        nan if x is None or y is None else y,
+                        (
+                            nan if sx is None or sy is None else sx,
+                            nan if sx is None or sy is None else sy,
+                        ),
+                        eye,
+                        ident,
+                    )
+                )
             if kind == "fixation":
                 x = _float(path, line, row, "x_coordinate") if "x_coordinate" in row else None
                 y = _float(path, line, row, "y_coordinate") if "y_coordinate" in row else None
@@ -147,28 +203,47 @@ def _read_events(log: SessionLog, recordings: list[_Recording], flip: int | None
                         nan if y is None else y,
                         disp,
                         eye,
+                        ident,
                     )
                 )
             elif kind == "blink" or blink == "1":
-                intervals.append((t, "blink", duration, reported, math.nan, math.nan, None, eye))
+                blink_id = ident if kind == "blink" else None
+                nan = math.nan
+                intervals.append((t, "blink", duration, reported, nan, nan, None, eye, blink_id))
+            elif kind not in _KNOWN and (kind not in (NA, "") or message in (NA, "")):
+                log.notes.append(Note(t, _row_note("physioevents", columns, row)))
             if message not in (NA, ""):
                 # a message in several eyes' files (eye2bids) once; repeats in one file all
                 read_here[t, message] += 1
                 if read_here[t, message] > messages[t, message]:
                     messages[t, message] += 1
                     _message(log, t, message, path, line)
-    ids = {"fixation": 0, "blink": 0}
-    for t, family, duration, reported, x, y, disp, eye in sorted(intervals, key=lambda i: i[0]):
+    ids = {"fixation": 0, "blink": 0, "saccade": 0}
+    order = sorted(intervals, key=lambda i: (i[0], i[7] == "right"))
+    for t, family, duration, reported, x, y, disp, eye, ident in order:
         ids[family] += 1
-        log.events.append(GazeEvent(f"{family}_start", ids[family], t, eye=eye))
+        ident = ids[family] if ident is None else ident
+        start_x, start_y = disp if family == "saccade" else (math.nan, math.nan)
+        disp = None if family == "saccade" else disp
+        log.events.append(GazeEvent(f"{family}_start", ident, t, start_x, start_y, eye=eye))
         if duration is not None:
             kept = duration if reported is None else reported
             log.events.append(
-                GazeEvent(f"{family}_end", ids[family], t + duration, x, y, kept, disp, eye)
+                GazeEvent(f"{family}_end", ident, t + duration, x, y, kept, disp, eye)
             )
-    log.events.sort(key=lambda e: (e.t_ns, e.eye == "right"))  # at one time, as EyeLink: L, R
+    log.events[:] = sort_events(log.events)  # at one time, as every importer orders them
     for items in (log.notes, log.scenes, log.params, log.clocks):
         items.sort(key=lambda r: r.t_ns)
+
+
+def _event_id(path: Path, line: int, row: dict[str, str]) -> int | None:
+    """gazehdr's `event_id` column (its exports), or None."""
+    text = row.get("event_id", NA)
+    if text in (NA, ""):
+        return None
+    if not text.isdigit() or len(text) > 18:
+        raise FormatError(path, line, "event_id", f"expected a whole number, got {text!r}")
+    return int(text)
 
 
 def _duration(path: Path, line: int, row: dict[str, str], column: str, unit: int) -> int | None:

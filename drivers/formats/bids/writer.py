@@ -13,12 +13,17 @@ physio in the `beh` datatype), named `sub-<sub>[_ses-<ses>]_task-<task>[_run-<ru
 - `_recording-eye<N>_physio.tsv.gz` + `.json`, one recording per eye ("it is REQUIRED that
   recordings corresponding to each eye ... are split"): `eye1` holds the gaze when the log has
   no per-eye data (`RecordedEye` the header's eye where `tracker.eyes` names one, a monocular
-  EyeLink recording; else cyclopean); otherwise `eye1` left, `eye2` right (each only where
-  some sample has that eye; a sample without it, EyeLink's END, has no row there), `eye3`
-  cyclopean. Columns `timestamp` (the log's integer ns, `Units` "ns"), `x_coordinate`,
-  `y_coordinate` (pixels, top-left), `pupil_size` (diameter, mm) when an eye has one.
-- `_recording-eye<N>_physioevents.tsv.gz` + `.json`: that eye's fixations and blinks (one row
-  each: onset, duration, mean position, dispersion); the cyclopean recording's also hold the
+  EyeLink recording; else cyclopean); otherwise `eye1` left, `eye2` right (each only where some
+  sample has that eye; a sample without it, EyeLink's END, has no row there), and `eye3`
+  cyclopean only where those do not give back the gaze (`_recordings`: nothing is invented).
+  Columns `timestamp` (the log's integer ns, `Units` "ns"), `x_coordinate`, `y_coordinate`
+  (pixels, top-left), `pupil_size` (diameter, mm) when an eye has one. The sidecar carries the
+  hardware, tracking-mode and calibration metadata the log has (`_metadata`) and
+  `GazehdrRecording` ("eye" or "gaze"). An empty log imported from an empty run has an empty
+  recording per eye its header names, at its `rate_hz`.
+- `_recording-eye<N>_physioevents.tsv.gz` + `.json`: that eye's fixations, saccades and blinks
+  (one row each: onset, duration, a fixation's mean position and dispersion, a saccade's landing
+  and start, the log's `event_id`); the gaze's recording (or `eye1` without one) also holds the
   events of no particular eye and, as messages, what `_events.tsv` holds (`gazehdr scene NAME`,
   `gazehdr params {json}`, ..., notes as they are). `"OnsetSource": "timestamp"`: `onset` is on
   the physio timestamp's clock, in its unit (ns), so it is exact; `duration` is in seconds
@@ -27,10 +32,10 @@ physio in the `beh` datatype), named `sub-<sub>[_ses-<ses>]_task-<task>[_run-<ru
   reported where it is not that (EyeLink's counts both ends: one sample period more).
 
 The native header rides along in the physio sidecars as `GazehdrHeader`, so native → BIDS →
-native gives back the same samples, fixations (start and end times, mean position,
-dispersion; not the start position nor `fixation_update`, which BIDS rows do not hold),
-blinks, notes, scenes, parameters, models, resets and header. gzip output is reproducible (no
-name or time in the gzip header, which is also what the validator's privacy checks want).
+native gives back the same samples, fixations (start and end times, mean position, dispersion;
+not the start position nor `fixation_update`, which BIDS rows do not hold), blinks, notes,
+scenes, parameters, models, resets and header. gzip output is reproducible (no name or time in
+the gzip header, which is also what the validator's privacy checks want).
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ from gazehdr.drivers.formats.bids.layout import (
     run_files,
     write_json,
 )
+from gazehdr.drivers.formats.common import mean_of_eyes
 from gazehdr.drivers.samples import EyeSample, GazeSample
 from gazehdr.drivers.sessionlog import GazeEvent, SessionLog
 
@@ -76,7 +82,12 @@ _EVENT_COLUMNS = [
     "dispersion",
     "eye",
     "tracker_duration",
+    "event_id",
+    "start_x_coordinate",
+    "start_y_coordinate",
 ]
+#: EyeLink's tracking mode (`RECCFG`: CR or P) as the specification's `EyeTrackingMethod`.
+_TRACKING_METHOD = {"CR": "P-CR", "P": "pupil-only"}
 _MESSAGE_KINDS = {
     "scene": "The scene shown from here on (its name).",
     "params": "Model parameters set (JSON).",
@@ -146,9 +157,15 @@ def _message_text(kind: str, payload: str) -> str:
     return f"gazehdr {kind}" + (f" {payload}" if payload else "")
 
 
-def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]]:
-    """This recording's physioevents rows, sorted by onset (ns, on the timestamp's clock)."""
-    mine = [e for e in log.events if (e.eye if e.eye in own_eyes else "cyclopean") == eye]
+def _event_rows(log: SessionLog, eye: str, own_eyes: set[str], catch_all: bool) -> list[list[str]]:
+    """This recording's physioevents rows, sorted by onset (ns, on the timestamp's clock): the
+    events of its eye; with `catch_all`, also those of an eye with no recording of its own, of
+    no eye, and the messages."""
+    mine = [
+        e
+        for e in log.events
+        if e.eye == eye or (catch_all and (e.eye is None or e.eye not in own_eyes))
+    ]
     rows: list[tuple[int, int, list[str]]] = []
     starts: dict[tuple[str, int, str | None], GazeEvent] = {}
     for e in sorted(mine, key=lambda e: e.t_ns):
@@ -166,31 +183,43 @@ def _event_rows(log: SessionLog, eye: str, own_eyes: set[str]) -> list[list[str]
             onset, duration = e.t_ns - (e.duration_ns or 0), e.duration_ns
         # the tracker's own duration where it is not end - start (EyeLink counts both ends)
         reported = e.duration_ns if e.duration_ns != duration else None
-        rows.append((onset, len(rows), _event_row(duration, reported, family, e)))
+        rows.append((onset, len(rows), _event_row(duration, reported, family, e, start)))
     for start in starts.values():
         family = start.kind.partition("_")[0]
-        rows.append((start.t_ns, len(rows), _event_row(None, None, family, start)))
-    if eye == "cyclopean":
+        row = _event_row(None, None, family, start, start)
+        rows.append((start.t_ns, len(rows), row))
+    if catch_all:
         for t, kind, payload in _messages(log):
             text = escape_text(_message_text(kind, payload))
-            rows.append((t, len(rows), [NA, NA, NA, text, NA, NA, NA, NA, NA]))
+            rows.append((t, len(rows), [NA, NA, NA, text, *[NA] * (len(_EVENT_COLUMNS) - 5)]))
     rows.sort(key=lambda r: (r[0], r[1]))
     return [[str(t), *rest] for t, _, rest in rows]
 
 
-def _event_row(duration: int | None, reported: int | None, family: str, e: GazeEvent) -> list[str]:
-    """The columns after onset."""
-    fixation = family == "fixation"
+def _event_row(
+    duration: int | None,
+    reported: int | None,
+    family: str,
+    e: GazeEvent,
+    start: GazeEvent | None = None,
+) -> list[str]:
+    """The columns after onset: a fixation's mean position and dispersion, a saccade's landing
+    (and, from its start, where it began)."""
+    placed = family in ("fixation", "saccade")
+    saccade = family == "saccade" and start is not None
     return [
         _seconds(duration),
         family,
-        "0" if fixation else "1",
+        "1" if family == "blink" else "0",
         NA,
-        _number_text(e.x) if fixation else NA,
-        _number_text(e.y) if fixation else NA,
-        _number_text(e.dispersion_deg) if fixation else NA,
+        _number_text(e.x) if placed else NA,
+        _number_text(e.y) if placed else NA,
+        _number_text(e.dispersion_deg) if family == "fixation" else NA,
         e.eye or NA,
         _seconds(reported),
+        str(int(e.id)),
+        _number_text(start.x) if saccade else NA,
+        _number_text(start.y) if saccade else NA,
     ]
 
 
@@ -219,7 +248,14 @@ def write_bids(
     written. An existing run is refused (FileExistsError) unless `overwrite`; other runs and
     subjects are left as they are."""
     entities = _entities(sub, ses, task, run)
-    if len({s.t_ns for s in log.samples}) < 2:
+    steps = [b - a for a, b in itertools.pairwise(s.t_ns for s in log.samples) if b > a]
+    rate = log.header.tracker.get("rate_hz")
+    rate = rate if isinstance(rate, (int, float)) and not isinstance(rate, bool) else None
+    if steps:
+        fs = round(1e9 / statistics.median(steps), 6)
+    elif not log.samples and rate is not None and math.isfinite(rate) and rate > 0:
+        fs = float(rate)  # an empty run (a dataset's, imported): its recordings stay empty
+    else:
         what = f"samples at one time only ({len(log.samples)})" if log.samples else "no samples"
         raise InputError(
             f"the log has {what}: a BIDS physio file needs samples at two times at least, for "
@@ -240,25 +276,13 @@ def write_bids(
         written.append(path)
         return path
 
-    t0 = min(s.t_ns for s in log.samples)
+    t0 = min((s.t_ns for s in log.samples), default=0)
     events = [["onset", "duration", "trial_type", "message"]]
     events += [[_seconds(t - t0), NA, k, escape_text(p) or NA] for t, k, p in _messages(log)]
     target("events", ".tsv").write_bytes(_tsv(events))
     write_json(target("events", ".json"), _events_sidecar(log, task))
 
-    # (label, the samples' source, RecordedEye): a monocular log (no per-eye data, the
-    # header's one eye) is that eye's recording; an eye no sample has gets none
-    eyes = [e for e in ("left", "right") if any(_eye(s, e) for s in log.samples)]
-    if eyes:
-        labels = [(f"eye{i + 1}", e, e) for i, e in enumerate(("left", "right")) if e in eyes]
-        labels.append(("eye3", "cyclopean", "cyclopean"))
-    else:
-        header_eyes = log.header.tracker.get("eyes")
-        mono = header_eyes in (["left"], ["right"])
-        labels = [("eye1", "cyclopean", header_eyes[0] if mono else "cyclopean")]
-    steps = [b - a for a, b in itertools.pairwise(s.t_ns for s in log.samples) if b > a]
-    fs = round(1e9 / statistics.median(steps), 6)
-    for label, source, recorded in labels:
+    for label, source, recorded, role in _recordings(log):
         if source == "cyclopean":
             values = [
                 (s.t_ns, *((s.x, s.y) if s.valid else (math.nan, math.nan)), None)
@@ -272,12 +296,47 @@ def write_bids(
             row = [str(t), _number_text(x), _number_text(y)]
             rows.append([*row, _number_text(p)] if pupil else row)
         _write_gzip_tsv(target("physio", ".tsv.gz", label), rows)
-        sidecar = _physio_sidecar(log, task, fs, recorded, pupil)
+        sidecar = _physio_sidecar(log, task, fs, recorded, pupil, role)
         write_json(target("physio", ".json", label), sidecar)
-        events = _event_rows(log, source, set(eyes))
+        own = {src for _, src, _, _ in _recordings(log) if src in ("left", "right")}
+        events = _event_rows(log, source, own, catch_all=role == "gaze" or label == "eye1")
         _write_gzip_tsv(target("physioevents", ".tsv.gz", label), events)
         write_json(target("physioevents", ".json", label), _physioevents_sidecar(task))
     return written
+
+
+def _recordings(log: SessionLog) -> list[tuple[str, str, str, str]]:
+    """(label, the samples' source, RecordedEye, role) of each recording to write: an eye's
+    data ("eye": `eye1` left, `eye2` right, each only where some sample has it) and the gaze
+    ("gaze", `eye3`, cyclopean) only where the eyes' recordings do not give it back (a sample
+    with no eye's data, or a gaze that is not their mean: nothing is invented). A log without
+    per-eye data has only the gaze, in `eye1`, its `RecordedEye` the header's eye where
+    `tracker.eyes` names one (a monocular EyeLink recording), else cyclopean. An empty log
+    (an imported empty run) has an empty recording of each eye its header names."""
+    eyes = [e for e in ("left", "right") if any(_eye(s, e) for s in log.samples)]
+    header_eyes = log.header.tracker.get("eyes")
+    if not log.samples and isinstance(header_eyes, list):
+        eyes = [e for e in ("left", "right") if e in header_eyes]
+        if not eyes:
+            return [("eye1", "cyclopean", "cyclopean", "gaze")]
+    if not eyes:
+        mono = header_eyes in (["left"], ["right"])
+        return [("eye1", "cyclopean", header_eyes[0] if mono else "cyclopean", "gaze")]
+    labels = [(f"eye{i + 1}", e, e, "eye") for i, e in enumerate(("left", "right")) if e in eyes]
+    if any(not _eyes_give_back(s) for s in log.samples):
+        labels.append(("eye3", "cyclopean", "cyclopean", "gaze"))
+    return labels
+
+
+def _eyes_give_back(s: GazeSample) -> bool:
+    """Whether the eyes' rows give back this sample as the importer rebuilds it (the mean of
+    the eyes with a position; a sample no eye's file has a row for is lost)."""
+    if s.left is None and s.right is None:
+        return False
+    gaze = mean_of_eyes(s.left, s.right)
+    if gaze is None:
+        return not s.valid
+    return s.valid and (gaze[0], gaze[1]) == (s.x, s.y)
 
 
 def _eye(s: GazeSample, eye: str) -> EyeSample | None:
@@ -310,7 +369,9 @@ def _events_sidecar(log: SessionLog, task: str) -> dict[str, Any]:
     }
 
 
-def _physio_sidecar(log: SessionLog, task: str, fs: float, eye: str, pupil: bool) -> dict[str, Any]:
+def _physio_sidecar(
+    log: SessionLog, task: str, fs: float, eye: str, pupil: bool, role: str
+) -> dict[str, Any]:
     side: dict[str, Any] = {
         "TaskName": task,
         "PhysioType": "eyetrack",
@@ -335,19 +396,58 @@ def _physio_sidecar(log: SessionLog, task: str, fs: float, eye: str, pupil: bool
     }
     if pupil:
         side["pupil_size"] = {"Description": "Pupil diameter.", "Units": "mm"}
-    tracker = log.header.tracker
-    for key, name in (("manufacturer", "Manufacturer"), ("model", "ManufacturersModelName")):
-        if isinstance(tracker.get(key), str):
-            side[name] = tracker[key]
+    side.update(_metadata(log, eye))
+    side["GazehdrRecording"] = role
     side["GazehdrHeader"] = log.header.to_json()
     return side
+
+
+def _metadata(log: SessionLog, eye: str) -> dict[str, Any]:
+    """The hardware and eye-tracking metadata of the recording of `eye` (BIDS 1.11
+    `PhysioHardware`, `EyeTrack`): what an imported BIDS run had (`tracker.bids_metadata`),
+    else what the header says (its BIDS keys, and an EyeLink import's model, serial number,
+    tracking mode and validations: the last one of this eye gives `CalibrationType` and the
+    errors, their count `CalibrationCount`)."""
+    tracker = log.header.tracker
+    out: dict[str, Any] = {}
+    for keys, name in (
+        (("Manufacturer", "manufacturer"), "Manufacturer"),
+        (("ManufacturersModelName", "model"), "ManufacturersModelName"),
+        (("DeviceSerialNumber", "serial"), "DeviceSerialNumber"),
+        (("SoftwareVersions",), "SoftwareVersions"),
+    ):
+        value = next((tracker[k] for k in keys if isinstance(tracker.get(k), str)), None)
+        if value is not None:
+            out[name] = value
+    if tracker.get("format") == "eyelink-asc":
+        out.setdefault("Manufacturer", "SR Research")
+        if tracker.get("tracking") in _TRACKING_METHOD:
+            out["EyeTrackingMethod"] = _TRACKING_METHOD[tracker["tracking"]]
+        validations = tracker.get("validations")
+        if isinstance(validations, list):
+            mine = [v for v in validations if isinstance(v, dict) and v.get("eye") == eye]
+            if mine:
+                last = mine[-1]
+                if isinstance(last.get("type"), str):
+                    out["CalibrationType"] = last["type"]
+                out["CalibrationCount"] = len(mine)
+                for key, name in (
+                    ("error_avg_deg", "AverageCalibrationError"),
+                    ("error_max_deg", "MaximalCalibrationError"),
+                ):
+                    if isinstance(last.get(key), (int, float)):
+                        out[name] = last[key]
+    metadata = tracker.get("bids_metadata")
+    if isinstance(metadata, dict) and isinstance(metadata.get(eye), dict):
+        out.update(metadata[eye])
+    return out
 
 
 def _physioevents_sidecar(task: str) -> dict[str, Any]:
     return {
         "TaskName": task,
         "Columns": _EVENT_COLUMNS,
-        "Description": "Fixations, blinks and messages recorded with gazehdr.",
+        "Description": "Fixations, saccades, blinks and messages recorded with gazehdr.",
         "OnsetSource": "timestamp",
         "onset": {
             "Description": "Time of the event (a fixation's or blink's start), exact, on the "
@@ -357,15 +457,27 @@ def _physioevents_sidecar(task: str) -> dict[str, Any]:
         "duration": {"Description": "Duration of the fixation or blink.", "Units": "s"},
         "trial_type": {
             "Description": "Event type.",
-            "Levels": {"fixation": "A fixation.", "blink": "A blink."},
+            "Levels": {"fixation": "A fixation.", "blink": "A blink.", "saccade": "A saccade."},
         },
         "blink": {"Description": "Eye state.", "Levels": {"0": "Open.", "1": "Closed."}},
         "message": {
             "Description": "Notes; scene, model and parameter changes, resets and clock updates "
             "('gazehdr ...')." + _ESCAPES_NOTE
         },
-        "x_coordinate": {"Description": "Mean fixation position x.", "Units": "pixel"},
-        "y_coordinate": {"Description": "Mean fixation position y.", "Units": "pixel"},
+        "x_coordinate": {
+            "Description": "Mean fixation position x; where a saccade landed.",
+            "Units": "pixel",
+        },
+        "y_coordinate": {
+            "Description": "Mean fixation position y; where a saccade landed.",
+            "Units": "pixel",
+        },
+        "start_x_coordinate": {"Description": "Where a saccade began, x.", "Units": "pixel"},
+        "start_y_coordinate": {"Description": "Where a saccade began, y.", "Units": "pixel"},
+        "event_id": {
+            "Description": "The event's id in the gazehdr session log (a fixation's, blink's "
+            "or saccade's; per eye)."
+        },
         "dispersion": {
             "Description": "Fixation dispersion, (max x - min x) + (max y - min y).",
             "Units": "deg",

@@ -10,13 +10,9 @@ import re
 from typing import Any
 
 from gazehdr.drivers.errors import InputError
-from gazehdr.drivers.formats.common import finite_float
+from gazehdr.drivers.formats.common import MAX_SCREEN_PX, finite_float
 
 Box = tuple[float, float, float, float]
-
-#: Wider or taller than any display: a "screen" this large is a garbled message, and would
-#: make every later conversion to degrees meaningless.
-MAX_SCREEN_PX = 65_536
 
 _OFFSET = re.compile(r"(-?\d{1,9})\s+(\S.*)", re.ASCII)
 # Experiment Builder writes `DISPLAY_COORDS 0 0 1279 1023`; some other writers put an `=`.
@@ -25,7 +21,7 @@ _TRACKING = re.compile(r"^(?:RECCFG|!MODE\s+RECORD)\s+(CR|P)\b")
 _MOUNT = re.compile(r"^ELCLCFG\s+(\S+)")
 # `!CAL VALIDATION HV13 LR LEFT  GOOD ERROR 0.30 avg. 0.90 max  OFFSET ...`
 _VALIDATION = re.compile(
-    r"^!CAL\s+VALIDATION\s+\S+\s+\S+\s+(LEFT|RIGHT)\s+(\S+)\s+ERROR\s+(\S+)\s+avg\.\s+(\S+)\s+max"
+    r"^!CAL\s+VALIDATION\s+(\S+)\s+\S+\s+(LEFT|RIGHT)\s+(\S+)\s+ERROR\s+(\S+)\s+avg\.\s+(\S+)\s+max"
 )
 
 
@@ -80,19 +76,20 @@ def tracker_facts(body: str) -> dict[str, Any]:
 
 
 def validation(body: str) -> dict[str, Any] | None:
-    """One eye's result of `!CAL VALIDATION ...`: eye, the tracker's verdict (GOOD, FAIR,
-    POOR) and the average and largest error in degrees; None for any other message (an
-    aborted validation reports no error)."""
+    """One eye's result of `!CAL VALIDATION ...`: eye, the calibration type (HV9, HV13, ...),
+    the tracker's verdict (GOOD, FAIR, POOR) and the average and largest error in degrees;
+    None for any other message (an aborted validation reports no error)."""
     match = _VALIDATION.match(body)
     if match is None:
         return None
     try:
-        average, largest = finite_float(match[3]), finite_float(match[4])
+        average, largest = finite_float(match[4]), finite_float(match[5])
     except ValueError:
         return None
     return {
-        "eye": match[1].lower(),
-        "result": match[2],
+        "eye": match[2].lower(),
+        "type": match[1],
+        "result": match[3],
         "error_avg_deg": average,
         "error_max_deg": largest,
     }

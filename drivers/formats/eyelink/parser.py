@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ from gazehdr.drivers.formats.common import (
     geometry_with,
     is_number,
     mean_of_eyes,
+    sort_events,
 )
 from gazehdr.drivers.formats.eyelink import messages
 from gazehdr.drivers.samples import EyeSample, GazeSample, ScreenGeometry
@@ -35,6 +37,15 @@ _TIME = re.compile(r"\d{1,12}(?:\.\d{1,6})?", re.ASCII)
 _EYE = {"L": "left", "R": "right"}
 _MONO = ("xp", "yp", "ps")
 _BINO = ("xpl", "ypl", "psl", "xpr", "ypr", "psr")
+#: The corneal-reflection flags (§4.9.2): monocular `I C R`, binocular `I CL RL CR RR`, each a
+#: letter or `.`; EDF2ASC writes them after the values unless `-nflags`.
+_FLAGS_MONO = re.compile(r"[.I][.C][.R]")
+_FLAGS_BINO = re.compile(r"[.I][.C][.R][.C][.R]")
+#: An END this long after its block's last sample (a file cut short, or samples left out)
+#: ends the block at that sample instead: a replay would hold the last gaze through the gap.
+END_GAP_NS = 1_000_000_000
+#: `--eye` for a sample-only file: what its sample lines hold.
+SAMPLE_EYES = {"left": ("left",), "right": ("right",), "both": ("left", "right")}
 _PREAMBLE = {
     "DATE": "date",
     "VERSION": "version",
@@ -42,11 +53,11 @@ _PREAMBLE = {
     "SOURCE": "source",
     "CAMERA": "camera",
 }
-# Understood, nothing kept: saccades are the gaps between fixations here, and sample velocity
-# (which VPRESCALER scales) is not read.
-_SKIPPED = frozenset({"SSACC", "ESACC", "VPRESCALER"})
+# Understood, nothing kept: sample velocity (which VPRESCALER scales) is not read.
+_SKIPPED = frozenset({"VPRESCALER"})
 # Lines every EDF2ASC file has one of: a file with none, and lines that are no sample, is not ASC
 _ASC_KEYWORDS = frozenset({"MSG", "START", "END", "SAMPLES", "EVENTS"})
+_FAMILY = {"FIX": "fixation", "BLINK": "blink", "SACC": "saccade"}
 
 
 class AscParser:
@@ -54,10 +65,20 @@ class AscParser:
     open events, and what has been read. `strict` refuses the file at its first line not
     understood; otherwise such a line becomes a note and reading goes on."""
 
-    def __init__(self, path: Path, missing: str = ".", strict: bool = False) -> None:
+    def __init__(
+        self,
+        path: Path,
+        missing: str | None = None,
+        strict: bool = False,
+        eye: str | None = None,
+    ) -> None:
         self.path = path
-        self.missing = missing
+        self.missing = None if missing in (None, ".") else missing
         self.strict = strict
+        if eye is not None and eye not in SAMPLE_EYES:
+            raise FormatError(path, None, "eye", f"{eye!r}; expected {', '.join(SAMPLE_EYES)}")
+        self.eye_option = eye
+        self.lost_as: dict[str, int] = {}  # what a lost eye's x, y are written as, but `.`
         self.tracker: dict[str, Any] = {"format": "eyelink-asc", "file": path.name}
         self.samples: list[GazeSample] = []
         self.events: list[GazeEvent] = []
@@ -72,7 +93,12 @@ class AscParser:
         self.prescaler = 1.0
         self.coords: dict[str, messages.Box] = {}
         self.open: dict[tuple[str, str], int] = {}
-        self.next_id = {"fixation": 1, "blink": 1}
+        self.next_id = {"fixation": 1, "blink": 1, "saccade": 1}  # renumbered by _numbered
+        self.event_eyes: set[str] = set()  # the eyes EVENTS lines name (an events-only file)
+        self.event_rates: list[float] = []
+        self.averaged = 0  # samples of a binocular block written as one eye (edf2asc -avg)
+        self.block_last: int | None = None  # the block's last sample time
+        self.period_ns: int | None = None  # the block's sample period, from its RATE
         self.block_samples = 0
         self.last_stamp: str | None = None  # the previous sample's time text, for 2000 Hz pairs
         self.open_message: int | None = None  # the note that an indented line continues
@@ -93,8 +119,10 @@ class AscParser:
             "END": self.end,
             "SFIX": self.start_event,
             "SBLINK": self.start_event,
+            "SSACC": self.start_event,
             "EFIX": self.end_event,
             "EBLINK": self.end_event,
+            "ESACC": self.end_event,
             "INPUT": self.port,
             "BUTTON": self.port,
         }
@@ -118,14 +146,19 @@ class AscParser:
         self.now = t
         return t
 
+    def is_missing(self, text: str) -> bool:
+        """EDF2ASC's missing value: `.`, or the string given to `edf2asc -miss` (`missing`)."""
+        return text == "." or text == self.missing
+
     def value(self, line: int, text: str, field: str) -> float | None:
-        if text == self.missing:
+        if self.is_missing(text):
             return None
         try:
             value = float(text)
         except ValueError:
+            given = f" or {self.missing!r}" if self.missing else ""
             raise self.error(
-                line, field, f"expected a number or {self.missing!r} (missing), got {text!r}"
+                line, field, f"expected a number or '.'{given} (missing), got {text!r}"
             ) from None
         return value if math.isfinite(value) else None
 
@@ -205,8 +238,15 @@ class AscParser:
 
     def events_spec(self, number: int, tokens: list[str], text: str) -> None:
         self.structured = True
-        self.eyes_of(number, tokens)
+        self.event_eyes.update(self.eyes_of(number, tokens))
         self.event_type = tokens[1]
+        if "RATE" in tokens[2:-1]:
+            try:
+                rate = finite_float(tokens[tokens.index("RATE") + 1])
+            except ValueError:
+                return
+            if rate not in self.event_rates:
+                self.event_rates.append(rate)
 
     def samples_spec(self, number: int, tokens: list[str], text: str) -> None:
         self.structured = True
@@ -236,6 +276,7 @@ class AscParser:
         self.eyes_seen.update(eyes)
         if rate is not None and rate not in self.rates:
             self.rates.append(rate)
+        self.period_ns = round(1e9 / rate) if rate else None
 
     def set_prescaler(self, number: int, tokens: list[str], text: str) -> None:
         try:
@@ -258,6 +299,7 @@ class AscParser:
         self.structured = True
         self.eyes, self.spec_error = None, None  # each block says again what it holds
         self.block_samples = 0
+        self.block_last = None
         self.blocks += 1
 
     def end(self, number: int, tokens: list[str], text: str) -> None:
@@ -265,15 +307,40 @@ class AscParser:
             raise self.error(number, "time", "END needs a time")
         t = self.stamp(number, tokens[1])
         if self.block_samples and self.samples:
-            t = max(t, self.samples[-1].t_ns + 1)
+            last = self.samples[-1].t_ns
+            if t - last > END_GAP_NS:  # samples missing (a file cut short): end at the last
+                period = self.period_ns or _MS
+                self.notes.append(
+                    Note(
+                        t,
+                        f"END {tokens[1]} is {(t - last) / 1e9:g} s after its block's last "
+                        "sample: the block's gaze ends at that sample",
+                    )
+                )
+                t = last + period
+            t = max(t, last + 1)
             self.samples.append(GazeSample(t, math.nan, math.nan, False))
         self.block_samples = 0
 
     # --- samples (§4.9.2) ---------------------------------------------------------------------
 
+    def layout(self, tokens: list[str]) -> tuple[int, str | None]:
+        """(how many values follow the time, the CR flags field or None): the values end at the
+        first token that is neither a number nor missing."""
+        count = 0
+        for token in tokens[1:]:
+            if not self.is_missing(token) and not is_number(token):
+                flagged = _FLAGS_MONO.fullmatch(token) or _FLAGS_BINO.fullmatch(token)
+                return count, token if flagged else None
+            count += 1
+        return count, None
+
     def sample_eyes(self, number: int, tokens: list[str]) -> tuple[str, ...] | None:
-        """The eyes of a sample line: the block's SAMPLES line; in a sample-only file (edf2asc
-        -s, no data-specification lines, §4.9.1) the count of values: 3 one eye, 6 both."""
+        """The eyes of a sample line: the block's SAMPLES line. A sample-only file (edf2asc -s,
+        no data-specification lines, §4.9.1) names no eye: binocular samples are told by their
+        CR flags (5 characters; 3 for one eye), or without flags (`-nflags`) by their count of
+        values (6, or 9 to 13 with `-vel`, `-res`, `-input`: both eyes; 3 to 5: one eye); which
+        one eye is said with `eye` (`--eye`), or the file is refused."""
         if self.eyes is not None or self.spec_error is not None:
             return self.eyes
         if self.structured:
@@ -281,19 +348,47 @@ class AscParser:
                 number, "time", "a sample before any SAMPLES line saying which eyes it holds"
             )
             raise self.spec_error
-        count = 0
-        for token in tokens[1:]:
-            if token != self.missing and not is_number(token):
-                break
-            count += 1
-        if count not in (3, 6):
+        count, flags = self.layout(tokens)
+        if flags is not None:
+            binocular = len(flags) == 5
+        elif count in (3, 4, 5):
+            binocular = False
+        elif 9 <= count <= 13:
+            binocular = True
+        elif self.eye_option is not None and count >= 3:
+            binocular = self.eye_option == "both"
+        else:
             raise self.error(
                 number,
                 "time",
-                f"a sample-only file (edf2asc -s) whose samples have {count} values: cannot "
-                "tell which eyes they hold; convert with events, or without -vel/-res",
+                f"a sample-only file (edf2asc -s) whose samples have {count} values and no CR "
+                "flags: cannot tell one eye with -vel/-res/-input from both eyes; convert "
+                "without -nflags (or with events), or pass --eye left, right or both",
             )
-        self.eyes = ("left",) if count == 3 else ("left", "right")
+        if binocular:
+            if self.eye_option in ("left", "right"):
+                self.spec_error = self.error(
+                    number,
+                    "eye",
+                    f"--eye {self.eye_option}, but the samples hold both eyes "
+                    f"({'CR flags ' + repr(flags) if flags else f'{count} values'}): "
+                    "pass --eye both, or leave it out",
+                )
+                raise self.spec_error
+            self.eyes = ("left", "right")
+        elif self.eye_option in ("left", "right"):
+            self.eyes = (self.eye_option,)
+        else:
+            self.spec_error = self.error(
+                number,
+                "eye",
+                "a sample-only file (edf2asc -s) of one eye does not say which: pass --eye "
+                "left or --eye right (or convert with events, which name it)"
+                if self.eye_option is None
+                else f"--eye both, but the samples hold one eye ({count} values"
+                + (f", CR flags {flags!r})" if flags else ")"),
+            )
+            raise self.spec_error
         self.eyes_seen.update(self.eyes)
         return self.eyes
 
@@ -304,6 +399,11 @@ class AscParser:
             self.unread_lines += 1
             return
         binocular = len(eyes) == 2
+        if binocular and self.structured:  # edf2asc -avg: a binocular block, one eye's layout
+            _, flags = self.layout(tokens)
+            if flags is not None and len(flags) == 3:
+                binocular = False
+                self.averaged += 1
         names = _BINO if binocular else _MONO
         if len(tokens) < 1 + len(names):
             raise self.error(
@@ -323,9 +423,7 @@ class AscParser:
         ]
         self.last_stamp = None if paired else tokens[0]
         if binocular:
-            left, right = (
-                self.position(values[i], values[i + 1]) or (math.nan, math.nan) for i in (0, 3)
-            )
+            left, right = (self.eye_position(tokens, values, i) for i in (0, 3))
             sides = EyeSample(*left), EyeSample(*right)
             gaze = mean_of_eyes(*sides)
             if gaze and math.isfinite(gaze[0]) and math.isfinite(gaze[1]):
@@ -333,10 +431,25 @@ class AscParser:
             else:
                 sample = GazeSample(t, math.nan, math.nan, False, *sides)
         else:
-            p = self.position(values[0], values[1])
-            sample = GazeSample(t, *p) if p else GazeSample(t, math.nan, math.nan, False)
+            p = self.eye_position(tokens, values, 0)
+            sample = GazeSample(t, *p) if math.isfinite(p[0]) else GazeSample(t, *p, False)
         self.samples.append(sample)
         self.block_samples += 1
+        self.block_last = t
+
+    def eye_position(
+        self, tokens: list[str], values: list[float | None], i: int
+    ) -> tuple[float, float]:
+        """One eye's x, y (NaN when lost). A pupil of 0 is lost track (§4.9.2: EyeLink writes
+        x, y missing and pupil 0.0): whatever x, y say, as `edf2asc -miss -1` or `-miss 0`
+        write them (-1 -1 0.0); such a string is counted in `lost_as`."""
+        if values[i + 2] == 0.0:
+            x_text, y_text = tokens[1 + i], tokens[2 + i]
+            if not self.is_missing(x_text) or not self.is_missing(y_text):
+                key = x_text if x_text == y_text else f"{x_text} {y_text}"
+                self.lost_as[key] = self.lost_as.get(key, 0) + 1
+            return math.nan, math.nan
+        return self.position(values[i], values[i + 1]) or (math.nan, math.nan)
 
     # --- events (§4.9.3) ----------------------------------------------------------------------
 
@@ -374,7 +487,7 @@ class AscParser:
         return _EYE[tokens[1]]
 
     def start_event(self, number: int, tokens: list[str], text: str) -> None:
-        family = "fixation" if tokens[0] == "SFIX" else "blink"
+        family = _FAMILY[tokens[0][1:]]
         eye = self.eye(number, tokens)
         if len(tokens) < 3:
             raise self.error(number, "time", f"{tokens[0]} needs a time")
@@ -385,12 +498,14 @@ class AscParser:
         self.events.append(GazeEvent(f"{family}_start", ident, t, eye=eye))
 
     def end_event(self, number: int, tokens: list[str], text: str) -> None:
-        family = "fixation" if tokens[0] == "EFIX" else "blink"
+        family = _FAMILY[tokens[0][1:]]
         eye = self.eye(number, tokens)
         needed = ["stime", "etime", "dur"]
+        href = self.event_type == "HREF"
         if family == "fixation":
-            href = self.event_type == "HREF"
             needed += (["href_axp", "href_ayp", "href_aps"] if href else []) + ["axp", "ayp"]
+        elif family == "saccade":
+            needed += ["sxp", "syp", "exp", "eyp"]
         if len(tokens) < 2 + len(needed):
             raise self.error(
                 number,
@@ -401,7 +516,7 @@ class AscParser:
         start = self.time(number, tokens[2], "stime")
         end = self.stamp(number, tokens[3], "etime")
         duration = self.time(number, tokens[4], "dur")
-        x = y = math.nan
+        x = y = sx = sy = math.nan
         if family == "fixation":
             p = self.position(
                 self.value(number, tokens[len(needed)], "axp"),
@@ -409,11 +524,26 @@ class AscParser:
             )
             if p:
                 x, y = p
+        elif family == "saccade" and not href:  # HREF saccades are not on the screen
+            start_p = self.position(
+                self.value(number, tokens[5], "sxp"), self.value(number, tokens[6], "syp")
+            )
+            end_p = self.position(
+                self.value(number, tokens[7], "exp"), self.value(number, tokens[8], "eyp")
+            )
+            sx, sy = start_p or (math.nan, math.nan)
+            x, y = end_p or (math.nan, math.nan)
         ident = self.open.pop((family, eye), None)
         if ident is None:  # edf2asc -nse: no start lines; the start is the end's <stime>
             ident = self.next_id[family]
             self.next_id[family] += 1
             self.events.append(GazeEvent(f"{family}_start", ident, start, eye=eye))
+        if family == "saccade" and math.isfinite(sx):  # where it began, on its start
+            for i in range(len(self.events) - 1, -1, -1):
+                e = self.events[i]
+                if (e.kind, e.id, e.eye) == ("saccade_start", ident, eye):
+                    self.events[i] = GazeEvent(e.kind, e.id, e.t_ns, sx, sy, eye=eye)
+                    break
         self.events.append(GazeEvent(f"{family}_end", ident, end, x, y, duration, None, eye))
 
     # --- the log ------------------------------------------------------------------------------
@@ -428,7 +558,14 @@ class AscParser:
                 "not an EyeLink ASC file: it has no '**' preamble, MSG, START or SAMPLES line, "
                 f"and this line is none of what EDF2ASC writes: {text[:60]!r}",
             )
-        if not self.samples:
+        events_only = not self.samples and self.refusal is None and self.asc_lines
+        if events_only and not self.events and not self.event_eyes:
+            raise self.error(
+                None,
+                "samples",
+                "no sample and no eye event: convert the EDF with samples or events",
+            )
+        if not self.samples and not events_only:
             raise self.refusal or self.error(
                 None,
                 "samples",
@@ -453,18 +590,26 @@ class AscParser:
             clock=ClockInfo(source="EyeLink tracker clock"),
         )
         log = SessionLog(header, self.samples, path=self.path)
-        log.events = sorted(self.events, key=lambda e: e.t_ns)
+        log.events = _numbered(sort_events(self.events))
         log.notes = sorted(self.notes, key=lambda n: n.t_ns)
         return log
 
     def summary(self) -> dict[str, Any]:
         """The header's account of the recording: eyes, rate(s), blocks, validations, and how
         many lines were not read."""
-        out: dict[str, Any] = {"eyes": [e for e in ("left", "right") if e in self.eyes_seen]}
-        if self.rates:
-            out["rate_hz"] = self.rates[0]
-        if len(self.rates) > 1:
-            out["rates_hz"] = sorted(self.rates)
+        eyes = self.eyes_seen or (set() if self.samples else self.event_eyes)
+        out: dict[str, Any] = {"eyes": [e for e in ("left", "right") if e in eyes]}
+        rates = self.rates or (self.event_rates if not self.samples else [])
+        if rates:
+            out["rate_hz"] = rates[0]
+        if len(rates) > 1:
+            out["rates_hz"] = sorted(rates)
+        if not self.samples:
+            out["events_only"] = True
+        if self.averaged:
+            out["averaged_samples"] = self.averaged
+        if self.lost_as:
+            out["lost_track_written_as"] = dict(sorted(self.lost_as.items()))
         if self.blocks:
             out["blocks"] = self.blocks
         if self.validations:
@@ -472,3 +617,20 @@ class AscParser:
         if self.unread_lines:
             out["unread_lines"] = self.unread_lines
         return out
+
+
+def _numbered(events: list[GazeEvent]) -> list[GazeEvent]:
+    """Ids 1, 2, ... per kind and eye in the order the events start, so that a file converted
+    without start lines (`-nse`) or with one eye (`-l`, `-r`) numbers them as the default
+    conversion does."""
+    new: dict[tuple[str, int, str | None], int] = {}
+    count: dict[tuple[str, str | None], int] = {}
+    out = []
+    for e in events:
+        family = e.kind.partition("_")[0]
+        key = (family, e.id, e.eye)
+        if key not in new:
+            count[family, e.eye] = count.get((family, e.eye), 0) + 1
+            new[key] = count[family, e.eye]
+        out.append(replace(e, id=new[key]))
+    return out
