@@ -72,11 +72,15 @@ class ScreenGeometry:
 
 @dataclass(frozen=True)
 class EyeSample:
-    """One eye's part of a binocular sample, for sources that report eyes separately."""
+    """One eye's part of a sample, for sources that report eyes separately: its gaze and,
+    where the tracker measures it, its pupil: in millimetres, or else in the tracker's own
+    arbitrary units (EyeLink's pupil area or diameter; the header's tracker says which), kept
+    so that an import loses nothing and an export can carry it on."""
 
     x: float
     y: float
     pupil_mm: float | None = None
+    pupil_au: float | None = None
 
 
 @dataclass(frozen=True)

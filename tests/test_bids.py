@@ -64,8 +64,8 @@ def test_bids_binocular_eyelink_style_dataset(tmp_path: Path) -> None:
         (7186807 * ms, 424.145, 269.1, True),
     ])  # fmt: skip
     s = log.samples[2]
-    assert math.isnan(s.left.x) and s.right == EyeSample(431.0, 272.0)
-    assert s.right.pupil_mm is None  # pupil_size in a.u.: not millimetres, not kept
+    # pupil_size in a.u. (eye2bids: EyeLink's area): kept in the tracker's units, not as mm
+    assert math.isnan(s.left.x) and s.right == EyeSample(431.0, 272.0, None, 4520.0)
     assert events(log) == [
         ("fixation_start", 1, 7186799 * ms, None, None, None, "left"),
         ("fixation_start", 2, 7186799 * ms, None, None, None, "right"),

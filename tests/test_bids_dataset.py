@@ -309,7 +309,7 @@ def test_real_eyelink_recordings_round_trip_exactly_through_bids(tmp_path: Path,
     assert records(read_session_log(again)) == records(original)
     eyes = {json.loads(p.read_text())["RecordedEye"] for p in root.glob("sub-01/beh/*_physio.json")}
     header_eyes = original.header.tracker["eyes"]
-    assert eyes == (set(header_eyes) if len(header_eyes) == 1 else {*header_eyes, "cyclopean"})
+    assert eyes == set(header_eyes)  # the eyes give the gaze back: no cyclopean copy
     validate(root)
 
 
@@ -439,8 +439,9 @@ def test_an_eyelink_export_carries_its_calibration_tracking_mode_and_saccades(
     """cili's mono250 (an EyeLink 1000, SR Research's test recording) exported: the physio
     sidecar has the tracker's make, model and serial number, `EyeTrackingMethod` P-CR from its
     CR mode, and its validation (`CalibrationType` HV13, average and largest error, one
-    calibration); its saccades are physioevents rows with where each began and landed; the
-    validator accepts it. Guards: an export of the required keys only; saccades dropped."""
+    calibration); its saccades are physioevents rows with where each began and landed; its pupil
+    area is the pupil_size column in the tracker's units; the validator accepts it. Guards: an
+    export of the required keys only; saccades dropped; a pupil in arbitrary units dropped."""
     asc = tmp_path / "mono250.asc"
     asc.write_bytes(gzip.decompress((REAL / "cili_mono250.asc.gz").read_bytes()))
     from gazehdr.drivers.formats.eyelink import read_eyelink_asc
@@ -473,4 +474,15 @@ def test_an_eyelink_export_carries_its_calibration_tracking_mode_and_saccades(
     ends = [e for e in log.events if e.kind == "saccade_end"]
     assert len(saccades) == len(ends) == 5  # its five ESACC lines
     assert all(r["start_x_coordinate"] != "n/a" and r["x_coordinate"] != "n/a" for r in saccades)
+    # The pupil as the tracker measured it (PUPIL AREA), in its units; lost samples n/a.
+    assert log.header.tracker["pupil"] == "area" and "pupil_size" in side["Columns"]
+    assert side["pupil_size"]["Units"] == "a.u." and "area" in side["pupil_size"]["Description"]
+    physio = next(root.glob("sub-01/beh/*_physio.tsv.gz"))
+    sizes = [
+        line.split("\t")[side["Columns"].index("pupil_size")]
+        for line in gzip.decompress(physio.read_bytes()).decode().splitlines()
+    ]
+    pupils = [s.left.pupil_au for s in log.samples if s.left is not None]
+    assert len(sizes) == len(pupils) and sum(p is not None for p in pupils) > 0.9 * len(pupils)
+    assert sizes == ["n/a" if p is None else repr(p) for p in pupils]
     validate(root)

@@ -17,6 +17,7 @@ import os
 import random
 from collections import Counter
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -479,12 +480,12 @@ def _events(log: Any) -> list[tuple]:
     return [(e.kind, e.id, e.t_ns, repr(e.x), repr(e.y), e.duration_ns, e.eye) for e in log.events]
 
 
-def _without_end_markers(log: Any) -> list[tuple]:
-    """The samples of sample lines: the END markers (invalid, no eye's data, 1 ns or more after
-    the block's last sample) left out."""
-    ends = {s.t_ns for s in log.samples if not s.valid and s.left is None and s.right is None}
-    lines = [s for s in log.samples if s.t_ns not in ends or s.left or s.right]
-    return [(s.t_ns, repr(s.x), repr(s.y), s.valid) for s in lines]
+def _without_end_marker(log: Any) -> SimpleNamespace:
+    """The samples of sample lines of a one-block file: its END marker, the last sample
+    (invalid, its eyes lost, after the block's last sample line), left out."""
+    *lines, end = log.samples
+    assert not end.valid and all(e is None or math.isnan(e.x) for e in (end.left, end.right))
+    return SimpleNamespace(samples=lines)
 
 
 SCREEN = {"pymovements_binocular": (1921, 1081), "syelink_left_eye_excerpt": (1280, 1024)}
@@ -564,8 +565,8 @@ def test_edf2asc_sample_only_files_tell_binocular_samples_by_their_flags(
     reference = read_eyelink_asc(real[name])
     path = _variant(real, tmp_path, name, opt_samples_only, *options)
     log = read_eyelink_asc(path, geometry=ScreenGeometry(0.6, *SCREEN[name]), strict=True)
-    assert _xyv(log) == _without_end_markers(reference)
-    assert _eye_data(log) == [e for e in _eye_data(reference) if e[1] or e[2]]
+    assert _xyv(log) == _xyv(_without_end_marker(reference))
+    assert _eye_data(log) == _eye_data(_without_end_marker(reference))
     assert log.header.tracker["eyes"] == ["left", "right"] and log.events == []
 
 
@@ -586,7 +587,7 @@ def test_edf2asc_sample_only_files_of_one_eye_need_the_eye(
     log = read_eyelink_asc(path, geometry=screen, eye="right")
     right = [
         (s.t_ns, repr(s.right.x), repr(s.right.y), math.isfinite(s.right.x))
-        for s in reference.samples
+        for s in _without_end_marker(reference).samples
         if s.right is not None
     ]
     assert [(t, x, y, v) for t, x, y, v in _xyv(log)] == [
@@ -598,7 +599,7 @@ def test_edf2asc_sample_only_files_of_one_eye_need_the_eye(
         with pytest.raises(FormatError, match="without -nflags"):
             read_eyelink_asc(ambiguous, geometry=screen)
         both = read_eyelink_asc(ambiguous, geometry=screen, eye="both")
-        assert _xyv(both) == _without_end_markers(reference)
+        assert _xyv(both) == _xyv(_without_end_marker(reference))
 
 
 def test_edf2asc_one_eye_with_events_avg_and_href(real: dict[str, Path], tmp_path: Path) -> None:

@@ -93,7 +93,13 @@ def test_eyelink_monocular() -> None:
         (2154702 * ms, 101.0, 101.5, True),
         (2154703 * ms, None, None, False),  # END of block 2
     ])  # fmt: skip
-    assert all(s.left is None and s.right is None for s in log.samples)
+    # The block's one eye (LEFT) carries the pupil, in the tracker's units (PUPIL AREA);
+    # a lost eye (pupil 0) has none. The END's closing invalid sample has no eye.
+    assert log.header.tracker["pupil"] == "area"
+    first, blink = log.samples[0], log.samples[7]
+    assert first.right is None and first.left == EyeSample(640.2, 512.4, None, 1011.0)
+    assert blink.left is not None and blink.left.pupil_au is None
+    assert all(s.right is None for s in log.samples)
     assert events(log) == [
         ("fixation_start", 1, 2154556 * ms, None, None, None, "left"),
         ("fixation_end", 1, 2154560 * ms, 640.6, 512.1, 6 * ms, "left"),
@@ -138,10 +144,13 @@ def test_eyelink_binocular_2000hz_fractional_times() -> None:
     ])  # fmt: skip
     s = log.samples[2]
     assert math.isnan(s.left.x) and (s.right.x, s.right.y) == (963.0, 545.0)
-    assert (log.samples[0].left, log.samples[0].right) == (
-        EyeSample(950.0, 540.0),
-        EyeSample(962.0, 544.0),
+    assert (log.samples[0].left, log.samples[0].right) == (  # PUPIL DIAMETER, its units
+        EyeSample(950.0, 540.0, None, 4.1),
+        EyeSample(962.0, 544.0, None, 4.2),
     )
+    end = log.samples[-1]  # END: both eyes lost, neither with a pupil
+    assert math.isnan(end.left.x) and math.isnan(end.right.x)
+    assert end.left.pupil_au is None and end.right.pupil_au is None
     # edf2asc -nse: no SFIX lines; the starts come from the EFIX lines' <stime>; ids are
     # numbered per kind and eye, in the order the events start
     assert events(log) == [
@@ -272,7 +281,10 @@ def test_eyelink_velocity_resolution_and_blocks_that_differ(tmp_path: Path) -> N
         (200 * ms, 40.0, 50.0, True),  # the mean of (30, 40) and (50, 60)
         (201 * ms, None, None, False),
     ]
-    assert (log.samples[3].left, log.samples[3].right) == (EyeSample(30, 40), EyeSample(50, 60))
+    assert (log.samples[3].left, log.samples[3].right) == (
+        EyeSample(30, 40, None, 4.0),
+        EyeSample(50, 60, None, 4.0),
+    )
     tracker = log.header.tracker
     assert (tracker["eyes"], tracker["rate_hz"], tracker["rates_hz"]) == (
         ["left", "right"], 500.0, [500.0, 1000.0],

@@ -227,19 +227,32 @@ def test_what_cannot_be_followed_is_refused_clearly(
 def test_serve_publishes_the_gaze_each_session_follows(live_server) -> None:
     server = live_server(lsl_outlet="gz-serve-test", record=True, gaze_source="synthetic")
 
-    async def view(seconds: float) -> None:
+    enough = threading.Event()  # the recorders have what the test checks: the session may end
+
+    async def view() -> None:
         async with websockets.connect(
             server.ws_url + "/ws/view", additional_headers=server.auth
         ) as ws:
-            deadline = time.monotonic() + seconds
-            while time.monotonic() < deadline:
-                await asyncio.wait_for(ws.recv(), 5)
+            deadline = time.monotonic() + 60  # a loaded machine resolves streams slowly
+            while not enough.is_set() and time.monotonic() < deadline:
+                await asyncio.wait_for(ws.recv(), 10)
 
-    viewer = threading.Thread(target=lambda: asyncio.run(view(4.0)))
+    viewer = threading.Thread(target=lambda: asyncio.run(view()))
     viewer.start()
-    gaze = Recorder("name='gz-serve-test'")
-    events = Recorder("name='gz-serve-test events'")
-    viewer.join()
+    try:
+        gaze = Recorder("name='gz-serve-test'")
+        events = Recorder("name='gz-serve-test events'")
+        until(
+            lambda: (
+                len(gaze.rows) >= 2
+                and any(json.loads(text)["k"] == "fixation_start" for (text,) in events.rows)
+            ),
+            timeout=30,
+            what="two samples and a fixation published",
+        )
+    finally:
+        enough.set()
+        viewer.join()
     until(lambda: not server.hub.sessions, what="the session's end")
     until(lambda: gaze.lost and events.lost, what="the session's streams withdrawn")
     (recorded,) = (server.config.data_dir / "recordings").glob("*.jsonl")

@@ -70,6 +70,8 @@ def test_eyelink_app_by_its_labels_missing_data_and_untracked_eyes() -> None:
     assert set(layout.eyes) == {"left", "right"} and not layout.eyes["left"].normalized
     both = [100.0, 200.0, 300.0, 400.0, 900.0, 950.0, 30.0, 30.0, 123.0, 4.5]
     assert (layout.sample(both, 0, SCREEN).x, layout.sample(both, 0, SCREEN).y) == (200, 300)
+    # leftPupilArea, rightPupilArea: in the tracker's units, not as millimetres
+    assert layout.sample(both, 0, SCREEN).left == EyeSample(100.0, 200.0, None, 900.0)
     right_only = [0.0, 0.0, 300.0, 400.0, 0.0, 950.0, 30.0, 30.0, 123.0, 4.5]  # app's zeros
     assert (layout.sample(right_only, 0, SCREEN).x, layout.sample(right_only, 0, SCREEN).y) == (
         300,

@@ -54,7 +54,7 @@ def same_sample(a: GazeSample, b: GazeSample) -> bool:
     def eye_eq(u: EyeSample | None, v: EyeSample | None) -> bool:
         if u is None or v is None:
             return u is v
-        return eq(u.x, v.x) and eq(u.y, v.y) and eq(u.pupil_mm, v.pupil_mm)
+        return all(eq(getattr(u, f), getattr(v, f)) for f in ("x", "y", "pupil_mm", "pupil_au"))
 
     return (
         a.t_ns == b.t_ns
@@ -315,6 +315,31 @@ def replace_line(path: Path, number: int, text: str) -> None:
     path.write_text("".join(lines), encoding="utf-8")
 
 
+def test_an_eyes_pupil_in_the_trackers_units_round_trips(tmp_path: Path) -> None:
+    """An eye's pupil in millimetres, in the tracker's arbitrary units (EyeLink's area or
+    diameter), both or neither: each written as the documented list (`pupil_mm` null where only
+    the arbitrary one is known) and read back the same. Guards: a pupil in arbitrary units
+    dropped, or written as millimetres."""
+    path = tmp_path / "s.jsonl"
+    eyes = [
+        EyeSample(1.0, 2.0),
+        EyeSample(1.0, 2.0, 3.5),
+        EyeSample(1.0, 2.0, None, 4520.0),
+        EyeSample(1.0, 2.0, 3.5, 4520.0),
+    ]
+    with SessionLogWriter(path, header()) as w:
+        for i, eye in enumerate(eyes):
+            w.write(GazeSample(1_000_000_000 + i, 1.0, 2.0, True, eye, None))
+    written = [json.loads(line)["l"] for line in path.read_text().splitlines()[1:]]
+    assert written == [
+        [1.0, 2.0],
+        [1.0, 2.0, 3.5],
+        [1.0, 2.0, None, 4520.0],
+        [1.0, 2.0, 3.5, 4520.0],
+    ]
+    assert [s.left for s in read_session_log(path).samples] == eyes
+
+
 @pytest.mark.parametrize(
     ("line", "text", "field", "reason"),
     [
@@ -324,6 +349,9 @@ def replace_line(path: Path, number: int, text: str) -> None:
         (4, '{"k":"s","t":1000000000,"v":1,"y":1}', "x", "missing"),
         (4, '{"k":"s","t":1000000000,"v":0,"x":1,"y":1}', "x", "invalid sample"),
         (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"l":[1]}', "l", "[x, y]"),
+        (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"l":[1,1,null]}', "l", "pupil_au"),
+        (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"r":[null,1,2,3]}', "r", "pupil_au"),
+        (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"r":[1,1,2,3,4]}', "r", "[x, y]"),
         (4, '{"k":"s","t":1000000000,"v":1,"x":1,"y":1,"z":0}', "z", "unknown field"),
         (4, '{"k":"saccade","t":1000000000}', "k", "unknown record kind"),
         (5, '{"k":"fixation_start","id":-1,"t":1}', "id", "at least 0"),

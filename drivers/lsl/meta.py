@@ -322,8 +322,10 @@ class EyeChannels:
             x, y = x * w, ((1.0 - y) if self.y_up else y) * h
         elif min(x, y) <= _MISSING_LOW or max(x, y) >= _MISSING_HIGH:
             return None
-        mm = pupil if self.pupil_mm and pupil is not None and math.isfinite(pupil) else None
-        return EyeSample(x, y, mm)
+        if pupil is None or not math.isfinite(pupil):
+            return EyeSample(x, y)
+        # in mm, or else in the tracker's own units (EyeLink's area, Pupil Core's pixels)
+        return EyeSample(x, y, pupil, None) if self.pupil_mm else EyeSample(x, y, None, pupil)
 
 
 def _at_least(value: float, threshold: float) -> bool:

@@ -19,8 +19,9 @@ Then records, each with its kind `k` and its time `t` (integer nanoseconds on th
 
 - sample: `{"k":"s","t":T,"v":1,"x":X,"y":Y}` (screen pixels, origin top-left), or invalid
   (blink, lost track) `{"k":"s","t":T,"v":0}`; optional per-eye fields `"l"` and `"r"`:
-  `[x, y]` or `[x, y, pupil_mm]`, or null for an eye the tracker lost. Sample times never go
-  back.
+  `[x, y]`, `[x, y, pupil_mm]` or `[x, y, pupil_mm, pupil_au]` (the pupil in the tracker's own
+  arbitrary units, as EyeLink's area or diameter; `pupil_mm` null where it has none), or null
+  for an eye the tracker lost. Sample times never go back.
 - events, `k` one of `fixation_start`, `fixation_update`, `fixation_end`, `blink_start`,
   `blink_end`, `saccade_start`, `saccade_end`: `{"k":"fixation_end","id":7,"t":T,"x":X,"y":Y,
   "duration":NS,"dispersion":DEG}`; `x`, `y` (pixels), `duration` (ns), `dispersion` (degrees,
@@ -40,8 +41,8 @@ simulation clock (`clock.source` "simulation_ns"), each change and gaze at the e
 step it drove, and the gaze it followed as samples plus one `fixation_start` per position.
 
 Unknown kinds and unknown fields are errors: a reader never guesses what a newer version meant
-(it bumps `version`). Version 2 added `model` and `reset`, version 3 `saccade_start` and
-`saccade_end`; this reader reads 1, 2 and 3.
+(it bumps `version`). Version 2 added `model` and `reset`, version 3 `saccade_start`,
+`saccade_end` and an eye's `pupil_au`; this reader reads 1, 2 and 3.
 """
 
 from __future__ import annotations
@@ -75,12 +76,13 @@ from gazehdr.drivers.sessionlog.records import (
 _SCREEN_FIELDS = tuple(f.name for f in fields(ScreenGeometry))
 
 
-def _eye_json(eye: EyeSample | None) -> list[float] | None:
+def _eye_json(eye: EyeSample | None) -> list[float | None] | None:
     if eye is None or not (_finite(eye.x) and _finite(eye.y)):
         return None
-    if _finite(eye.pupil_mm):
-        return [eye.x, eye.y, eye.pupil_mm]
-    return [eye.x, eye.y]
+    mm = eye.pupil_mm if _finite(eye.pupil_mm) else None
+    if _finite(eye.pupil_au):
+        return [eye.x, eye.y, mm, eye.pupil_au]
+    return [eye.x, eye.y] if mm is None else [eye.x, eye.y, mm]
 
 
 def encode_record(record: Any) -> dict[str, Any]:
@@ -196,12 +198,21 @@ class _Fields:
             return EyeSample(math.nan, math.nan)
         if (
             not isinstance(value, list)
-            or len(value) not in (2, 3)
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            or len(value) not in (2, 3, 4)
+            or not all(
+                (isinstance(v, (int, float)) and not isinstance(v, bool))
+                or (v is None and i == 2 and len(value) == 4)  # no pupil_mm, a pupil_au
+                for i, v in enumerate(value)
+            )
         ):
-            raise self.error(name, f"must be [x, y], [x, y, pupil_mm] or null, got {value!r}")
-        x, y, *pupil = (self.as_float(name, v) for v in value)
-        return EyeSample(x, y, pupil[0] if pupil else None)
+            raise self.error(
+                name,
+                f"must be [x, y], [x, y, pupil_mm], [x, y, pupil_mm or null, pupil_au] or null, "
+                f"got {value!r}",
+            )
+        x, y, *pupils = (None if v is None else self.as_float(name, v) for v in value)
+        assert x is not None and y is not None
+        return EyeSample(x, y, *pupils)
 
 
 _SAMPLE_KEYS = ("k", "t", "v", "x", "y", "l", "r")

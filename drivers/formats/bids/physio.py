@@ -219,10 +219,14 @@ class _Recording:
                 )
         else:
             self.fs = None
-        self.has_pupil = "pupil_size" in columns and str(_units(side, "pupil_size")).lower() in (
-            "mm",
-            "millimeter",
-            "millimetre",
+        #: The pupil column's unit: "mm", or "a.u." for any other (the tracker's own units,
+        #: as EyeLink's area or diameter: eye2bids writes "a.u."); None without the column.
+        self.pupil_unit = (
+            None
+            if "pupil_size" not in columns
+            else "mm"
+            if str(_units(side, "pupil_size")).lower() in ("mm", "millimeter", "millimetre")
+            else "a.u."
         )
 
     def scan(self) -> None:
@@ -313,7 +317,8 @@ class _Recording:
         """(t_ns, position) per row, streaming; a lost position is NaN. `scan()` first."""
         columns = self.columns
         ix, iy = columns.index("x_coordinate"), columns.index("y_coordinate")
-        ip = columns.index("pupil_size") if self.has_pupil else None
+        ip = columns.index("pupil_size") if self.pupil_unit else None
+        in_mm = self.pupil_unit == "mm"
         times = self.times
         nan = math.nan
         path = self.path
@@ -327,9 +332,10 @@ class _Recording:
                 x = nan if x is None else x
                 y = nan if y is None else y
             pupil = _number(path, line, row[ip], "pupil_size") if ip is not None else None
+            mm, au = (pupil, None) if in_mm else (None, pupil)
             if not (math.isfinite(x) and math.isfinite(y)):
-                yield t, EyeSample(nan, nan, pupil)
+                yield t, EyeSample(nan, nan, mm, au)
                 continue
             if flip_height is not None:
                 y = flip_height - y
-            yield t, EyeSample(x, y, pupil)
+            yield t, EyeSample(x, y, mm, au)

@@ -47,6 +47,7 @@ import itertools
 import json
 import math
 import statistics
+from collections.abc import Iterable
 from decimal import Decimal
 from importlib.metadata import version
 from pathlib import Path
@@ -282,24 +283,23 @@ def write_bids(
     target("events", ".tsv").write_bytes(_tsv(events))
     write_json(target("events", ".json"), _events_sidecar(log, task))
 
-    for label, source, recorded, role in _recordings(log):
+    for n, (label, source, recorded, role) in enumerate(_recordings(log)):
         if source == "cyclopean":
-            values = [
-                (s.t_ns, *((s.x, s.y) if s.valid else (math.nan, math.nan)), None)
-                for s in log.samples
-            ]
+            eyes = [(s.t_ns, EyeSample(s.x, s.y) if s.valid else None) for s in log.samples]
         else:  # a sample without this eye's data has no row in its file
-            values = [(s.t_ns, e.x, e.y, e.pupil_mm) for s in log.samples if (e := _eye(s, source))]
-        pupil = any(p is not None and math.isfinite(p) for *_, p in values)
+            eyes = [(s.t_ns, e) for s in log.samples if (e := _eye(s, source))]
+        pupil = _pupil_unit(e for _, e in eyes)
         rows = []
-        for t, x, y, p in values:
-            row = [str(t), _number_text(x), _number_text(y)]
-            rows.append([*row, _number_text(p)] if pupil else row)
+        for t, e in eyes:
+            row = [str(t), *(_number_text(v) for v in ((e.x, e.y) if e else (math.nan,) * 2))]
+            size = None if e is None else e.pupil_mm if pupil == "mm" else e.pupil_au
+            rows.append([*row, _number_text(size)] if pupil else row)
         _write_gzip_tsv(target("physio", ".tsv.gz", label), rows)
         sidecar = _physio_sidecar(log, task, fs, recorded, pupil, role)
         write_json(target("physio", ".json", label), sidecar)
         own = {src for _, src, _, _ in _recordings(log) if src in ("left", "right")}
-        events = _event_rows(log, source, own, catch_all=role == "gaze" or label == "eye1")
+        # the first recording (eye2 alone for a right eye) takes what belongs to no eye
+        events = _event_rows(log, source, own, catch_all=role == "gaze" or n == 0)
         _write_gzip_tsv(target("physioevents", ".tsv.gz", label), events)
         write_json(target("physioevents", ".json", label), _physioevents_sidecar(task))
     return written
@@ -369,13 +369,25 @@ def _events_sidecar(log: SessionLog, task: str) -> dict[str, Any]:
     }
 
 
+def _pupil_unit(eyes: Iterable[EyeSample | None]) -> str | None:
+    """The unit of a recording's `pupil_size` column: mm where any sample has a pupil in mm,
+    else the tracker's arbitrary units where any has one of those, else no column."""
+    unit = None
+    for e in eyes:
+        if e is not None and e.pupil_mm is not None and math.isfinite(e.pupil_mm):
+            return "mm"
+        if e is not None and e.pupil_au is not None and math.isfinite(e.pupil_au):
+            unit = "a.u."
+    return unit
+
+
 def _physio_sidecar(
-    log: SessionLog, task: str, fs: float, eye: str, pupil: bool, role: str
+    log: SessionLog, task: str, fs: float, eye: str, pupil: str | None, role: str
 ) -> dict[str, Any]:
     side: dict[str, Any] = {
         "TaskName": task,
         "PhysioType": "eyetrack",
-        "Columns": ["timestamp", "x_coordinate", "y_coordinate"] + (["pupil_size"] * pupil),
+        "Columns": ["timestamp", "x_coordinate", "y_coordinate"] + (["pupil_size"] * bool(pupil)),
         "SamplingFrequency": fs,
         "StartTime": 0,
         "RecordedEye": eye,
@@ -394,8 +406,16 @@ def _physio_sidecar(
             "Units": "pixel",
         },
     }
-    if pupil:
+    if pupil == "mm":
         side["pupil_size"] = {"Description": "Pupil diameter.", "Units": "mm"}
+    elif pupil:  # EyeLink's PUPIL line says area or diameter
+        measure = log.header.tracker.get("pupil")
+        what = measure if measure in ("area", "diameter") else "size"
+        side["pupil_size"] = {
+            "Description": f"Pupil {what} as the eye tracker measures it, in its own arbitrary "
+            "units.",
+            "Units": pupil,
+        }
     side.update(_metadata(log, eye))
     side["GazehdrRecording"] = role
     side["GazehdrHeader"] = log.header.to_json()

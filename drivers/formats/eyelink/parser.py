@@ -319,7 +319,9 @@ class AscParser:
                 )
                 t = last + period
             t = max(t, last + 1)
-            self.samples.append(GazeSample(t, math.nan, math.nan, False))
+            before = self.samples[-1]  # the block's eyes, lost: what an eye's recording ends on
+            lost = {e: EyeSample(math.nan, math.nan) for e in _EYE.values() if getattr(before, e)}
+            self.samples.append(GazeSample(t, math.nan, math.nan, False, **lost))
         self.block_samples = 0
 
     # --- samples (§4.9.2) ---------------------------------------------------------------------
@@ -423,33 +425,34 @@ class AscParser:
         ]
         self.last_stamp = None if paired else tokens[0]
         if binocular:
-            left, right = (self.eye_position(tokens, values, i) for i in (0, 3))
-            sides = EyeSample(*left), EyeSample(*right)
+            sides = self.eye_sample(tokens, values, 0), self.eye_sample(tokens, values, 3)
             gaze = mean_of_eyes(*sides)
             if gaze and math.isfinite(gaze[0]) and math.isfinite(gaze[1]):
                 sample = GazeSample(t, gaze[0], gaze[1], True, *sides)
             else:
                 sample = GazeSample(t, math.nan, math.nan, False, *sides)
-        else:
-            p = self.eye_position(tokens, values, 0)
-            sample = GazeSample(t, *p) if math.isfinite(p[0]) else GazeSample(t, *p, False)
+        else:  # the eye the block names carries the pupil (-avg: the mean gaze, no eye)
+            eye = self.eye_sample(tokens, values, 0)
+            named = {} if len(eyes) != 1 else {eyes[0]: eye}
+            sample = GazeSample(t, eye.x, eye.y, math.isfinite(eye.x), **named)
         self.samples.append(sample)
         self.block_samples += 1
         self.block_last = t
 
-    def eye_position(
-        self, tokens: list[str], values: list[float | None], i: int
-    ) -> tuple[float, float]:
-        """One eye's x, y (NaN when lost). A pupil of 0 is lost track (§4.9.2: EyeLink writes
-        x, y missing and pupil 0.0): whatever x, y say, as `edf2asc -miss -1` or `-miss 0`
-        write them (-1 -1 0.0); such a string is counted in `lost_as`."""
-        if values[i + 2] == 0.0:
+    def eye_sample(self, tokens: list[str], values: list[float | None], i: int) -> EyeSample:
+        """One eye's x, y (NaN when lost) and its pupil (the tracker's units: `PUPIL` says
+        area or diameter). A pupil of 0 is lost track (§4.9.2: EyeLink writes x, y missing and
+        pupil 0.0): whatever x, y say, as `edf2asc -miss -1` or `-miss 0` write them
+        (-1 -1 0.0); such a string is counted in `lost_as`."""
+        pupil = values[i + 2]
+        if pupil == 0.0:
             x_text, y_text = tokens[1 + i], tokens[2 + i]
             if not self.is_missing(x_text) or not self.is_missing(y_text):
                 key = x_text if x_text == y_text else f"{x_text} {y_text}"
                 self.lost_as[key] = self.lost_as.get(key, 0) + 1
-            return math.nan, math.nan
-        return self.position(values[i], values[i + 1]) or (math.nan, math.nan)
+            return EyeSample(math.nan, math.nan)
+        x, y = self.position(values[i], values[i + 1]) or (math.nan, math.nan)
+        return EyeSample(x, y, None, pupil if pupil is not None and math.isfinite(pupil) else None)
 
     # --- events (§4.9.3) ----------------------------------------------------------------------
 
