@@ -10,9 +10,10 @@ Needs Debian's `qemu-system-x86`, `linux-image-amd64` and `busybox-static` (the 
 The guest is the distribution kernel with a small initramfs: busybox (static) and the modules
 that reach the host's files (virtio-pci, 9p) and its network (virtio-net), plus hid,
 hid-generic and uhid. Its root file system is this machine's own `/`, shared read-only over
-9p, with fresh tmpfs on /tmp and /run: so the guest runs this checkout and this venv's Python,
-hidapi, hid-tools and numpy as they are, and the host's glibc, with nothing to install. A
-second 9p share (read-write) is the run's own folder: the command the init runs and the logs.
+9p, with fresh tmpfs on /tmp and /run (a checkout or venv under them is bound through again):
+so the guest runs this checkout and this venv's Python, hidapi, hid-tools and numpy as they
+are, and the host's glibc, with nothing to install. A second 9p share (read-write) is the
+run's own folder: the command the init runs, the logs and the paths to bind through.
 
 The initramfs is built once and kept in a cache folder (`GAZEHDR_HID_KERNEL_CACHE`, else
 `$XDG_CACHE_HOME/gazehdr/hid-kernel`, else `~/.cache/gazehdr/hid-kernel`), named by a hash of
@@ -67,11 +68,15 @@ mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
 for m in $(cat /modules.order); do insmod "/modules/$m.ko" || echo "init: insmod $m failed"; done
 mount -t 9p -o trans=virtio,version=9p2000.L,ro,cache=loose,msize=524288 hostroot /root
+mkdir /host && mount --bind /root /host  # the host's / without the tmpfs about to cover parts
 for fs in proc sys dev; do mount --bind /$fs /root/$fs; done
 mount -t tmpfs -o mode=1777 tmp /root/tmp
 mount -t tmpfs run /root/run
 mkdir -p /root/run/gazehdr
 mount -t 9p -o trans=virtio,version=9p2000.L,msize=524288 rundir /root/run/gazehdr
+# a checkout or venv under /tmp or /run (a clone in /tmp): shown again through the tmpfs
+while read -r p; do mkdir -p "/root$p" && mount --bind "/host$p" "/root$p"; done \
+  < /root/run/gazehdr/expose
 ip link set lo up
 ip link set eth0 up
 ip addr add 10.0.2.15/24 dev eth0
@@ -318,6 +323,10 @@ class Guest:
         listener.settimeout(1.0)
         port = listener.getsockname()[1]
         venv_bin = Path(sys.executable).parent
+        covered = [Path("/tmp"), Path("/run")]  # the guest's own tmpfs hide the host's
+        needed = {HERE.parent.parent, Path(sys.prefix).resolve()}
+        expose = sorted(str(p) for p in needed if any(p.is_relative_to(c) for c in covered))
+        (self.rundir / "expose").write_text("".join(f"{p}\n" for p in expose))
         (self.rundir / "run.sh").write_text(
             "cd /tmp\n"
             f"exec env -i PATH={venv_bin}:/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:"
