@@ -439,7 +439,9 @@ def test_serve_builds_its_kernels_before_it_prints_the_address(tmp_path: Path) -
         said = "".join(lines)
         assert "building the simulation's kernels" in said and "kernels ready in" in said
         assert said.index("kernels ready in") < said.index("open http"), said
-        assert "pocl" in said  # where they are kept
+        from gazehdr.serve import kernel_cache_dir
+
+        assert kernel_cache_dir() in said  # where they are kept (POCL_CACHE_DIR where set)
     finally:
         server.terminate()
         server.wait(timeout=30)

@@ -286,7 +286,10 @@ def test_openapi_declares_auth_bodies_and_one_error_shape(live_server) -> None:
     assert (bad[0], missing[0], refused[0]) == (422, 404, 401)
 
 
-EXAMPLES = 15  # per operation and phase: about 250 cases, under a minute on two cores
+#: Examples per operation and phase: 15 in the test command (about 900 cases, most of them the
+#: coverage phase's, under a minute on two cores); GAZEHDR_SCHEMATHESIS_EXAMPLES=100 for a
+#: longer campaign (docs/security.md).
+EXAMPLES = int(os.environ.get("GAZEHDR_SCHEMATHESIS_EXAMPLES", "15"))
 
 
 def test_schemathesis_finds_no_contract_failure(live_server, tmp_path) -> None:
