@@ -451,6 +451,22 @@ def opt_nmsg(lines: list[str]) -> list[str]:
     return keep
 
 
+def opt_hpos(lines: list[str]) -> list[str]:
+    """`-hpos` (EyeLink II's head markers; derived: the usage text gives no layout): eight
+    values, four markers' x and y, after the others."""
+    return _with_values(
+        lines, lambda tokens: [f"{v:.1f}" for v in (101, 52, 87, 48, 64, 33, 120, 61)]
+    )
+
+
+def opt_neye(lines: list[str]) -> list[str]:
+    """`-neye`: no eye-movement events; samples, messages, buttons and data block lines stay
+    (the EyeLink II manual, §4.8.2.3: "just samples, messages, button events, and data block
+    events")."""
+    eye_events = ("SFIX", "EFIX", "SSACC", "ESACC", "SBLINK", "EBLINK")
+    return [x for x in lines if not x.startswith(eye_events)]
+
+
 def opt_href(lines: list[str]) -> list[str]:
     """`-sh`: HREF samples."""
     return [x.replace("SAMPLES\tGAZE", "SAMPLES\tHREF") for x in lines]
@@ -522,6 +538,7 @@ def test_edf2asc_miss_gives_the_default_conversion(
         ((opt_vel, opt_res, opt_input, opt_nflags), "-vel -res -input -nflags"),
         ((opt_ftime,), "-ftime"),
         ((opt_nse,), "-nse"),
+        ((opt_hpos,), "-hpos"),
     ],
 )
 @pytest.mark.parametrize("name", ["pymovements_binocular", "syelink_left_eye_excerpt"])
@@ -529,7 +546,7 @@ def test_edf2asc_options_that_add_columns_or_leave_lines_out_change_nothing(
     real: dict[str, Path], tmp_path: Path, name: str, options: tuple, what: str
 ) -> None:
     """With events (the SAMPLES lines name the eyes): `-vel`, `-res`, `-input`, `-nflags`,
-    `-ftime` and `-nse` give the default conversion's samples, eyes and events. Guards: a
+    `-ftime`, `-nse` and `-hpos` give the default conversion's samples, eyes and events. Guards: a
     column read at a shifted place; a start event needed for its end."""
     reference = read_eyelink_asc(real[name])
     log = read_eyelink_asc(_variant(real, tmp_path, name, *options), strict=True)
@@ -551,8 +568,17 @@ def test_edf2asc_options_that_add_columns_or_leave_lines_out_change_nothing(
         (opt_res,),
         (opt_vel, opt_res, opt_input),
         (opt_vel, opt_nflags),
+        (opt_hpos,),
     ],
-    ids=["-s", "-s -vel", "-s -input", "-s -res", "-s -vel -res -input", "-s -vel -nflags"],
+    ids=[
+        "-s",
+        "-s -vel",
+        "-s -input",
+        "-s -res",
+        "-s -vel -res -input",
+        "-s -vel -nflags",
+        "-s -hpos",
+    ],
 )
 def test_edf2asc_sample_only_files_tell_binocular_samples_by_their_flags(
     real: dict[str, Path], tmp_path: Path, options: tuple
@@ -624,6 +650,21 @@ def test_edf2asc_one_eye_with_events_avg_and_href(real: dict[str, Path], tmp_pat
     assert avg.header.tracker["averaged_samples"] == 368
     with pytest.raises(FormatError, match="edf2asc -sg"):
         read_eyelink_asc(_variant(real, tmp_path, name, opt_href))
+
+
+@pytest.mark.parametrize("name", ["pymovements_binocular", "syelink_left_eye_excerpt"])
+def test_edf2asc_neye_keeps_samples_and_messages(
+    real: dict[str, Path], tmp_path: Path, name: str
+) -> None:
+    """`-neye`: the default's samples and notes, no event; `-ns -neye` (the manual's "file
+    structure outline"): its notes alone. Guards: a file without eye events refused, or its
+    messages lost."""
+    reference = read_eyelink_asc(real[name])
+    log = read_eyelink_asc(_variant(real, tmp_path, name, opt_neye), strict=True)
+    assert _xyv(log) == _xyv(reference) and _eye_data(log) == _eye_data(reference)
+    assert log.events == [] and log.notes == reference.notes
+    outline = read_eyelink_asc(_variant(real, tmp_path, name, opt_events_only, opt_neye))
+    assert outline.samples == [] and outline.events == [] and outline.notes == reference.notes
 
 
 def test_edf2asc_events_only_and_no_messages(
