@@ -18,8 +18,9 @@ Where a recording's fixations have no position at all (BIDS physioevents rows wi
 `x_coordinate`) the daemon's detector runs on the samples, as `fixation_track` does; where it
 finds no fixation either (samples too sparse for I-VT, as EEGEyeNet's 10 Hz data), each of the
 recording's fixations gets the mean of the valid samples inside it (of its eye where the
-samples have per-eye data), so that a replay still sends fixations; one with no valid sample
-inside it stays unplaced, and `unplaced` counts them.
+samples have per-eye data; `places_at_samples`, which `fixation_track` follows too), so that a
+replay still sends fixations and a render shows the same; one with no valid sample inside it
+stays unplaced, and `unplaced` counts them.
 
 An imported recording ends at its last valid sample: records more than `END_GAP_NS` after it
 (an EyeLink END, messages long after the samples stop) are not replayed, and an invalid sample
@@ -32,7 +33,6 @@ folder in one or a physio file; `#sub-01_ses-1_run-2` picks the run where PATH h
 
 from __future__ import annotations
 
-import bisect
 import itertools
 import json
 import math
@@ -52,7 +52,9 @@ from gazehdr.drivers.sessionlog import (
     SessionLog,
     SessionLogReader,
     decode_record,
+    detected_fixations,
     fixation_places,
+    places_at_samples,
     read_session_log,
     write_session_log,
 )
@@ -202,47 +204,16 @@ class ReplaySource:
     def _placed(
         self, events: list[GazeEvent], samples: Any
     ) -> dict[tuple[int, str | None], FixationPlace]:
-        """`fixation_places`, and for the fixations no event places, the mean of their samples
-        (`samples()` is called only when some fixation needs it)."""
+        """`fixation_places`; where no event places a fixation and the daemon's detector finds
+        none in the samples, the mean of their samples (`places_at_samples`). `samples()` is
+        called only when some fixation needs it."""
         places = fixation_places(events)
-        if places:  # the events place fixations: those are sent, as `fixation_track` follows
-            return places
-        spans: dict[tuple[int, str | None], list[int | None]] = {}
-        for e in events:
-            if e.kind == "fixation_start":
-                spans.setdefault((e.id, e.eye), [None, None])[0] = e.t_ns
-            elif e.kind == "fixation_end":
-                span = spans.setdefault((e.id, e.eye), [None, None])
-                span[1] = e.t_ns
-                if span[0] is None and e.duration_ns is not None:
-                    span[0] = e.t_ns - e.duration_ns
-        needed = {k: v for k, v in spans.items() if k not in places}
-        if not needed:
-            return places
+        if places or not any(e.kind.startswith("fixation") for e in events):
+            return places  # the events place fixations (those are sent), or there are none
         held = list(samples())
-        from gazehdr.drivers.fixations import detect  # only recordings that place none need it
-
-        increasing = [s for i, s in enumerate(held) if i == 0 or s.t_ns > held[i - 1].t_ns]
-        if any(e.kind == "fixation_start" for e in detect(increasing, "ivt", self.info.geometry)):
+        if any(e.kind == "fixation_start" for e in detected_fixations(held, self.info.geometry)):
             return places  # the daemon's detector finds fixations in the samples: it runs
-        times = [s.t_ns for s in held]
-        for key, (start, end) in needed.items():
-            if start is None or end is None:
-                self.unplaced += 1
-                continue
-            points = []
-            for s in held[bisect.bisect_left(times, start) : bisect.bisect_right(times, end)]:
-                eye = s.left if key[1] == "left" else s.right if key[1] == "right" else None
-                if eye is not None and math.isfinite(eye.x) and math.isfinite(eye.y):
-                    points.append((eye.x, eye.y))
-                elif eye is None and s.valid:
-                    points.append((s.x, s.y))
-            if not points:
-                self.unplaced += 1
-                continue
-            x = sum(p[0] for p in points) / len(points)
-            y = sum(p[1] for p in points) / len(points)
-            places[key] = FixationPlace(start, x, y)
+        places, self.unplaced = places_at_samples(events, held)
         return places
 
     def _unpaced(self) -> Iterator[Record]:

@@ -288,8 +288,9 @@ def test_fixations_without_a_place_are_placed_at_their_samples_mean(tmp_path: Pa
     EEGEyeNet's 10 Hz dataset), and its samples are too few for I-VT: a replay places each at
     the mean of its eye's valid samples inside it, so the daemon sends the recording's fixations
     instead of none (where I-VT finds fixations the daemon's detector runs, as before:
-    tests/test_daemon.py). Guards: a replay whose fixations have no position sending no
-    fixation at all."""
+    tests/test_daemon.py). A render (`fixation_track`) follows the same places. Guards: a
+    replay whose fixations have no position sending no fixation at all; a render following
+    the raw samples where the replay sends fixations."""
     source = ReplaySource(DATA / "bids", speed=math.inf)
     places = source.fixation_places()
     log = import_recording(DATA / "bids")
@@ -309,6 +310,14 @@ def test_fixations_without_a_place_are_placed_at_their_samples_mean(tmp_path: Pa
     detector = make_detector("ivt", source.info.geometry)
     sent = [r for r in sources.records_of(source) if getattr(r, "kind", "").startswith("fix")]
     assert sent and detector is not None
+    # A render (`fixation_track`) holds the same places as the replay sends: the first eye's.
+    track = log.fixation_track()
+    w, h = log.header.screen.screen_width_px, log.header.screen.screen_height_px
+    left = sorted(p for (_, eye), p in places.items() if eye == "left")
+    assert len(left) > 1
+    for place in left:
+        point = track.at((place.start_ns - track.t0_ns) / 1e9)
+        assert (point.x, point.y) == pytest.approx((place.x / w, place.y / h))
 
 
 def test_an_imported_recording_ends_at_its_last_sample(tmp_path: Path) -> None:

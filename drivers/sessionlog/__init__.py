@@ -12,7 +12,8 @@ modules, in the order a record goes through them:
 - `reader`: `SessionLogReader`, which stops cleanly at a line cut by a crash;
   `read_session_log`, `read_session_track`.
 - `log`: `SessionLog`, a whole log in memory, and its gaze tracks.
-- `track`: `SessionTrack`, a log replayed as a `GazeTrack`; `fixation_places`.
+- `track`: `SessionTrack`, a log replayed as a `GazeTrack`; `fixation_places` and, for
+  fixations their events do not place, `detected_fixations` and `places_at_samples`.
 """
 
 from gazehdr.drivers.sessionlog.codec import decode_header, decode_record, encode_record
@@ -39,7 +40,13 @@ from gazehdr.drivers.sessionlog.records import (
     SceneChange,
     SessionHeader,
 )
-from gazehdr.drivers.sessionlog.track import FixationPlace, SessionTrack, fixation_places
+from gazehdr.drivers.sessionlog.track import (
+    FixationPlace,
+    SessionTrack,
+    detected_fixations,
+    fixation_places,
+    places_at_samples,
+)
 from gazehdr.drivers.sessionlog.writer import SessionLogWriter, write_session_log
 
 __all__ = [
@@ -65,8 +72,10 @@ __all__ = [
     "SessionTrack",
     "decode_header",
     "decode_record",
+    "detected_fixations",
     "encode_record",
     "fixation_places",
+    "places_at_samples",
     "read_session_log",
     "read_session_track",
     "write_session_log",

@@ -27,7 +27,13 @@ from gazehdr.drivers.sessionlog.records import (
     SceneChange,
     SessionHeader,
 )
-from gazehdr.drivers.sessionlog.track import FixationPlace, SessionTrack, fixation_places
+from gazehdr.drivers.sessionlog.track import (
+    FixationPlace,
+    SessionTrack,
+    detected_fixations,
+    fixation_places,
+    places_at_samples,
+)
 
 
 @dataclass
@@ -105,24 +111,18 @@ class SessionLog:
         """The gaze as the log's fixations: each fixation's mean position from its start until
         the next one starts, so a saccade never sweeps the simulated retina (SPEC §4). A log
         whose events place no fixation (none, only blinks, or fixations without positions) is
-        run through I-VT first, as a daemon replaying it does; one where I-VT finds none falls
-        back to the samples. Its time line is `track()`'s: from the first sample to the last.
-        A log may repeat a sample time (an import holds times that went back); I-VT needs them
-        to increase, so it gets the first sample of each time."""
+        run through I-VT first, as a daemon replaying it does; where I-VT finds none, its
+        fixations are placed at their samples (`places_at_samples`), as the daemon sends them;
+        a log with neither falls back to the samples. Its time line is `track()`'s: from the
+        first sample to the last."""
         events = self.events
-        points = _fixation_points(events)
+        points = _first_eye_points(events, fixation_places(events))
         if not points:
-            from gazehdr.drivers.fixations import detect  # only logs that place no fixation need it
-
-            increasing = [
-                s for i, s in enumerate(self.samples) if i == 0 or s.t_ns > self.samples[i - 1].t_ns
-            ]
-            found = detect(increasing, "ivt", self.header.screen)
-            events = [
-                GazeEvent(e.kind, e.id, e.t_ns, e.x, e.y, e.duration_ns, e.dispersion_deg)
-                for e in found
-            ]
-            points = _fixation_points(events)
+            events = detected_fixations(self.samples, self.header.screen)
+            points = _first_eye_points(events, fixation_places(events))
+        if not points:
+            events = self.events
+            points = _first_eye_points(events, places_at_samples(events, self.samples)[0])
         if not points:
             return self.track()
         held = [GazeSample(int(t), x, y) for t, x, y in points]
@@ -133,11 +133,12 @@ class SessionLog:
         return SessionTrack(held, blinks, self.header.screen, span_ns=span)
 
 
-def _fixation_points(events: list[GazeEvent]) -> list[FixationPlace]:
+def _first_eye_points(
+    events: list[GazeEvent], places: dict[tuple[int, str | None], FixationPlace]
+) -> list[FixationPlace]:
     """The placed fixations of one eye (the first that fixates), in time order."""
     eye = next((e.eye for e in events if e.kind.startswith("fixation")), None)
-    places = fixation_places(e for e in events if e.eye == eye)
-    return sorted(p for p in places.values() if p.start_ns is not None)
+    return sorted(p for (_, e), p in places.items() if e == eye and p.start_ns is not None)
 
 
 def _blinks_of(events: list[GazeEvent]) -> list[tuple[int, float]]:

@@ -1,7 +1,9 @@
 """A log replayed as gaze: where its fixations were, and its samples as a `GazeTrack`.
 
-`fixation_places` reads where each recorded fixation was from its events; `SessionTrack` holds
-a sequence of samples (the raw ones, or one per fixation) on the log's time line.
+`fixation_places` reads where each recorded fixation was from its events; where none has a
+position, `detected_fixations` (I-VT) or else `places_at_samples` place them, in that order,
+for a daemon's replay and a render alike. `SessionTrack` holds a sequence of samples (the raw
+ones, or one per fixation) on the log's time line.
 """
 
 from __future__ import annotations
@@ -43,6 +45,56 @@ def fixation_places(events: Iterable[GazeEvent]) -> dict[tuple[int, str | None],
         if _finite(e.x) and _finite(e.y):
             f["x"], f["y"] = e.x, e.y
     return {k: FixationPlace(f.get("t"), f["x"], f["y"]) for k, f in found.items() if "x" in f}
+
+
+def detected_fixations(samples: list[GazeSample], screen: ScreenGeometry) -> list[GazeEvent]:
+    """What I-VT finds in a log's samples, as a daemon replaying the log runs it. A log may
+    repeat a sample time (an import holds times that went back); I-VT needs them to increase,
+    so it gets the first sample of each time."""
+    from gazehdr.drivers.fixations import detect  # only logs that place no fixation need it
+
+    increasing = [s for i, s in enumerate(samples) if i == 0 or s.t_ns > samples[i - 1].t_ns]
+    return [
+        GazeEvent(e.kind, e.id, e.t_ns, e.x, e.y, e.duration_ns, e.dispersion_deg)
+        for e in detect(increasing, "ivt", screen)
+    ]
+
+
+def places_at_samples(
+    events: Iterable[GazeEvent], samples: list[GazeSample]
+) -> tuple[dict[tuple[int, str | None], FixationPlace], int]:
+    """Fixations whose events have no position (BIDS physioevents without coordinates, a
+    10 Hz recording too coarse for I-VT), each placed at the mean of its eye's valid samples
+    from its start to its end; and how many could not be (no start or end, or no valid sample
+    inside). `samples` in time order."""
+    spans: dict[tuple[int, str | None], list[int | None]] = {}
+    for e in events:
+        if e.kind == "fixation_start":
+            spans.setdefault((e.id, e.eye), [None, None])[0] = e.t_ns
+        elif e.kind == "fixation_end":
+            span = spans.setdefault((e.id, e.eye), [None, None])
+            span[1] = e.t_ns
+            if span[0] is None and e.duration_ns is not None:
+                span[0] = e.t_ns - e.duration_ns
+    times = [s.t_ns for s in samples]
+    places: dict[tuple[int, str | None], FixationPlace] = {}
+    unplaced = 0
+    for key, (start, end) in spans.items():
+        points = []
+        if start is not None and end is not None:
+            for s in samples[bisect.bisect_left(times, start) : bisect.bisect_right(times, end)]:
+                eye = s.left if key[1] == "left" else s.right if key[1] == "right" else None
+                if eye is not None and math.isfinite(eye.x) and math.isfinite(eye.y):
+                    points.append((eye.x, eye.y))
+                elif eye is None and s.valid:
+                    points.append((s.x, s.y))
+        if start is None or not points:
+            unplaced += 1
+            continue
+        x = sum(p[0] for p in points) / len(points)
+        y = sum(p[1] for p in points) / len(points)
+        places[key] = FixationPlace(start, x, y)
+    return places, unplaced
 
 
 class SessionTrack:
