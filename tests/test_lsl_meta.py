@@ -105,7 +105,8 @@ def test_gazepoint_best_point_of_gaze_with_its_validity_and_pupils_in_mm() -> No
     }  # fmt: skip
     s = layout.sample([values[k] for k in labels], 0, SCREEN)
     assert (s.x, s.y) == (500.0, 250.0)  # BPOG, not the fixation-filtered FPOG
-    assert s.left == EyeSample(400.0, 250.0, 3.3) and s.right is None  # RPOGV 0
+    assert s.left == EyeSample(400.0, 250.0, 3.3, 20.0) and s.right is None  # RPOGV 0
+    # LPD, the pupil in the camera's pixels, is kept beside LPMM as the tracker's own units
     values |= {"BPOGV": 0}
     s = layout.sample([values[k] for k in labels], 0, SCREEN)
     assert (s.valid, s.x) == (True, 400.0)  # the best POG invalid: the valid eye
@@ -149,6 +150,10 @@ def test_what_gazehdr_publishes_reads_back_as_it_was() -> None:
     layout = layout_of(info)
     sample = GazeSample(5, 10.5, 20.25, True, EyeSample(9.0, 20.0, 3.5), EyeSample(12.0, 20.5))
     assert layout.sample(outlet_values(sample), 5, SCREEN) == sample
+    imported = GazeSample(8, 1.0, 2.0, True, EyeSample(1.0, 2.0, None, 1204.0), EyeSample(1, 2))
+    assert layout.sample(outlet_values(imported), 8, SCREEN) == imported  # EyeLink's a.u. pupil
+    both = GazeSample(9, 1.0, 2.0, True, EyeSample(1.0, 2.0, 3.5, 1204.0))
+    assert layout.sample(outlet_values(both), 9, SCREEN) == both
     lost = GazeSample(6, NAN, NAN, False)
     assert layout.sample(outlet_values(lost), 6, SCREEN) == lost
     assert layout.sample(outlet_values(GazeSample(7, 1.0, 2.0)), 7, SCREEN) == GazeSample(7, 1, 2)

@@ -30,7 +30,9 @@ publish (their sources were read for this, not run):
 
 A sample's position is the `both` eye's channels where valid, else the mean of the valid eyes;
 invalid (NaN coordinates) when none is, or when the stream's confidence is below
-`min_confidence`. Normalised coordinates scale by the screen's size in pixels.
+`min_confidence`. Normalised coordinates scale by the screen's size in pixels. An eye's pupil
+in mm (unit `mm`, type `pupilsize`) and one in any other unit (the tracker's own: EyeLink's
+area, Pupil's or Gazepoint's camera pixels) are both kept, as `pupil_mm` and `pupil_au`.
 """
 
 from __future__ import annotations
@@ -271,8 +273,8 @@ def _by_label(label: str) -> _Role | None:
 
 
 def _role(channel: Mapping[str, str]) -> _Role | None:
-    """A channel's role: by its conventional type (and eye), else by its label; a pupil in mm
-    ranks first (a pupil's rank says whether it is in mm)."""
+    """A channel's role: by its conventional type (and eye), else by its label; a pupil not in
+    mm is the role `pupil_au` (the tracker's own units), kept beside one in mm."""
     label = channel.get("label", "")
     by_label = _by_label(label) if label else None
     kind = (channel.get("type") or channel.get("metatype") or "").lower()
@@ -286,21 +288,22 @@ def _role(channel: Mapping[str, str]) -> _Role | None:
     if base is None or base.role != "pupil":
         return base
     mm = channel.get("unit", "").lower() == "mm" or kind == "pupilsize" or base.rank == 0
-    return replace(base, rank=0 if mm else 1)
+    return base if mm else replace(base, role="pupil_au")
 
 
 @dataclass(frozen=True)
 class EyeChannels:
-    """Where one eye's gaze is in a sample: x and y (normalised or pixels, y up or down), and
-    the channels that say it has none (validity at least 0.5, a pupil of 0)."""
+    """Where one eye's gaze is in a sample: x and y (normalised or pixels, y up or down), its
+    pupil in mm and in the tracker's own units, and the channels that say it has none
+    (validity at least 0.5, a pupil of 0)."""
 
     x: int
     y: int
     normalized: bool = False
     y_up: bool = False
     validity: int | None = None
-    pupil: int | None = None
-    pupil_mm: bool = False
+    pupil_mm: int | None = None
+    pupil_au: int | None = None
     confidence: int | None = None
 
     def read(
@@ -314,18 +317,20 @@ class EyeChannels:
             return None
         if self.confidence is not None and not _at_least(values[self.confidence], min_confidence):
             return None
-        pupil = float(values[self.pupil]) if self.pupil is not None else None
-        if pupil == 0.0:  # no pupil: the eye is closed or not tracked
+        mm, au = (float(values[i]) if i is not None else math.nan for i in self.pupils)
+        if mm == 0.0 or au == 0.0:  # no pupil: the eye is closed or not tracked
             return None
         if self.normalized:
             w, h = geometry.screen_width_px, geometry.screen_height_px
             x, y = x * w, ((1.0 - y) if self.y_up else y) * h
         elif min(x, y) <= _MISSING_LOW or max(x, y) >= _MISSING_HIGH:
             return None
-        if pupil is None or not math.isfinite(pupil):
-            return EyeSample(x, y)
-        # in mm, or else in the tracker's own units (EyeLink's area, Pupil Core's pixels)
-        return EyeSample(x, y, pupil, None) if self.pupil_mm else EyeSample(x, y, None, pupil)
+        # in mm, and in the tracker's own units (EyeLink's area, Pupil Core's pixels)
+        return EyeSample(x, y, mm if math.isfinite(mm) else None, au if math.isfinite(au) else None)
+
+    @property
+    def pupils(self) -> tuple[int | None, int | None]:
+        return self.pupil_mm, self.pupil_au
 
 
 def _at_least(value: float, threshold: float) -> bool:
@@ -411,17 +416,16 @@ def channel_layout(stream: StreamDescription) -> ChannelLayout:
         if x is None or y is None:
             continue
         validity = best.get((eye, "validity"))
-        pupil = best.get((eye, "pupil"))
+        mm, au = best.get((eye, "pupil")), best.get((eye, "pupil_au"))
         confidence = best.get((eye, "confidence")) if eye != "both" else None
-        mm = pupil is not None and pupil[2].rank == 0
         eyes[eye] = EyeChannels(
             x[1],
             y[1],
             normalized=x[2].normalized,
             y_up=y[2].y_up,
             validity=validity[1] if validity and validity[2].group == x[2].group else None,
-            pupil=pupil[1] if pupil else None,
-            pupil_mm=mm,
+            pupil_mm=mm[1] if mm else None,
+            pupil_au=au[1] if au else None,
             confidence=confidence[1] if confidence else None,
         )
     if not eyes:
@@ -464,6 +468,9 @@ OUTLET_CHANNELS: tuple[dict[str, str], ...] = (
     _channel("right_x", "right", "ScreenX", "pixels"),
     _channel("right_y", "right", "ScreenY", "pixels"),
     _channel("right_pupil", "right", "Diameter", "mm"),
+    # the pupil in the tracker's own units (EyeLink's area or diameter), as a recording has it
+    _channel("left_pupil_size", "left", "Diameter", "a.u."),
+    _channel("right_pupil_size", "right", "Diameter", "a.u."),
 )
 
 
@@ -474,11 +481,16 @@ def _eye_values(eye: EyeSample | None) -> list[float]:
     return [eye.x, eye.y, pupil]
 
 
+def _au(eye: EyeSample | None) -> float:
+    return eye.pupil_au if eye is not None and eye.pupil_au is not None else math.nan
+
+
 def outlet_values(sample: GazeSample) -> list[float]:
     """A sample as the gaze outlet's values (`OUTLET_CHANNELS`); NaN where there is none."""
     if not sample.valid:
-        return [math.nan, math.nan, 0.0, *[math.nan] * 6]
-    return [sample.x, sample.y, 1.0, *_eye_values(sample.left), *_eye_values(sample.right)]
+        return [math.nan, math.nan, 0.0, *[math.nan] * 8]
+    left, right = sample.left, sample.right
+    return [sample.x, sample.y, 1.0, *_eye_values(left), *_eye_values(right), _au(left), _au(right)]
 
 
 def marker_text(record: Any) -> str:

@@ -2,10 +2,11 @@
 beside EEG.
 
 - the gaze stream (type `Gaze`, double64, `meta.OUTLET_CHANNELS`: ScreenX/ScreenY of the gaze and
-  of each eye in pixels, a Confidence of 1 or 0, each eye's pupil Diameter in mm; NaN where
-  there is none) with the XDF gaze meta-data in its description, plus `acquisition`
-  (manufacturer gazehdr, the tracker as model, the application) and gazehdr's `screen` (size in
-  pixels, diagonal and viewing distance), so that its samples read back in screen terms;
+  of each eye in pixels, a Confidence of 1 or 0, each eye's pupil Diameter in mm and in the
+  tracker's own units (`a.u.`); NaN where there is none) with the XDF gaze meta-data in its
+  description, plus `acquisition` (manufacturer gazehdr, the tracker as model, the
+  application) and gazehdr's `screen` (size in pixels, diagonal and viewing distance), so that
+  its samples read back in screen terms;
 - the marker stream (type `Markers`, one string channel, irregular rate), named after the gaze
   stream with " events": every other record as its session log JSON line (fixation and blink
   events; notes; for `serve`, scene, parameter and model changes), its description naming
