@@ -186,6 +186,14 @@ class ReplaySource:
         with SessionLogReader(self._path) as reader:
             return reader.header
 
+    def session_log(self) -> SessionLog:
+        """The whole recording as a session log: the import, or a native log read whole (a
+        replay reads it as it goes)."""
+        if self._log is not None:
+            return self._log
+        assert self._path is not None
+        return read_session_log(self._path)
+
     def fixation_places(self) -> dict[tuple[int, str | None], FixationPlace]:
         """Each recorded fixation's place, keyed by (id, eye) (see
         `gazehdr.drivers.sessionlog.fixation_places`); empty when no fixation event has a position.
@@ -360,11 +368,7 @@ def library_recording(spec: str, folder: Path) -> str:
             f"replay:{rest}: no such recording, neither a file or folder nor one of the "
             f"server's ({', '.join(known) or 'none'})"
         )
-    source = ReplaySource(path, **({"select": select} if select else {}))
-    log = source._log
-    if log is None:  # a native log: kept as it is
-        assert source._path is not None
-        log = read_session_log(source._path)
+    log = ReplaySource(path, **({"select": select} if select else {})).session_log()
     name = (
         "_".join(f"{k}-{v}" for k, v in select.items())
         if select
