@@ -1,5 +1,9 @@
 """The line-by-line reader behind `read_eyelink_asc`: one `AscParser` per file, fed every line,
-`finish()` giving the session log. The package docstring says what each line means."""
+`finish()` giving the session log. The package docstring says what each line means.
+
+A little past 600 lines on purpose: the parser is one state (the block's eyes and layout, the
+events still open, the screen so far) that every kind of line reads and changes, so its
+methods stay together; what needs no state, the messages' meanings, is in `messages.py`."""
 
 from __future__ import annotations
 
