@@ -13,7 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from gazehdr.figures.afterimage import (
+from gazehdr.figures.common import Context, hue_angle, native_geometry
+from gazehdr.figures.look_away import (
     FIELD_GAZE,
     afterimage_ratio,
     mean_over,
@@ -21,7 +22,6 @@ from gazehdr.figures.afterimage import (
     squares_run,
     surround_rects,
 )
-from gazehdr.figures.common import Context, hue_angle, native_geometry
 from gazehdr.sim import Params, Simulator
 from gazehdr.sim.baselines.ritschel import (
     hue_forward,

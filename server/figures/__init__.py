@@ -1,9 +1,10 @@
 """`gazehdr figures`: the paper's Figures 4-12 made again with the real simulator.
 
-Each figure is one small function (in `afterimage` and `mesopic`) that runs `Simulator`s and
-writes PNGs; `FIGURES` lists them with the paper's caption, what to look for, and what we know
-matches or differs. `make_figures` runs a selection and writes `index.html` (each figure beside
-its caption) and `figures.json` (the numbers each figure measured, which the tests check).
+Each figure is one small function (in `afterimage`, `look_away` and `mesopic`) that runs
+`Simulator`s and writes PNGs; `FIGURES` lists them with the paper's caption, what to look for,
+and what we know matches or differs. `make_figures` runs a selection and writes `index.html`
+(each figure beside its caption) and `figures.json` (the numbers each figure measured, which
+the tests check).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gazehdr.drivers.errors import InputError
-from gazehdr.figures import afterimage, colour, mesopic
+from gazehdr.figures import afterimage, colour, look_away, mesopic
 from gazehdr.figures.common import Context, ModelUnavailableError, Result
 
 __all__ = ["FIGURES", "Context", "Figure", "Summary", "make_figures", "select"]
@@ -160,7 +161,7 @@ FIGURES: tuple[Figure, ...] = (
         "bright situation is weak (c = C/C_max is low where the bulb was), and the local "
         "adaptation gain turns the spot darker than the page. The paper's scene is a Fairchild "
         "photograph; ours is the procedural lamp.",
-        afterimage.fig8,
+        look_away.fig8,
     ),
     Figure(
         "9",

@@ -13,7 +13,7 @@ import colorsys
 
 import numpy as np
 
-from gazehdr.figures import afterimage
+from gazehdr.figures import look_away
 from gazehdr.figures.common import (
     HUE_NAMES,
     LUMA,
@@ -38,26 +38,26 @@ EXAGGERATE = 5  # the third row: the afterimage's change from the grey, this man
 def inducer(hue_deg: float) -> np.ndarray:
     """The saturated colour of `hue_deg` (HSV s = v = 1) at the grey field's luminance, cd/m^2."""
     rgb = np.array(colorsys.hsv_to_rgb(hue_deg / 360, 1.0, 1.0))
-    return rgb * afterimage.GREY_FIELD / float(rgb @ LUMA)
+    return rgb * look_away.GREY_FIELD / float(rgb @ LUMA)
 
 
 def _hue_circle(ctx: Context, res: Result) -> dict[str, list[float]]:
     """One look-away run per hue with the jacobs model; the panels show one square."""
     w, h = ctx.width, ctx.height
-    where = afterimage.square_rects(w, h, afterimage.FIELD_GAZE)
-    around = afterimage.surround_rects(w, h, afterimage.FIELD_GAZE)
-    x0, y0, x1, y1 = afterimage.square_rects(w, h, afterimage.SQUARES_GAZE)[0]
+    where = look_away.square_rects(w, h, look_away.FIELD_GAZE)
+    around = look_away.surround_rects(w, h, look_away.FIELD_GAZE)
+    x0, y0, x1, y1 = look_away.square_rects(w, h, look_away.SQUARES_GAZE)[0]
     size = (1.6 * (x1 - x0), 1.6 * (y1 - y0))
-    offset = (afterimage.FIELD_GAZE[0] - afterimage.SQUARES_GAZE[0], 0.0)
+    offset = (look_away.FIELD_GAZE[0] - look_away.SQUARES_GAZE[0], 0.0)
     seen, after = ((x0 + x1) / 2, (y0 + y1) / 2), ((x0 + x1) / 2 + offset[0], (y0 + y1) / 2)
     scale = max(1, round(64 / (size[0] * w)))
     hues = [360 * k / HUE_STEPS for k in range(HUE_STEPS)]
     panels: list[list[np.ndarray]] = [[], [], []]
     measured = []
     for hue in hues:
-        run = afterimage.squares_run(ctx, "jacobs", inducer(hue))
-        grey = afterimage.mean_over(run.after, around, 1.0)
-        measured.append(hue_angle(afterimage.mean_over(run.after, where, 0.5) / grey))
+        run = look_away.squares_run(ctx, "jacobs", inducer(hue))
+        grey = look_away.mean_over(run.after, around, 1.0)
+        measured.append(hue_angle(look_away.mean_over(run.after, where, 0.5) / grey))
         change = grey + EXAGGERATE * (linear(run.after, _PARAMS) - grey)
         shown = (run.fixating, run.after, display(change, _PARAMS))
         for row, v, centre in zip(panels, shown, (seen, after, after), strict=True):
@@ -78,8 +78,8 @@ def _hue_circle(ctx: Context, res: Result) -> dict[str, list[float]]:
 
 
 def fig9(ctx: Context) -> Result:
-    """Fig. 9 (afterimage.fig9) and the hue circle."""
-    res = afterimage.fig9(ctx)
+    """Fig. 9 (look_away.fig9) and the hue circle."""
+    res = look_away.fig9(ctx)
     circle = _hue_circle(ctx, res)
     res.measures["hue_circle"] = circle
     errors = np.array(circle["error_deg"])
