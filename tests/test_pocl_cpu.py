@@ -167,3 +167,38 @@ def test_pocl_workers_are_pinned_one_to_a_core_unless_told(
     allowed, workers, kept_in = done.stdout.strip().split("|")
     assert workers == (allowed if pinned else "[]")
     assert kept_in == "True", "a thread runs on a core the process was kept off"
+
+
+SIZES = textwrap.dedent(
+    """
+    from gazehdr.sim import Simulator
+    for w, h in ((64, 36), (88, 52), (120, 68)):
+        Simulator(w, h, backend="opencl", seed=0).step(1 / 60)
+    """
+)
+
+
+@pytest.mark.parametrize(("setting", "once"), [(None, True), ("1", False)])
+def test_each_kernel_is_built_once_whatever_the_frame_size(
+    tmp_path: Path, setting: str | None, once: bool
+) -> None:
+    """Three frame sizes in a fresh process with an empty kernel cache: PoCL keeps one build of
+    each kernel (pocl_cpu.one_build_per_kernel), where, specialising for the work-group size
+    as it does by default (the user's POCL_WORK_GROUP_SPECIALIZATION=1), it builds kernels
+    again for the local sizes each new size makes it pick. Guards: a resized viewer waiting
+    seconds for builds (0.4-2.9 s a new size, measured)."""
+    env = {k: v for k, v in os.environ.items() if k != "POCL_WORK_GROUP_SPECIALIZATION"}
+    if setting is not None:
+        env["POCL_WORK_GROUP_SPECIALIZATION"] = setting
+    env["GAZEHDR_CL_DEVICE"] = "pthr"
+    env["POCL_CACHE_DIR"] = str(tmp_path)
+    done = subprocess.run(
+        [sys.executable, "-c", SIZES], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    # PoCL's cache: PROGRAM_HASH/KERNEL/WORK_GROUP_VARIANT/KERNEL.so
+    builds: dict[str, int] = {}
+    for so in tmp_path.glob("*/*/*/*/*.so"):
+        builds[so.parent.parent.name] = builds.get(so.parent.parent.name, 0) + 1
+    assert "compose" in builds, sorted(builds)
+    assert (max(builds.values()) == 1) == once, builds

@@ -16,13 +16,19 @@ import numpy as np
 import pyopencl as cl
 
 from gazehdr.sim.kernel_params import params_struct
-from gazehdr.sim.pocl_cpu import builds_for_avx512, name_cpu_for_pocl, pin_pocl_workers
+from gazehdr.sim.pocl_cpu import (
+    builds_for_avx512,
+    name_cpu_for_pocl,
+    one_build_per_kernel,
+    pin_pocl_workers,
+)
 
 
 def pick_device() -> cl.Device:
     """GAZEHDR_CL_DEVICE if set, else the first GPU, else the first device of any kind."""
     name_cpu_for_pocl()  # before PoCL sets up its devices
     pin_pocl_workers()
+    one_build_per_kernel()
     devices = [d for platform in cl.get_platforms() for d in platform.get_devices()]
     if not devices:
         raise RuntimeError("no OpenCL device found; install pyopencl[pocl] for the CPU")

@@ -1,5 +1,6 @@
 """PoCL on the CPU: its CPU named where its LLVM cannot, so that kernels build on new CPUs
-(and use the AVX-512 they have), and its worker threads pinned (`pin_pocl_workers`).
+(and use the AVX-512 they have), its worker threads pinned (`pin_pocl_workers`), and each
+kernel built once for every work-group size (`one_build_per_kernel`).
 
 pyopencl's wheels bundle PoCL 3.0 built on LLVM 14, which cannot name CPUs newer than itself
 (AMD family 1Ah, Zen 5, among them): `llvm::sys::getHostCPUName()` answers "generic", PoCL passes
@@ -132,6 +133,18 @@ def pin_pocl_workers() -> None:
     if hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) < (os.cpu_count() or 1):
         return
     os.environ["POCL_AFFINITY"] = "1"
+
+
+def one_build_per_kernel() -> None:
+    """Before PoCL sets up its devices: kernels built once for any work-group size
+    (POCL_WORK_GROUP_SPECIALIZATION=0), unless the variable is set already. PoCL otherwise
+    builds every kernel again for each local size it picks, and it picks them from the global
+    size: each new frame size (a viewer's window resized, a split view, a test's frame) cost
+    0.4-2.9 s of builds before its first frame, and the test suite built 711 kernels where 16
+    do. The live step is the same either way (gazehdr bench, in turn: docs/performance.md);
+    the kernels make VEC pixels a work-item themselves, which is what specialising for the
+    local size would vectorise."""
+    os.environ.setdefault("POCL_WORK_GROUP_SPECIALIZATION", "0")
 
 
 def name_cpu_for_pocl() -> str | None:
