@@ -140,10 +140,10 @@ def one_build_per_kernel() -> None:
     (POCL_WORK_GROUP_SPECIALIZATION=0), unless the variable is set already. PoCL otherwise
     builds every kernel again for each local size it picks, and it picks them from the global
     size: each new frame size (a viewer's window resized, a split view, a test's frame) cost
-    0.4-2.9 s of builds before its first frame, and the test suite built 711 kernels where 16
-    do. The live step is the same either way (gazehdr bench, in turn: docs/performance.md);
-    the kernels make VEC pixels a work-item themselves, which is what specialising for the
-    local size would vectorise."""
+    0.4-2.9 s of builds before its first frame, and the test suite built 711 kernels where 99
+    (one each) do. The live step is the same either way (gazehdr bench, in turn:
+    docs/performance.md); the kernels make VEC pixels a work-item themselves, which is what
+    specialising for the local size would vectorise."""
     os.environ.setdefault("POCL_WORK_GROUP_SPECIALIZATION", "0")
 
 
