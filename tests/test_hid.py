@@ -740,8 +740,9 @@ def test_daemon_records_every_sample_across_an_unplug(live_server, tmp_path, mon
 
 
 #: `gazehdr daemon --source hid` in a process of its own, hidapi replaced by the fake bus with a
-#: tracker that is plugged in at the fourth look (the first three: an attempt, the look while
-#: the source waits 0.25 s, the next attempt) and then sends `timed_stream(N)`.
+#: tracker that is plugged in once the bus has been enumerated three times (an attempt to open
+#: it, the check while the source waits 0.25 s, a second attempt) and then sends
+#: `timed_stream(N)`.
 LATE_TRACKER_DAEMON = """
 import sys
 
@@ -756,11 +757,11 @@ tracker.idle_read_s = 0.01
 
 
 class LateBus(hid_device.FakeBus):
-    looks = 0
+    enumerations = 0
 
     def enumerate(self):
-        self.looks += 1
-        if self.looks == 4:
+        self.enumerations += 1
+        if self.enumerations == 4:  # three enumerations without it
             tracker.plugged = True
             hid_device.timed_stream(int(sys.argv[2])).queue(tracker)
         return super().enumerate()
