@@ -55,6 +55,10 @@ the daemon finishes, and are not taken after (a source thread's last records may
   whose monotonic clock is another); it is reported in `stats` and, for a live source, written
   to the session log as `clock` records, at most one a second;
 - the server's rate-limit notes ("rate limit: N samples dropped") are added up in `stats`.
+
+Past 600 lines because `Delivery` is one state machine: every input reads and changes the same
+buffer, in-flight window, bucket and counts, so its methods stay together; the clock estimate,
+the counts and the wire conversion beside it are the small pure parts it uses.
 """
 
 from __future__ import annotations

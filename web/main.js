@@ -1,5 +1,8 @@
 // Wiring: the /ws/view connection (with reconnect), input (pointer = gaze, keys), and the draw
 // loop. The server does the simulation; this page displays, dithers and reports.
+// Past 600 lines because the connection, the inputs and the draw loop share the page's state
+// (the session, the last frame, the gaze); what stands alone is in protocol.js, renderer.js,
+// video.js, hud.js, inspect.js and panel.js.
 
 import { ENCODING, binaryKind, decodeFrame, messages, parseText } from './protocol.js';
 import { Renderer } from './renderer.js';
