@@ -168,14 +168,8 @@ def _number(path: Path, line: int, text: str, column: str) -> float | None:
 
 
 def _float(path: Path, line: int, row: dict[str, str], column: str) -> float | None:
-    text = row[column]
-    if text == NA or text == "":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise FormatError(path, line, column, f"expected a number or n/a, got {text!r}") from None
-    return value if math.isfinite(value) else None
+    """`_number` of a named column of a row of `_rows`."""
+    return _number(path, line, row[column], column)
 
 
 class _Recording:
