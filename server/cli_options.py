@@ -75,13 +75,7 @@ def configure_render(p: argparse.ArgumentParser) -> None:
         help="where a recorded session's uploaded scenes are (default: $GAZEHDR_DATA_DIR or "
         "~/.local/share/gazehdr)",
     )
-    p.add_argument(
-        "--scale",
-        type=float,
-        metavar="CD_PER_UNIT",
-        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an "
-        "estimate; docs/server.md)",
-    )
+    add_scale_option(p)
     p.add_argument("--exr", action="store_true", help="also write undithered float32 EXR")
     p.add_argument(
         "--video",
@@ -106,6 +100,17 @@ def configure_render(p: argparse.ArgumentParser) -> None:
         "--scheduler",
         metavar="ADDRESS",
         help="an existing Dask cluster's scheduler, tcp://HOST:PORT",
+    )
+
+
+def add_scale_option(p: argparse.ArgumentParser) -> None:
+    """--scale, the luminance of a scene file's unit (render and serve)."""
+    p.add_argument(
+        "--scale",
+        type=float,
+        metavar="CD_PER_UNIT",
+        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an estimate; "
+        "docs/server.md)",
     )
 
 
@@ -162,13 +167,7 @@ def configure_serve(p: argparse.ArgumentParser) -> None:
         "the step is simulated (offline renders of recordings then match the live frames)",
     )
     add_preset_options(p, "'paper'")
-    p.add_argument(
-        "--scale",
-        type=float,
-        metavar="CD_PER_UNIT",
-        help="cd/m^2 per unit of the scene file (default: its whiteLuminance, else an estimate; "
-        "docs/server.md)",
-    )
+    add_scale_option(p)
     p.add_argument("--layer", metavar="NAME", help="the EXR layer to show (default: the first)")
     p.add_argument(
         "--token",
