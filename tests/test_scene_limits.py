@@ -302,6 +302,22 @@ def test_a_level_is_the_image_area_averaged_and_a_small_image_is_kept_as_it_is()
     assert level_size(160, 96, frames) is None and level_size(100, 60, frames) is None
 
 
+def test_a_level_keeps_darkness_and_1e8_cd_m2_beside_each_other() -> None:
+    """The level of a scene half at 1e8 cd/m² and half at 1e-3, with a black block: the bright
+    half stays 1e8, the dark half within 1 % of 1e-3 (the running sums are float64, in bands,
+    so the bright half's sum does not swamp the dark), black stays 0, nothing is negative or
+    not finite. Guards: float32 running sums (the dark half off by far more than 1 %)."""
+    rgb = np.full((600, 4000, 3), 1e-3, np.float32)
+    rgb[:, :2000] = 1e8
+    rgb[100:300, 3000:3400] = 0.0
+    out = reduce(rgb, (1000, 150))
+    assert np.isfinite(out).all() and out.min() >= 0.0
+    np.testing.assert_allclose(out[:, :499], 1e8, rtol=1e-6)
+    dark = out[:, 510:]
+    np.testing.assert_allclose(dark[(dark > 0)], 1e-3, rtol=1e-2)
+    assert (out[30:70, 755:845] == 0.0).all()  # inside the black block's image
+
+
 def test_an_upload_is_opened_at_its_level_and_described_without_decoding(tmp_path) -> None:
     """A library for 160×96 frames opens a 1200×800 upload at its level, 152×102 (its
     description, scale and estimate those of the file), shares it between sessions, and
