@@ -317,7 +317,9 @@ class EyeChannels:
             return None
         if self.confidence is not None and not _at_least(values[self.confidence], min_confidence):
             return None
-        mm, au = (float(values[i]) if i is not None else math.nan for i in self.pupils)
+        mm, au = (
+            float(values[i]) if i is not None else math.nan for i in (self.pupil_mm, self.pupil_au)
+        )
         if mm == 0.0 or au == 0.0:  # no pupil: the eye is closed or not tracked
             return None
         if self.normalized:
@@ -327,10 +329,6 @@ class EyeChannels:
             return None
         # in mm, and in the tracker's own units (EyeLink's area, Pupil Core's pixels)
         return EyeSample(x, y, mm if math.isfinite(mm) else None, au if math.isfinite(au) else None)
-
-    @property
-    def pupils(self) -> tuple[int | None, int | None]:
-        return self.pupil_mm, self.pupil_au
 
 
 def _at_least(value: float, threshold: float) -> bool:
