@@ -40,6 +40,10 @@ MAX_PENDING_CONTROLS = 256  # per session between two frames; more is a flood
 WINDOW = 2  # frames in flight to a viewer that acks: one being drawn, one on the way
 MAX_IDLE_S = 0.5  # a session steps at least this often, even when no viewer takes frames
 DEMAND_POLL_S = 0.002
+#: Ours: how far a new gaze pulls the next step forward, in intervals (`step_start`). Half: a
+#: gaze that just missed a step's late read waits for that step's compose, then at most half
+#: an interval; pulled further, two steps could start back to back on a fast machine.
+GAZE_PULL = 0.5
 MAX_VIEWERS = 16  # per session (`SessionHub.max_viewers`): each costs a sending task and frames
 
 
@@ -198,6 +202,17 @@ def next_due(due: float, interval: float, now: float) -> float:
     return max(due + interval, now - interval)
 
 
+def step_start(due: float, interval: float, gaze_at: float | None) -> float:
+    """When the step due at `due` starts: then, or, for a gaze that came since the last step
+    read one (`gaze_at`), at once, but never more than GAZE_PULL intervals early. A gaze then
+    waits for the step in progress and the next, never for the cadence (720p at 60 fps: it
+    waited for a step due up to a whole interval later), while the cadence, and so the rate,
+    stays the setting's: the step after one pulled forward is due when it would have been."""
+    if gaze_at is None:
+        return due
+    return max(min(gaze_at, due), due - GAZE_PULL * interval)
+
+
 def gaze_note(reading: GazeReading) -> dict[str, Any]:
     """A tracker's gaze as forwarded to a viewer that warps (docs/protocol.md `gaze`): frame
     fractions, and `t`, when it reached the server (monotonic s: only differences count)."""
@@ -230,6 +245,8 @@ class LiveSession:
         self.scene_map: bytes | None = None
         # A step may still be writing on its thread when the session ends and the log closes.
         self._log_lock = threading.Lock()
+        #: Set on the event loop by each new pointer or tracker gaze (the loop's wait, `_run`).
+        self._gaze_came = asyncio.Event()
 
     def _tick(
         self,
@@ -295,6 +312,7 @@ class LiveSession:
         session's pointer, never waiting behind other controls (each step reads the newest)."""
         now = time.monotonic()
         if self.session.pointer.take(control, now):
+            self._gaze_came.set()
             return
         if len(self.controls) >= MAX_PENDING_CONTROLS:
             raise ProtocolError("too many messages; slow down", control.__class__.__name__)
@@ -322,8 +340,10 @@ class LiveSession:
         return self.session.trackers.feed(source.removeprefix(REMOTE_PREFIX))
 
     def forward_gaze(self, feed: TrackerFeed) -> None:
-        """`feed` has a new reading: to the viewers that warp, if the session follows it (they
-        place the afterimages at it until the next frame, docs/protocol.md `gaze`)."""
+        """`feed` has a new reading: it may start the next step early (`step_start`), and goes
+        to the viewers that warp, if the session follows it (they place the afterimages at it
+        until the next frame, docs/protocol.md `gaze`)."""
+        self._gaze_came.set()
         warping = [v for v in self.viewers if v.warp]
         if not warping or self.session.gaze_source != REMOTE_PREFIX + feed.name:
             return
@@ -394,12 +414,20 @@ class LiveSession:
                 # A viewer out of credit gets the next frame made once it acks, not this one.
                 taken = frame if viewer.has_credit() else None
                 m.frames_dropped.inc(viewer.mailbox.put(taken, notes) + (taken is None))
-            # Sleep until the next step is due, if it is not yet: the sockets are served while
-            # the next step runs.
-            now = time.monotonic()
-            due = next_due(due, interval, now)
-            if due > now:
-                await asyncio.sleep(due - now)
+            # Sleep until the next step is due, or sooner for a new gaze (`step_start`): the
+            # sockets are served while the next step runs.
+            due = next_due(due, interval, time.monotonic())
+            await self._until_start(due, interval)
+
+    async def _until_start(self, due: float, interval: float) -> None:
+        """Sleep until the step due at `due` starts (`step_start`), woken by each new gaze."""
+        while (wait := step_start(due, interval, self.session.newer_gaze_at())) > (
+            now := time.monotonic()
+        ):
+            self._gaze_came.clear()
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(wait - now):
+                    await self._gaze_came.wait()
 
 
 class SessionHub:

@@ -268,6 +268,16 @@ class Session:
         """The gaze the last step followed, as fractions of the frame."""
         return (self.reading.x, self.reading.y)
 
+    def newer_gaze_at(self) -> float | None:
+        """When the gaze source received a reading the last step did not follow (a pointer or
+        tracker that moved since), else None; a track has no such readings. Read between
+        steps: the live loop starts the next step early for it (`live.step_start`)."""
+        if not isinstance(self._input, LatestGaze):
+            return None
+        came = self._input.reading.received_at
+        read = self.reading.received_at
+        return came if came is not None and (read is None or came > read) else None
+
     # --- what the viewers are told ------------------------------------------------------------
 
     def state(self) -> dict[str, Any]:
