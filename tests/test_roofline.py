@@ -56,9 +56,9 @@ def test_bytes_are_the_buffers_each_stage_reads_and_writes() -> None:
     kept = float(np.mean(d == 0))
     assert 0 < kept < 1, "the lamp scene should drop bands at some pixels, not all"
     expect = buf["rho_full"].size + b._noise_buf.size + 2 * buf["d"].size + b.P.size
-    expect += buf["scene"].size + buf["G"].size  # one float per channel and pixel either way
+    expect += 2 * buf["G"].size  # one level read (the scene's or a blurred one), G written
     assert costs["acuity"].bytes == pytest.approx(expect)
-    assert buf["scene"].size == buf["G"].size == 3 * 4 * full and buf["d"].size == full
+    assert buf["G"].size == 3 * 2 * full and buf["d"].size == full  # 16 bits a channel
     # compose: G, rho at every pixel, the maps of the cells the screen shows, A, the fovea
     # factors, and the frame it writes
     cells = roofline._cells(b._screen_window(gaze))

@@ -139,12 +139,13 @@ def _io(name: str, a: tuple, gsize: tuple, lay, params, d_map) -> tuple[list, fl
             _bank_flops(a, lay, params, d_map),
             0,
         )
-    if name == "acuity_pick":  # scene, stack, stride, d, G, W, H
+    if name == "acuity_pick":  # stack, stride, d, G, W, H
         px = lay.width * lay.height
-        kept = 0.0 if d_map is None else float(np.mean(d_map == 0))  # these read the scene
-        level = 12 * px / _size(a[1])  # one level's share of the stack
-        acc = [(0, "r", kept), (1, "r", (1 - kept) * level), (3, "r", 1), (4, "w", 1)]
-        return acc, px * 3, 0
+        level = 2 * 3 * px / _size(a[0])  # each pixel reads one level (the scene's is one)
+        return [(0, "r", level), (2, "r", 1), (3, "w", 1)], px * 3, 0
+    if name == "lum16_encode":  # src, dst, n
+        n = int(a[2])
+        return [(0, "r", 4 * n / _size(a[0])), (1, "w", 2 * n / _size(a[1]))], n * 4, 0
     if name in ("compose", "compose_half", "compose_rgb10"):
         # P, G, rho_full, maps, A, W, H, cell, grid_w, grid_h, gx, gy, eyes, fovea, out
         cells = _cells(_screen_window(lay, (float(a[10]), float(a[11]))))

@@ -99,9 +99,10 @@ class OpenCLStageBackend(StageBackend, Protocol):
     ctx: cl.Context  # to make a stage's own buffers
     queue: cl.CommandQueue  # every kernel and copy of a frame, in order
     P: cl.Buffer  # the parameter block params_t (kernel_params.py), the kernels' first argument
-    #: Device maps by name, planar float32, shaped as `ReferenceStageBackend.a`, plus the scratch
-    #: plane set "grid_a" (STATE_PLANES planes of the retina grid). A stage that writes "maps"
-    #: writes all of the grid (the backend completes only maps its own `retina` left partial).
+    #: Device maps by name, planar float32 (G: 16-bit codes, lum16.py, written by `store_G`),
+    #: shaped as `ReferenceStageBackend.a`, plus the scratch plane set "grid_a" (STATE_PLANES
+    #: planes of the retina grid). A stage that writes "maps" writes all of the grid (the
+    #: backend completes only maps its own `retina` left partial).
     buf: dict[str, cl.Buffer]
     vec: int  # pixels per work-item of the per-pixel kernels (VEC in common.cl, 8 or 16)
 
@@ -123,6 +124,10 @@ class OpenCLStageBackend(StageBackend, Protocol):
     def rho_full(self) -> cl.Buffer:
         """rho (Eq. 13, unclamped) at every screen pixel, bilinear from the low-res map; remade
         after a scene change."""
+        ...
+
+    def store_G(self, src: cl.Buffer) -> None:
+        """G (an acuity stage's output) from three float planes of the screen."""
         ...
 
     def rows_v(self) -> tuple[int, int]:

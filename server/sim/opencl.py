@@ -11,7 +11,8 @@ Written for speed on PoCL (see kernels/common.cl):
   (GPUs, or GAZEHDR_CL_ACUITY=levels, use the level-by-level bank instead);
 - the afterimage maps are made only where the screen shows them, the rest of the grid on demand
   (get("maps"), or a compose at another gaze);
-- rho at every pixel is kept from the last scene load.
+- rho at every pixel is kept from the last scene load;
+- G, and the acuity levels it is picked from, are 16 bits a channel (lum16.py): half the bytes.
 
 The parts that stand alone live apart: the context, the programs' build and the kernels'
 launch (cl_program.py), the parameter block (kernel_params.py), the acuity levels
@@ -27,6 +28,7 @@ import numpy as np
 import pyopencl as cl
 
 from gazehdr.drivers.errors import InputError
+from gazehdr.sim import lum16
 from gazehdr.sim.cl_program import Launch, build_program, shared_context, vector_width
 from gazehdr.sim.kernel_params import pack_params
 from gazehdr.sim.layout import (
@@ -119,7 +121,7 @@ class OpenCLBackend:
         self._bank = self._acuity_bank_setup()
         sizes = {
             "scene": 3 * full, "down": 5 * low, "rho": low, "A": 1,
-            "state": STATE_PLANES * grid, "maps": 6 * grid, "G": 3 * full, "v": 3 * full,
+            "state": STATE_PLANES * grid, "maps": 6 * grid, "v": 3 * full,
             "d_max": 1, "rho_full": full, "grid_a": STATE_PLANES * grid, "low_yp": low,
             "low_blur": low, "low_tmp": low, "fovea": lay.width + lay.height,
             "surround": 3 * low, "fill": 3 * low, "fill_tmp": 3 * low,
@@ -130,6 +132,7 @@ class OpenCLBackend:
         mf = cl.mem_flags
         self.buf = {n: cl.Buffer(self.ctx, mf.READ_WRITE, 4 * s) for n, s in sizes.items()}
         self.buf["d"] = cl.Buffer(self.ctx, mf.READ_WRITE, full)
+        self.buf["G"] = cl.Buffer(self.ctx, mf.READ_WRITE, 2 * 3 * full)  # lum16 codes
         self.buf["v16"] = cl.Buffer(self.ctx, mf.READ_WRITE, 2 * 3 * full)
         self.buf["v10"] = cl.Buffer(self.ctx, mf.READ_WRITE, 4 * full)
         for buf in self.buf.values():  # never read uninitialised memory (NaN patterns)
@@ -161,16 +164,18 @@ class OpenCLBackend:
         self.shapes["state"] = (n, self.lay.grid_h, self.lay.grid_w)
 
     def get(self, name: str) -> np.ndarray:
+        """A map as float32 (G decoded from its 16 bits), `d` as uint8."""
         if name == "maps":
             self._full_maps()
-        dtype = np.uint8 if name == "d" else np.float32
-        out = np.empty(self.shapes[name], dtype)
+        out = np.empty(self.shapes[name], self._dtype(name))
         cl.enqueue_copy(self.queue, out, self.buf[name])
-        return out
+        return lum16.decode(out) if name == "G" else out
 
     def put(self, name: str, value: np.ndarray) -> None:
-        dtype = np.uint8 if name == "d" else np.float32
-        arr = np.ascontiguousarray(np.asarray(value, dtype).reshape(self.shapes[name]))
+        arr = np.asarray(value, np.float32 if name == "G" else self._dtype(name))
+        if name == "G":
+            arr = lum16.encode(arr)
+        arr = np.ascontiguousarray(arr.reshape(self.shapes[name]))
         cl.enqueue_copy(self.queue, self.buf[name], arr)
         if name == "rho":
             self._rho_full_stale = True
@@ -178,6 +183,11 @@ class OpenCLBackend:
             self._stack.scene_changed()
         if name == "maps":
             self._maps_made = None
+
+    @staticmethod
+    def _dtype(name: str) -> type:
+        """How a map is kept on the device."""
+        return {"d": np.uint8, "G": np.uint16}.get(name, np.float32)
 
     @property
     def A(self) -> float:
@@ -216,6 +226,16 @@ class OpenCLBackend:
         self.k["blur_h"](self.queue, size, None, src, tmp, tbuf, *dims)
         extra = (self.buf["d"], self.buf["G"], np.int32(level))
         self.k["blur_v"](self.queue, size, None, tmp, dst, tbuf, *dims, *extra)
+
+    def store_G(self, src: cl.Buffer) -> None:
+        """G from three float planes of the screen (`src`: the scene, or a baseline's blur),
+        in its 16 bits (kernel lum16_encode)."""
+        self.encode_lum16(src, self.buf["G"], 3 * self.lay.width * self.lay.height)
+
+    def encode_lum16(self, src: cl.Buffer, dst: cl.Buffer, n: int) -> None:
+        """`n` floats of `src` as lum16 codes into `dst` (G, a level of the acuity stack)."""
+        size = (_round_up(-(-n // self.vec), ROW_GROUP),)
+        self.k["lum16_encode"](self.queue, size, None, src, dst, np.int32(n))
 
     def rows_v(self) -> tuple[int, int]:
         """Global size of the kernels that make VEC neighbouring pixels of a row per work-item."""
@@ -453,8 +473,8 @@ class OpenCLBackend:
         )  # fmt: skip
         if stack is not None:
             self.k["acuity_pick"](
-                self.queue, self.rows_v(), None, b["scene"], stack, np.int32(self._stack.stride),
-                b["d"], b["G"], np.int32(lay.width), np.int32(lay.height),
+                self.queue, self.rows_v(), None, stack, np.int32(self._stack.stride), b["d"],
+                b["G"], np.int32(lay.width), np.int32(lay.height),
             )  # fmt: skip
             return
         if self._bank is not None:
@@ -467,7 +487,7 @@ class OpenCLBackend:
             return
         # Level by level over the whole frame (GPUs): G starts as the scene (d = 0), each level
         # fills its pixels; levels no pixel needs are skipped, so a photopic frame costs no blur.
-        cl.enqueue_copy(self.queue, b["G"], b["scene"])
+        self.store_G(b["scene"])
         d_max = np.empty(1, np.int32)
         cl.enqueue_copy(self.queue, d_max, b["d_max"])
         src, dst = b["scene"], b["lvl_a"]

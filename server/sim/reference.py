@@ -371,7 +371,8 @@ def foveal_blind_spot(G, rho, fill, gaze, lay: Layout, p: Params) -> np.ndarray:
     r2 = (X - gaze[0]) ** 2 + (Y - gaze[1]) ** 2
     w = blind_spot_strength(p) * np.exp(-r2 / (2 * s * s)) * (1 - rc)
     rgb = np.tensordot(LMS_TO_RGB, bilinear(fill, X / lay.cell, Y / lay.cell), axes=1)
-    return G + w * (rgb - G)
+    # A radiance: LMS to RGB of a blurred saturated colour can dip below 0, which G cannot.
+    return G + w * (np.maximum(rgb, 0.0) - G)
 
 
 def compose_base(G, rho, A, eyes: float, lay: Layout, p: Params) -> np.ndarray:

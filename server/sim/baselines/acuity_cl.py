@@ -51,7 +51,7 @@ class NoAcuityOpenCL:
 
     def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
-        cl.enqueue_copy(b.queue, b.buf["G"], b.buf["scene"])
+        b.store_G(b.buf["scene"])
 
     # --- shared by the blurring stages ---------------------------------------------------------
 
@@ -80,14 +80,15 @@ class GaussianAcuityOpenCL(NoAcuityOpenCL):
 
     def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
-        self._setup((3,))
+        self._setup((3, 3))  # blur scratch, blurred
         self.taps = _Taps(backend, self.sigma_max_px)
 
     def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b = self.backend
         w, h = self._size()
-        b.blur(b.buf["scene"], b.buf["G"], self.scratch[0], self.taps.at(self._gaze_sigma(gaze)),
-               w, h, 3)  # fmt: skip
+        tmp, blurred = self.scratch
+        b.blur(b.buf["scene"], blurred, tmp, self.taps.at(self._gaze_sigma(gaze)), w, h, 3)
+        b.store_G(blurred)
 
 
 class BilateralAcuityOpenCL(NoAcuityOpenCL):
@@ -95,11 +96,11 @@ class BilateralAcuityOpenCL(NoAcuityOpenCL):
 
     def __init__(self, backend: OpenCLStageBackend, seed: int) -> None:
         super().__init__(backend, seed)
-        self._setup((3, 1, 1))  # half-filtered image, guide, sigma
+        self._setup((3, 1, 1, 3))  # half-filtered image, guide, sigma, filtered image
 
     def acuity(self, noise: NoiseFrame, gaze: Gaze, t: float) -> None:
         b, p = self.backend, self.backend.p
-        half, guide, sigma = self.scratch
+        half, guide, sigma, filtered = self.scratch
         rho_full = b.rho_full()
         k, s_disp2, s_max = sigma_constants(p)
         self.k["bilateral_prep"](
@@ -110,11 +111,12 @@ class BilateralAcuityOpenCL(NoAcuityOpenCL):
         rho_min = float(b.get("rho").min())
         radius = bilateral_radius(float(blur_sigma_px(log10_L_of_rho(rho_min, p), b.lay, p)))
         inv_r = np.float32(0.5 / p.bilateral_sigma_r**2)
-        for src, dst, dx, dy in ((b.buf["scene"], half, 1, 0), (half, b.buf["G"], 0, 1)):
+        for src, dst, dx, dy in ((b.buf["scene"], half, 1, 0), (half, filtered, 0, 1)):
             self.k["bilateral_pass"](
                 b.queue, b.rows_v(), None, src, dst, guide, sigma, *self._dims(),
                 np.int32(radius), np.int32(dx), np.int32(dy), inv_r, np.float32(VAR_FLOOR_PX2),
             )  # fmt: skip
+        b.store_G(filtered)
 
 
 class ThompsonAcuityOpenCL(NoAcuityOpenCL):
@@ -136,7 +138,8 @@ class ThompsonAcuityOpenCL(NoAcuityOpenCL):
         b.blur(lum, wide, tmp, self.taps_wide.at(p.thompson_dog_ratio * sigma), w, h, 1)
         rho_full = b.rho_full()
         self.k["thompson_combine"](
-            b.queue, (w, h), None, b.P, blurred, wide, rho_full, b.buf["G"],
+            b.queue, (w, h), None, b.P, blurred, wide, rho_full, tmp,
             *self._dims(), np.float32(p.thompson_dog_gain), np.float32(p.thompson_noise),
             np.uint32(noise_key(self.seed, t, p)),
         )  # fmt: skip
+        b.store_G(tmp)  # the blur's scratch is free again

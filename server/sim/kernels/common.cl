@@ -28,6 +28,7 @@ typedef CAT(float, VEC) floatv;
 typedef CAT(int, VEC) intv;
 typedef CAT(uint, VEC) uintv;
 typedef CAT(uchar, VEC) ucharv;
+typedef CAT(ushort, VEC) ushortv;
 #if VEC == 16
 #define LANE_I ((intv)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
 #define LAST(v) ((v).sf)
@@ -43,6 +44,7 @@ typedef float8 float8_u __attribute__((aligned(4)));  // float8 at any float add
 typedef floatv floatv_u __attribute__((aligned(4)));
 typedef ucharv ucharv_u __attribute__((aligned(1)));
 typedef uintv uintv_u __attribute__((aligned(4)));
+typedef ushortv ushortv_u __attribute__((aligned(2)));
 typedef float4 float4_u __attribute__((aligned(4)));
 #define LOAD4_G(p) (*(__global const float4_u *)(p))
 #define LOAD8_G(p) (*(__global const float8_u *)(p))
@@ -56,6 +58,9 @@ typedef float4 float4_u __attribute__((aligned(4)));
 #define LOADV_D(p) (*(__global const ucharv_u *)(p))
 #define STOREV_D(p, v) (*(__global ucharv_u *)(p) = (v))
 #define STOREV_UI(p, v) (*(__global uintv_u *)(p) = (v))
+#define LOADV_U16(p) (*(__global const ushortv_u *)(p))
+#define STOREV_U16(p, v) (*(__global ushortv_u *)(p) = (v))
+#define TO_USHORTV(x) __builtin_convertvector(x, ushortv)
 #define TO_INTV(x) __builtin_convertvector(x, intv)  // toward zero, as convert_int8
 #define TO_FLOATV(x) __builtin_convertvector(x, floatv)
 #define TO_UCHARV(x) __builtin_convertvector(x, ucharv)
@@ -74,6 +79,9 @@ typedef float4 float4_u __attribute__((aligned(4)));
 #define LOADV_D(p) CAT(vload, VEC)(0, p)
 #define STOREV_D(p, v) CAT(vstore, VEC)(v, 0, p)
 #define STOREV_UI(p, v) CAT(vstore, VEC)(v, 0, p)
+#define LOADV_U16(p) CAT(vload, VEC)(0, p)
+#define STOREV_U16(p, v) CAT(vstore, VEC)(v, 0, p)
+#define TO_USHORTV(x) CAT(convert_ushort, VEC)(x)
 #define TO_INTV(x) CAT(convert_int, VEC)(x)
 #define TO_FLOATV(x) CAT(convert_float, VEC)(x)
 #define TO_UCHARV(x) CAT(convert_uchar, VEC)(x)
@@ -222,6 +230,69 @@ HOT int anyv(intv m) { return or_lanes(m) != 0; }  // any lane of a comparison t
 // vstore are library calls under PoCL).
 #define STOREV_PRIVATE(v, p) CAT(vstore, VEC)(v, 0, p)
 #define LOADV_PRIVATE(p) CAT(vload, VEC)(0, p)
+
+// --- G and the acuity levels in 16 bits (gazehdr/sim/lum16.py) ---------------------------------
+//
+// cd/m² in half a float's bytes: its exponent in 6 bits, from 2^-30, and its mantissa's top 10
+// bits, rounded to nearest: 9.3e-10 .. 1.7e10 cd/m² (radiance_max 1e10) within 2^-11 of the
+// value, 0 below that range (code 0). The acuity stage at 1920×1080 0.79× as long as with float
+// levels and G (docs/performance.md, "Acuity"); the display's 10 bits are 2^-10 apart.
+#define LUM16_EXP0 ((127 - 30) << 23)  // the float bits of 2^-30, code 0's
+#define LUM16_MAX 65535
+
+HOT ushortv to_lum16v(floatv x) {
+    intv bits = AS_INTV(x);
+    bits = bits < 0 ? 0 : bits;  // x < 0 (and -0): 0, before the subtraction could wrap
+    intv b = (bits - LUM16_EXP0 + (1 << 12)) >> 13;  // negative (below 2^-30): 0
+    return TO_USHORTV(CLAMP(b, 0, LUM16_MAX));
+}
+
+HOT floatv from_lum16v(ushortv c) {
+    intv u = TO_INTV(c);
+    floatv f = AS_FLOATV((u << 13) + LUM16_EXP0);
+    return u == 0 ? 0.0f : f;
+}
+
+HOT ushort to_lum16(float x) {
+    int b = (MAX(as_int(x), 0) - LUM16_EXP0 + (1 << 12)) >> 13;
+    return (ushort)CLAMP(b, 0, LUM16_MAX);
+}
+
+HOT float from_lum16(ushort c) {
+    return c == 0 ? 0.0f : as_float(((int)c << 13) + LUM16_EXP0);
+}
+
+// Pixels x .. x + VEC - 1 of a 16-bit row of n, as loadv_row.
+HOT floatv lum16v_row(__global const ushort *row, int x, int n) {
+    if (x + VEC <= n) return from_lum16v(LOADV_U16(row + x));
+    ushort t[VEC];
+    for (int i = 0; i < VEC; ++i) t[i] = row[MIN(x + i, n - 1)];
+    return from_lum16v(LOADV_PRIVATE(t));
+}
+
+// Lanes 0 .. n-1 of x to a 16-bit row, as storev_part.
+HOT void lum16v_store(__global ushort *p, floatv x, int n) {
+    ushortv c = to_lum16v(x);
+    if (n >= VEC) {
+        STOREV_U16(p, c);
+        return;
+    }
+    ushort t[VEC];
+    STOREV_PRIVATE(c, t);
+    for (int i = 0; i < n; ++i) p[i] = t[i];
+}
+
+// Float planes to 16-bit ones: n values a launch, VEC a work-item (the baselines' G, the
+// levels of the acuity stack, the scene as its level 0).
+__kernel void lum16_encode(__global const float *src, __global ushort *dst, int n) {
+    int i = get_global_id(0) * VEC;
+    if (i >= n) return;
+    if (i + VEC <= n) {
+        STOREV_U16(dst + i, to_lum16v(LOADV_G(src + i)));
+        return;
+    }
+    for (int k = i; k < n; ++k) dst[k] = to_lum16(src[k]);
+}
 
 // -----------------------------------------------------------------------------------------------
 
@@ -502,7 +573,7 @@ __kernel void blur_h(__global const float *src, __global float *dst, __constant 
 // Vertical pass. With level >= 0 it also serves the level-by-level acuity bank (Eq. 14):
 // pixels whose number of dropped bands d equals level + 1 copy this level into G.
 __kernel void blur_v(__global const float *src, __global float *dst, __constant float *taps,
-                     int radius, int w, int h, __global const uchar *d_map, __global float *G,
+                     int radius, int w, int h, __global const uchar *d_map, __global ushort *G,
                      int level) {
     int x = get_global_id(0) * VEC, y = get_global_id(1), c = get_global_id(2);
     if (x >= w) return;
@@ -514,8 +585,8 @@ __kernel void blur_v(__global const float *src, __global float *dst, __constant 
             acc += taps[k + radius] * LOADV_G(plane + CLAMP(y + k, 0, h - 1) * w + x);
         STOREV_G(dst + out0 + x, acc);
         if (level >= 0) {
-            intv hit = TO_INTV(LOADV_D(d_map + y * w + x) == (ucharv)(level + 1));
-            STOREV_G(G + out0 + x, hit ? acc : LOADV_G(G + out0 + x));
+            ushortv hit = TO_USHORTV(LOADV_D(d_map + y * w + x) == (ucharv)(level + 1));
+            STOREV_U16(G + out0 + x, hit ? to_lum16v(acc) : LOADV_U16(G + out0 + x));
         }
         return;
     }
@@ -523,7 +594,7 @@ __kernel void blur_v(__global const float *src, __global float *dst, __constant 
         float acc = 0.0f;
         for (int k = -radius; k <= radius; ++k) acc += taps[k + radius] * plane[CLAMP(y + k, 0, h - 1) * w + i];
         dst[out0 + i] = acc;
-        if (level >= 0 && d_map[y * w + i] == level + 1) G[out0 + i] = acc;
+        if (level >= 0 && d_map[y * w + i] == level + 1) G[out0 + i] = to_lum16(acc);
     }
 }
 

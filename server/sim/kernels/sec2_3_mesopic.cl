@@ -101,42 +101,38 @@ __kernel void acuity_levels(__constant const params_t *P, __global const float *
 
 // --- Eq. 14 on a scene that stays: a pick from levels made once ------------------------------
 //
-// Level l - 1 of each pixel that drops l bands, from `stack`: the scene's Gaussian levels
-// 0 .. bands - 1, made once per scene by blur_h/blur_v (level l at stack + l * stride, three
-// planes each). A run of VEC pixels mostly drops the same number of bands (rho and the noise are
-// smooth), so they read one level with vector loads; else the lanes that drop the most read
-// theirs, and each level between (6 % of the runs of 8 on the lamp scene at 1280×720) is
-// selected. Written without the bounds checks of loadv_row, the row's last pixels apart:
-// with them the pick took 1.6× as long on PoCL.
-HOT __global const float *acuity_level(__global const float *scene,
-                                       __global const float *stack, int stride, int dropped) {
-    return dropped == 0 ? scene : stack + (size_t)(dropped - 1) * stride;
-}
-
-__kernel void acuity_pick(__global const float *scene, __global const float *stack, int stride,
-                          __global const uchar *d_map, __global float *G, int W, int H) {
+// Level l - 1 of each pixel that drops l bands, from `stack`: the scene (level -1) and its
+// Gaussian levels 0 .. bands - 1, made once per scene by blur_h/blur_v, all in 16 bits
+// (lum16_encode): level l - 1 at stack + l * stride, three planes each. A run of VEC pixels
+// mostly drops the same number of bands (rho and the noise are smooth), so they read one level
+// with vector loads; else the lanes that drop the most read theirs, and each level between (6 %
+// of the runs of 8 on the lamp scene at 1280×720) is selected. The codes are copied, never
+// decoded. Written without the bounds checks of loadv_row, the row's last pixels apart: with
+// them the pick took 1.6× as long on PoCL.
+__kernel void acuity_pick(__global const ushort *stack, int stride, __global const uchar *d_map,
+                          __global ushort *G, int W, int H) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);
     if (x >= W) return;
     size_t plane = (size_t)W * H, at = (size_t)y * W + x;
     if (x + VEC > W) {  // the row's last pixels, one at a time
         for (int i = 0; i < W - x; ++i) {
-            __global const float *level = acuity_level(scene, stack, stride, d_map[at + i]);
+            __global const ushort *level = stack + (size_t)d_map[at + i] * stride;
             for (int c = 0; c < 3; ++c) G[c * plane + at + i] = level[c * plane + at + i];
         }
         return;
     }
-    intv d = TO_INTV(LOADV_D(d_map + at));
-    int lo = min_lane(d), hi = max_lane(d);
-    __global const float *first = acuity_level(scene, stack, stride, lo);
+    ucharv d = LOADV_D(d_map + at);
+    int lo = min_lane(TO_INTV(d)), hi = max_lane(TO_INTV(d));
+    ushortv dl = TO_USHORTV(d);  // a lane mask as wide as the codes
     for (int c = 0; c < 3; ++c) {
-        size_t o = c * plane + at;  // this pixel's channel c, in every level, the scene and G
-        floatv g = LOADV_G(first + o);
+        size_t o = c * plane + at;  // this pixel's channel c, in every level and G
+        ushortv g = LOADV_U16(stack + (size_t)lo * stride + o);
         if (hi > lo) {  // lanes that drop more than lo bands
-            g = d == hi ? LOADV_G(acuity_level(scene, stack, stride, hi) + o) : g;
+            g = dl == (ushort)hi ? LOADV_U16(stack + (size_t)hi * stride + o) : g;
             for (int l = lo + 1; l < hi; ++l)
-                g = d == l ? LOADV_G(acuity_level(scene, stack, stride, l) + o) : g;
+                g = dl == (ushort)l ? LOADV_U16(stack + (size_t)l * stride + o) : g;
         }
-        STOREV_G(G + o, g);
+        STOREV_U16(G + o, g);
     }
 }
 
@@ -181,7 +177,7 @@ inline floatv convv_l(__local const float *s, int d, __constant const float *t, 
 #define BANK_TX_MAX 128  // the widest tile (opencl.ACUITY_TILE)
 
 __kernel void acuity_bank(__global const float *scene, __global const uchar *d_map,
-                          __global float *G, __constant const float *taps,
+                          __global ushort *G, __constant const float *taps,
                           __constant const int *levels, int W, int H, int TX, int TY,
                           __local float *lmem) {
     int tx0 = get_global_id(0) * TX, ty0 = get_global_id(1) * TY;
@@ -224,13 +220,14 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
     // The three channels in turn, on the one scan of d above (the boxes are the same).
     for (int c = 0; c < 3; ++c) {
         __global const float *src_g = scene + c * plane;
-        __global float *dst_g = G + c * plane;
+        __global ushort *dst_g = G + c * plane;
         if (dmax == 0) {  // nothing dropped: the scene itself
             for (int y = ty0; y < ye; ++y) {
                 size_t k = (size_t)y * W;
                 int x = tx0;
-                for (; x + VEC <= xe; x += VEC) STOREV_G(dst_g + k + x, LOADV_G(src_g + k + x));
-                for (; x < xe; ++x) dst_g[k + x] = src_g[k + x];
+                for (; x + VEC <= xe; x += VEC)
+                    STOREV_U16(dst_g + k + x, to_lum16v(LOADV_G(src_g + k + x)));
+                for (; x < xe; ++x) dst_g[k + x] = to_lum16(src_g[k + x]);
             }
             continue;
         }
@@ -356,11 +353,11 @@ __kernel void acuity_bank(__global const float *scene, __global const uchar *d_m
             }
         }
         for (int y = 0; y < ye - ty0; ++y) {
-            __global float *grow = dst_g + (size_t)(ty0 + y) * W + tx0;
+            __global ushort *grow = dst_g + (size_t)(ty0 + y) * W + tx0;
             __local const float *arow = acc + y * TX;
             int x = 0;
-            for (; x + VEC <= ow; x += VEC) STOREV_G(grow + x, LOADV_L(arow + x));
-            for (; x < ow; ++x) grow[x] = arow[x];
+            for (; x + VEC <= ow; x += VEC) STOREV_U16(grow + x, to_lum16v(LOADV_L(arow + x)));
+            for (; x < ow; ++x) grow[x] = to_lum16(arow[x]);
         }
     }
 }

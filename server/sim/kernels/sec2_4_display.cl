@@ -11,13 +11,13 @@ HOT floatv gamut_t(floatv a, floatv e, floatv t) {
 
 // The first half of composev: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
 // What a late gaze warp sends (compose_base): none of it depends on the gaze.
-HOT rgbv_t basev(__constant const params_t *P, __global const float *G,
+HOT rgbv_t basev(__constant const params_t *P, __global const ushort *G,
                     __global const float *rho_full, __global const float *A, int W, int H,
                     float eyes, int x, int y) {
     size_t row = (size_t)y * W, plane = (size_t)W * H;
-    floatv r = eyes * loadv_row(G + row, x, W);
-    floatv g = eyes * loadv_row(G + plane + row, x, W);
-    floatv b = eyes * loadv_row(G + 2 * plane + row, x, W);
+    floatv r = eyes * lum16v_row(G + row, x, W);
+    floatv g = eyes * lum16v_row(G + plane + row, x, W);
+    floatv b = eyes * lum16v_row(G + 2 * plane + row, x, W);
     floatv rc = CLAMP(loadv_row(rho_full + row, x, W), 0.0f, 1.0f);
     floatv yp = dotv(P->w_P, r, g, b), ys = dotv(P->w_S_tone, r, g, b);
     floatv I = rc * yp + (1.0f - rc) * ys;                              // Purkinje (Eq. 13)
@@ -39,7 +39,7 @@ HOT floatv map_at(__global const float *ra, __global const float *rb, int c0, le
 
 // Inlined into its three kernels: compose_rgb10 0.87-0.94× as long at VEC 16, 0.90-0.93× at 8,
 // 0.94-0.97× built for znver3 (AVX2), against a call (docs/performance.md, "Compose").
-HOT rgbv_t composev(__constant const params_t *P, __global const float *G,
+HOT rgbv_t composev(__constant const params_t *P, __global const ushort *G,
                        __global const float *rho_full, __global const float *maps,
                        __global const float *A, int W, int H, int cell, int grid_w, int grid_h,
                        float gx, float gy, float eyes, __global const float *fovea, int x,
@@ -160,7 +160,7 @@ HOT void store_half_rgb8(__global half *o, rgb8_t c, int n) {
 }
 
 #define COMPOSE_ARGS                                                                             \
-    __constant const params_t *P, __global const float *G, __global const float *rho_full,      \
+    __constant const params_t *P, __global const ushort *G, __global const float *rho_full,     \
         __global const float *maps, __global const float *A, int W, int H, int cell, int grid_w, \
         int grid_h, float gx, float gy, float eyes, __global const float *fovea
 
@@ -193,7 +193,7 @@ __kernel void compose_half(COMPOSE_ARGS, __global half *v) {
 
 // The late gaze warp's base layer: basev's linear RGB as H×W×3 interleaved half floats. The viewer
 // applies Eq. 12, gamut and gamma at the newest gaze (web/warp.js; reference.apply_afterimages).
-__kernel void compose_base(__constant const params_t *P, __global const float *G,
+__kernel void compose_base(__constant const params_t *P, __global const ushort *G,
                            __global const float *rho_full, __global const float *A, int W,
                            int H, float eyes, __global half *v) {
     int x = get_global_id(0) * VEC, y = get_global_id(1);

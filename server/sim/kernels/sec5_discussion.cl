@@ -6,7 +6,7 @@
 // here to RGB) by w = w_xy[x] w_xy[W + y] (1 - rho_c), a separable Gaussian around the gaze
 // that the host scales by the strength the tracker allows (layout.blind_spot_strength).
 // Global size (ceil(W / VEC), H).
-__kernel void foveal_blind_spot(__constant const params_t *P, __global float *G,
+__kernel void foveal_blind_spot(__constant const params_t *P, __global ushort *G,
                                 __global const float *rho_full, __global const float *fill,
                                 __global const float *w_xy, int W, int H, int cell, int low_w,
                                 int low_h) {
@@ -21,12 +21,10 @@ __kernel void foveal_blind_spot(__constant const params_t *P, __global float *G,
     rgbv_t rgb = matv_mul(P->lms2rgb, bilinearv_get(fill, low_w, tx, ty, 0.0f),
                           bilinearv_get(fill + lp, low_w, tx, ty, 0.0f),
                           bilinearv_get(fill + 2 * lp, low_w, tx, ty, 0.0f));
-    floatv f[3] = {rgb.r, rgb.g, rgb.b};
+    floatv f[3] = {MAX(rgb.r, 0.0f), MAX(rgb.g, 0.0f), MAX(rgb.b, 0.0f)};  // as the reference
     for (int c = 0; c < 3; ++c) {
-        __global float *g = G + c * plane + row + x;
-        floatv v = loadv_row(G + c * plane + row, x, W);
-        v += w * (f[c] - v);
-        if (x + VEC <= W) STOREV_G(g, v);
-        else storev_part(g, v, W - x);
+        __global ushort *g = G + c * plane + row;
+        floatv v = lum16v_row(g, x, W);
+        lum16v_store(g + x, v + w * (f[c] - v), W - x);
     }
 }
