@@ -106,8 +106,9 @@ class Viewer:
         self.warp = False  # whether it asked for late-warp frames (gazehdr.warp)
         #: Its task waits on the mailbox with credit: a frame put now is on its way at once.
         self.taking = False
-        #: The encoding it asked for (None: the session's); for a stream (`av1`), whether it
-        #: has every packet since its last keyframe, so the next delta packet is of use to it.
+        #: The encoding it asked for (None: the session's); for a stream (`h264`, `av1`),
+        #: whether it has every packet since its last keyframe, so the next delta packet is of
+        #: use to it.
         self.encoding: Encoding | None = None
         self.keyed = False
         # The newest tracker gaze for the warp not yet sent (`forward_gaze`): one slot, sent by
@@ -239,7 +240,7 @@ class LiveSession:
         self.closing: asyncio.TimerHandle | None = None
         self.log = log
         self.outlet = outlet
-        #: The streams (`av1`) its viewers chose, each encoded once per frame for all of them.
+        #: The streams (`h264`, `av1`) its viewers chose, each encoded once a frame for them all.
         self.streams = StreamViewers(session.settings.encoding, session.settings.fps, metrics)
         #: The last scene map sent to the viewers that inspect (a viewer that starts to gets it).
         self.scene_map: bytes | None = None

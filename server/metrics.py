@@ -80,7 +80,7 @@ class Metrics:
             "gazehdr_encode_seconds", "Time to encode a step's frame in the session's encoding."
         )
         self.stream_encode_seconds = Histogram(
-            "gazehdr_stream_encode_seconds", "Time to encode a frame for a stream (av1)."
+            "gazehdr_stream_encode_seconds", "Time to encode a frame for a stream (h264, av1)."
         )
         self.send_seconds = Histogram("gazehdr_send_seconds", "Time to hand a frame to a socket.")
         self.gaze_latency = Histogram(

@@ -31,16 +31,18 @@ GAZE_RANGE = (-3.0, 4.0)
 FLAG_EYES_OPEN = 1
 FLAG_TRACKER = 2
 FLAG_SPLIT = 4
-FLAG_KEYFRAME = 8  # `av1`: the packet starts the stream again (it needs no earlier one)
+FLAG_KEYFRAME = 8  # a stream's: the packet starts the stream again (it needs no earlier one)
 
 
 class Encoding(IntEnum):
-    """Pixel payloads. The raw ones keep at least 10 bits of `v` everywhere (SPEC §2.4); `av1`
-    is lossy, 10-bit Y'CbCr 4:2:0, for viewers on another machine (gazehdr.video)."""
+    """Pixel payloads. The raw ones keep at least 10 bits of `v` everywhere (SPEC §2.4); the
+    streams (`h264`, `av1`) are lossy, 10-bit Y'CbCr 4:2:0, for viewers on another machine
+    (gazehdr.video)."""
 
     f16 = 1  # RGB half floats: 11 significant bits, finer still in the darks
     rgb10a2 = 2  # 10 bits per channel packed in a u32, as WebGL2's RGB10_A2 texture takes it
     av1 = 3  # one AV1 packet of a stream: needs the ones since the last keyframe
+    h264 = 4  # one H.264 High 10 packet of a stream (Annex B), likewise
     #: The late gaze warp (gazehdr.warp): what compose makes before Eq. 12 and the afterimage
     #: maps, composed by the viewer at its newest gaze. Per viewer (`Warp`), never a session's.
     warp = 16
@@ -48,6 +50,10 @@ class Encoding(IntEnum):
 
 #: Encodings a session's simulator writes (the others are made from one of these per viewer).
 RAW = (Encoding.f16, Encoding.rgb10a2)
+
+
+#: Encodings made from a raw frame by a video encoder, once for all the viewers that chose one.
+STREAMS = (Encoding.h264, Encoding.av1)
 
 
 #: The `Simulator.step` output that is each encoding's payload.
@@ -179,8 +185,10 @@ def decode_frame(data: bytes) -> tuple[FrameHeader, np.ndarray]:
     frame composed at its own gaze."""
     header, payload = split_frame(data)
     w, h = header.width, header.height
-    if header.encoding is Encoding.av1:
-        raise ProtocolError("an av1 frame is a packet of a stream: decode it with gazehdr.video")
+    if header.encoding in STREAMS:
+        raise ProtocolError(
+            f"an {header.encoding.name} frame is a packet of a stream: decode it with gazehdr.video"
+        )
     if header.encoding is Encoding.warp:  # as the viewer shows it at the frame's own gaze
         return header, warp.compose(warp.unpack(payload, w, h)).astype(np.float32)
     if header.encoding is Encoding.f16:
@@ -302,7 +310,7 @@ class EncodingChoice:
 
 @dataclass(frozen=True)
 class KeyframeRequest:
-    """An `av1` viewer lost its stream (a corrupt packet, a decoder error): the next packet it
+    """A stream's viewer lost it (a corrupt packet, a decoder error): the next packet it
     gets is a keyframe. Handled per viewer."""
 
 
@@ -373,7 +381,7 @@ def _scene_settings(msg: dict[str, Any]) -> SceneSettings:
 
 
 def _encoding_choice(msg: dict[str, Any]) -> EncodingChoice:
-    """`{"type": "encoding", "name": "f16" | "rgb10a2" | "av1" | null}`."""
+    """`{"type": "encoding", "name": "f16" | "rgb10a2" | "av1" | "h264" | null}`."""
     name = msg.get("name")
     if name is None:
         return EncodingChoice(None)

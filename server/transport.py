@@ -1,10 +1,11 @@
 """What each viewer's frames travel as: the session's raw encoding, or a stream made from it.
 
 A session's simulator writes one raw encoding (`f16` or `rgb10a2`, the server's `--encoding`);
-a viewer may ask for a stream instead (`av1`, gazehdr.video: for viewers on another machine,
-docs/deployment.md). `Streams` holds one encoder per stream in use and encodes each frame once
-for all the viewers that chose it, on a thread of its own, so that encoding frame N overlaps
-simulating frame N+1, and the session simulates no further ahead of its encoder than that.
+a viewer may ask for a stream instead (`h264`, `av1`, gazehdr.video: for viewers on another
+machine, docs/deployment.md). `Streams` holds one encoder per stream in use and encodes each
+frame once for all the viewers that chose it, on a thread of its own, so that encoding frame N
+overlaps simulating frame N+1, and the session simulates no further ahead of its encoder than
+that.
 """
 
 from __future__ import annotations
@@ -21,13 +22,10 @@ import numpy as np
 
 from gazehdr import video
 from gazehdr.metrics import Metrics
-from gazehdr.protocol import RAW, Encoding, ProtocolError
+from gazehdr.protocol import RAW, STREAMS, Encoding, ProtocolError
 from gazehdr.session import Frame
 
 log = logging.getLogger("gazehdr.transport")
-
-#: The encodings made from the raw frame, and how.
-STREAMS = (Encoding.av1,)
 
 
 def raw_pixels(frame: Frame) -> np.ndarray:
@@ -126,10 +124,10 @@ class Streams:
         if encoding in RAW:
             raise ProtocolError(
                 f"this server's sessions send {encoding.name} frames only with --encoding "
-                f"{encoding.name}; choose null (the session's raw frames) or av1",
+                f"{encoding.name}; choose null (the session's raw frames), h264 or av1",
                 "encoding",
             )
-        why = video.available()
+        why = video.available(encoding.name)
         if why is not None:
             raise ProtocolError(why, "encoding")
 
@@ -150,7 +148,7 @@ class Streams:
         for encoding in encodings:
             stream = self._streams.get(encoding)
             if stream is None:
-                stream = self._streams[encoding] = video.Stream(self.fps)
+                stream = self._streams[encoding] = video.Stream(self.fps, encoding.name)
             packet, seconds = stream.encode(pixels, size)
             header = dataclasses.replace(
                 frame.header,

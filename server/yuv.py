@@ -1,4 +1,4 @@
-"""Display values to 10-bit Y'CbCr 4:2:0 and back: the `av1` encoding's colour conversion.
+"""Display values to 10-bit Y'CbCr 4:2:0 and back: the stream encodings' colour conversion.
 
 BT.709 weights, full range (a grey `v` keeps its level `round(1023 v)` as Y', Cb = Cr = 512),
 each chroma sample from the mean of a 2×2 block. The forward conversion is integer arithmetic

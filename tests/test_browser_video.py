@@ -1,5 +1,6 @@
-"""The `av1` encoding in real headless Chromium: WebCodecs decodes the server's packets (dav1d,
-in software), the page copies the 10-bit planes out and the dither shader draws them.
+"""The stream encodings (`h264`, `av1`) in real headless Chromium: WebCodecs decodes the server's
+packets (FFmpeg's h264 and dav1d, in software), the page copies the 10-bit planes out and the
+dither shader draws them.
 
 The browser, the pages and the dither statistics are tests/browser.py's (its fixtures and
 helpers, imported). WebCodecs exists only in a secure context: the server's pages are on
@@ -12,9 +13,10 @@ from __future__ import annotations
 import base64
 
 import numpy as np
+import pytest
 
 from gazehdr.protocol import Encoding
-from gazehdr.video import Decoder, Encoder
+from gazehdr.video import CODECS, Decoder, Encoder
 from gazehdr.yuv import to_rgb
 from tests.browser import (  # noqa: F401
     B64_JS,
@@ -28,7 +30,7 @@ from tests.browser import (  # noqa: F401
 #: Decode packets with the page's VideoStream, then draw the newest picture `frames` times
 #: (dither counters 0..frames-1) and read each back; also returns the decoded planes.
 DECODE_AND_DRAW_JS = """
-async ([packets, width, height, frames]) => {
+async ([packets, width, height, frames, encoding]) => {
   const { VideoStream } = await import('/video.js');
   const { Renderer } = await import('/renderer.js');
   const canvas = document.createElement('canvas');
@@ -40,7 +42,7 @@ async ([packets, width, height, frames]) => {
   const stream = new VideoStream((p) => (planes = p), (why) => lost.push(why));
   packets.forEach(([b64, key], frame) => {
     const packet = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
-    stream.decode({ frame, width, height, keyframe: key }, packet);
+    stream.decode({ frame, width, height, keyframe: key, encoding }, packet);
   });
   await stream.decoder.flush();
   for (let i = 0; i < 100 && stream.stats.decoded < packets.length; i++) {
@@ -65,11 +67,17 @@ def _planes(data: bytes, layout: list[dict[str, int]], w: int, h: int) -> list[n
     return out
 
 
-def test_dither_shader_is_unbiased_and_uncorrelated_on_decoded_av1(browser) -> None:
+STREAMS = [Encoding.h264, Encoding.av1]
+
+
+@pytest.mark.parametrize("encoding", STREAMS, ids=lambda e: e.name)
+def test_dither_shader_is_unbiased_and_uncorrelated_on_a_decoded_stream(
+    browser, encoding: Encoding
+) -> None:
     """The dither statistics (tests/browser.py's check_dither), unchanged, on a picture that
-    went through the encoder, the browser's AV1 decoder and the YUV shader: the mean of the
-    shown levels is the decoded value, and the decisions are independent across pixels,
-    channels and frames."""
+    went through the encoder, the browser's decoder and the YUV shader: the mean of the shown
+    levels is the decoded value, and the decisions are independent across pixels, channels
+    and frames."""
     page = browser.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
@@ -79,17 +87,15 @@ def test_dither_shader_is_unbiased_and_uncorrelated_on_decoded_av1(browser) -> N
         size, frames = 32, 256
         colour = np.array([100.3, 40.7, 200.5]) / 255  # between two 8-bit levels each
         v = np.broadcast_to(colour.astype(np.float32), (size, size, 3))
-        encoder = Encoder((size, size), 30)
+        encoder = Encoder((size, size), 30, encoding.name)
         packets = [encoder.encode(v) for _ in range(3)]  # a keyframe and two deltas
-        got = page.evaluate(
-            DECODE_AND_DRAW_JS,
-            [[[base64.b64encode(p.data).decode(), p.key] for p in packets], size, size, frames],
-        )
+        b64 = [[base64.b64encode(p.data).decode(), p.key] for p in packets]
+        got = page.evaluate(DECODE_AND_DRAW_JS, [b64, size, size, frames, int(encoding)])
         out_b64, planes_b64, layout, decoded, lost = got
         assert decoded == 3 and not lost, (decoded, lost)
-        # The browser decoded the same planes as dav1d in Python does, bit for bit ...
+        # The browser decoded the same planes as FFmpeg's decoders in Python do, bit for bit ...
         planes = _planes(base64.b64decode(planes_b64), layout, size, size)
-        decoder = Decoder()
+        decoder = Decoder(encoding.name)
         for p in packets:
             mine = decoder.planes(p.data, p.key)
         for theirs, ours in zip(planes, mine, strict=True):
@@ -106,13 +112,14 @@ def test_dither_shader_is_unbiased_and_uncorrelated_on_decoded_av1(browser) -> N
     assert not errors, errors
 
 
-def test_viewer_shows_av1_frames_and_recovers_from_a_corrupt_packet(
-    live_server, open_viewer
+@pytest.mark.parametrize("encoding", STREAMS, ids=lambda e: e.name)
+def test_viewer_shows_a_stream_and_recovers_from_a_corrupt_packet(
+    live_server, open_viewer, encoding: Encoding
 ) -> None:
     W, H = 320, 176
     srv = live_server(scene="lamp", size=(W, H), encoding=Encoding.rgb10a2)
-    viewer = open_viewer(srv.url + "/?encoding=av1", W, H)
-    viewer.wait("() => window.gazehdr.lastHeader.encoding === 3")
+    viewer = open_viewer(srv.url + f"/?encoding={encoding.name}", W, H)
+    viewer.wait(f"() => window.gazehdr.lastHeader.encoding === {int(encoding)}")
     assert viewer.js("() => window.gazehdr.encodingRefused") is None
     viewer.wait("() => window.gazehdr.video.stats.decoded >= 3")
     # A remote viewer gets no scene maps (20 MB at 1080p) until it shows the inspector.
@@ -174,9 +181,29 @@ def test_a_page_that_cannot_decode_says_why(browser) -> None:
     page = browser.new_page()
     try:
         serve_checkout_web(page)  # http://viewer.test: not a secure context
-        why = page.evaluate("async () => (await import('/video.js')).unsupported()")
+        why = page.evaluate("async () => (await import('/video.js')).unsupported('h264')")
         assert why is not None and "secure context" in why and "https" in why, why
         serve_checkout_web(page, origin="http://localhost")
-        assert page.evaluate("async () => (await import('/video.js')).unsupported()") is None
+        for name in ("h264", "av1"):
+            supported = f"async () => (await import('/video.js')).unsupported('{name}')"
+            assert page.evaluate(supported) is None, name
+    finally:
+        page.close()
+
+
+def test_the_page_names_the_servers_encodings_and_codecs(browser) -> None:
+    """web/protocol.js and web/video.js mirror gazehdr.protocol.Encoding and gazehdr.video's
+    WebCodecs names: read from the modules the page loads."""
+    page = browser.new_page()
+    try:
+        serve_checkout_web(page, origin="http://localhost")
+        names, codecs = page.evaluate(
+            """async () => [(await import('/protocol.js')).ENCODING_NAMES,
+                            (await import('/video.js')).CODECS]"""
+        )
+        assert {int(k): v for k, v in names.items()} == {int(e): e.name for e in Encoding}
+        assert {k: c["codec"] for k, c in codecs.items()} == {
+            name: c.webcodecs for name, c in CODECS.items()
+        }
     finally:
         page.close()

@@ -1,10 +1,12 @@
-"""The `av1` encoding (gazehdr.video, gazehdr.transport): the codec round trip in Python (SVT-AV1
-in, dav1d out, as Chromium decodes it), bad packets, and viewers choosing it on a real server.
+"""The stream encodings (gazehdr.video, gazehdr.transport), `h264` and `av1`: the codec round
+trip in Python (x264 and SVT-AV1 in, FFmpeg's h264 and dav1d out, as Chromium decodes them), bad
+packets, and viewers choosing them on a real server.
 
 What the round trip loses, measured on the simulator's own frames at 320×176 with the gaze
-jumping 16 px a frame (so every delta packet has much to say), in levels of 1023: luma (Y')
-mean 0.5-2.0, 99th percentile 2-9; the codec's own part (against the 4:2:0 picture it was
-given) mean 0.6-2.6, 99th percentile 4-11; in RGB mean 1.6-3.3, but the 4:2:0 chroma alone
+jumping 16 px a frame (so every delta packet has much to say), in levels of 1023, for av1:
+luma (Y') mean 0.5-2.0, 99th percentile 2-9; the codec's own part (against the 4:2:0 picture it
+was given) mean 0.6-2.6, 99th percentile 4-11; in RGB mean 1.6-3.3 (h264 less: see the test),
+but the 4:2:0 chroma alone
 puts single pixels off by up to ~470 at a saturated colour's sharp edge (a red lamp's rim on
 black). The bounds below leave a little room above those. On smooth dark ramps, where 8 bits
 would band, every level of a grey survives (within two), in steps of one; a saturated blue's
@@ -44,6 +46,7 @@ from tests.test_server import Client, run
 
 W, H = 320, 176
 LIVE = (160, 96)  # the live_server fixture's frames
+STREAMS = pytest.mark.parametrize("codec", ["h264", "av1"])
 
 
 def _luma(v: np.ndarray) -> np.ndarray:
@@ -93,9 +96,10 @@ def test_the_device_converts_as_the_reference_does() -> None:
     assert to_yuv420p10(blue)[1][0, 0] == 1023 and to_yuv420p10(yellow)[1][0, 0] <= 1  # -511.5
 
 
-def test_a_dark_ramp_keeps_its_10_bit_levels() -> None:
+@STREAMS
+def test_a_dark_ramp_keeps_its_10_bit_levels(codec: str) -> None:
     v = dark_ramp()
-    encoder, decoder = Encoder((W, H), 30), Decoder()
+    encoder, decoder = Encoder((W, H), 30, codec), Decoder(codec)
     for k in range(3):  # a keyframe, then deltas of the same picture
         packet = encoder.encode(v)
         assert packet.key == (k == 0)
@@ -134,8 +138,9 @@ def _simulated_frames(n: int) -> list[np.ndarray]:
     return frames
 
 
-def test_the_round_trip_error_on_simulated_frames_is_bounded() -> None:
-    encoder, decoder = Encoder((W, H), 30), Decoder()
+@STREAMS
+def test_the_round_trip_error_on_simulated_frames_is_bounded(codec: str) -> None:
+    encoder, decoder = Encoder((W, H), 30, codec), Decoder(codec)
     sizes = []
     for k, raw in enumerate(_simulated_frames(5)):
         packet = encoder.encode(raw)
@@ -174,13 +179,14 @@ def test_no_thread_is_left_realtime_by_the_encoder() -> None:
     assert _realtime_threads() == []
 
 
-def test_a_corrupt_packet_is_refused_and_a_keyframe_recovers() -> None:
+@STREAMS
+def test_a_corrupt_packet_is_refused_and_a_keyframe_recovers(codec: str) -> None:
     v = dark_ramp()
-    encoder, decoder = Encoder((W, H), 30), Decoder()
+    encoder, decoder = Encoder((W, H), 30, codec), Decoder(codec)
     key = encoder.encode(v)
     delta = encoder.encode(v)
     with pytest.raises(ValueError, match="before any keyframe"):
-        Decoder().decode(delta.data, False, (W, H))
+        Decoder(codec).decode(delta.data, False, (W, H))
     decoder.decode(key.data, True, (W, H))
     rng = np.random.default_rng(1)
     garbage = bytes(rng.integers(0, 256, 400, dtype=np.uint8))
@@ -196,10 +202,11 @@ def test_a_corrupt_packet_is_refused_and_a_keyframe_recovers() -> None:
 
 def test_encoding_and_keyframe_controls() -> None:
     assert parse_control('{"type": "encoding", "name": "av1"}') == EncodingChoice(Encoding.av1)
+    assert parse_control('{"type": "encoding", "name": "h264"}') == EncodingChoice(Encoding.h264)
     assert parse_control('{"type": "encoding", "name": null}') == EncodingChoice(None)
     assert parse_control('{"type": "keyframe"}') == KeyframeRequest()
-    for bad in ('"h264"', "3", "true"):
-        with pytest.raises(ProtocolError, match="f16, rgb10a2, av1 or null") as info:
+    for bad in ('"vp9"', "3", "true"):
+        with pytest.raises(ProtocolError, match="f16, rgb10a2, av1, h264 or null") as info:
             parse_control(f'{{"type": "encoding", "name": {bad}}}')
         assert info.value.in_type == "encoding"
     with pytest.raises(ProtocolError, match="has a control of its own"):
@@ -218,15 +225,17 @@ class VideoClient(Client):
         return header, bytes(payload)
 
 
-def test_viewers_choose_the_stream_which_is_encoded_once_for_all(live_server) -> None:
+@STREAMS
+def test_viewers_choose_the_stream_which_is_encoded_once_for_all(live_server, codec: str) -> None:
     server = live_server(scene="lamp", encoding=Encoding.rgb10a2)
+    stream = Encoding[codec]
 
     async def check() -> None:
         a = await VideoClient.open(server)
         query = f"?session={a.hello['session']}"  # one session, three viewers
         b, raw = [await VideoClient.open(server, query) for _ in range(2)]
         for viewer in (a, b):
-            await viewer.send(type="encoding", name="av1")
+            await viewer.send(type="encoding", name=codec)
         # The session's own raw encoding is not a choice to make, another raw one is refused.
         await raw.send(type="encoding", name="f16")
         assert "--encoding f16" in (await raw.note("error"))["message"]
@@ -234,20 +243,20 @@ def test_viewers_choose_the_stream_which_is_encoded_once_for_all(live_server) ->
         await b.send(type="warp", on=True)
         assert '"encoding", "name": null} first' in (await b.note("error"))["message"]
         await raw.send(type="warp", on=True)
-        await raw.send(type="encoding", name="av1")
+        await raw.send(type="encoding", name=codec)
         assert '"warp", "on": false} first' in (await raw.note("error"))["message"]
         await raw.send(type="warp", on=False)
-        decoders = {a: Decoder(), b: Decoder()}
+        decoders = {a: Decoder(codec), b: Decoder(codec)}
         packets: dict[tuple[int, int], bytes] = {}
         for viewer in (a, b):
-            header, packet = await viewer.frame(lambda h: h.encoding is Encoding.av1)
+            header, packet = await viewer.frame(lambda h: h.encoding is stream)
             assert header.keyframe, "a stream starts with a keyframe"
             seen = header.frame
             decoders[viewer].decode(packet, True, (header.width, header.height))
             packets[(id(viewer), header.frame)] = packet
             for _ in range(4):  # every packet after it decodes, in order
                 header, packet = await viewer.frame()
-                assert header.encoding is Encoding.av1 and header.frame > seen
+                assert header.encoding is stream and header.frame > seen
                 seen = header.frame
                 out = decoders[viewer].decode(packet, header.keyframe, LIVE)
                 assert out.shape == (LIVE[1], LIVE[0], 3)
@@ -273,14 +282,16 @@ def test_viewers_choose_the_stream_which_is_encoded_once_for_all(live_server) ->
     run(check())
 
 
-def test_decode_frame_refuses_a_packet_with_a_clear_message() -> None:
+@STREAMS
+def test_decode_frame_refuses_a_packet_with_a_clear_message(codec: str) -> None:
     settings = SessionSettings(width=64, height=48, encoding=Encoding.f16, fit_viewport=False)
     session = Session("t", settings, SceneLibrary(None), clock=time.perf_counter)
     frame, _ = session.tick(1 / 30, [])
-    frames = Streams(30).encode(frame, frozenset({Encoding.av1}))
-    message = frames[Encoding.av1].message(0)
+    stream = Encoding[codec]
+    frames = Streams(30).encode(frame, frozenset({stream}))
+    message = frames[stream].message(0)
     header, payload = split_frame(message)
-    assert header.encoding is Encoding.av1 and header.keyframe and bytes(payload)
+    assert header.encoding is stream and header.keyframe and bytes(payload)
     with pytest.raises(ProtocolError, match=r"decode it with gazehdr\.video"):
         decode_frame(message)
 

@@ -6,7 +6,7 @@
 // scene map (docs/protocol.md), the last frame, its header and the state's scene_info: nothing
 // here is estimated. Nothing here changes what the simulation shows or the server sends.
 
-import { ENCODING, ENCODING_NAMES, decodeSceneMap, halfToFloat } from './protocol.js';
+import { ENCODING, ENCODING_NAMES, decodeSceneMap, halfToFloat, isStream } from './protocol.js';
 
 /** log10 cd/m² spanned by the histogram, and by the false colour unless a range is set:
  * starlight to a bright sky. The range is absolute, so a change of the scene's scale moves
@@ -100,9 +100,10 @@ export function filePixel(info, mw, mh, x, y) {
 }
 
 /** The display value `v` of frame pixel (x, y) from a frame message; null where the message
- * holds none: `warp` (composed in the shader, at the newest gaze), `av1` (a stream's packet). */
+ * holds none: `warp` (composed in the shader, at the newest gaze), `h264`, `av1` (a stream's
+ * packet). */
 function displayValue(payload, header, x, y) {
-  if (header.encoding === ENCODING.WARP || header.encoding === ENCODING.AV1) return null;
+  if (header.encoding === ENCODING.WARP || isStream(header.encoding)) return null;
   const i = y * header.width + x;
   if (header.encoding === ENCODING.F16) {
     const px = new Uint16Array(payload, header.header_bytes + i * 6, 3);

@@ -4,9 +4,9 @@
 // (the session, the last frame, the gaze); what stands alone is in protocol.js, renderer.js,
 // video.js, hud.js, inspect.js and panel.js.
 
-import { ENCODING, binaryKind, decodeFrame, messages, parseText } from './protocol.js';
+import { binaryKind, decodeFrame, isStream, messages, parseText } from './protocol.js';
 import { Renderer } from './renderer.js';
-import { VideoStream, unsupported } from './video.js';
+import { CODECS, VideoStream, unsupported } from './video.js';
 import { Hud, RateMeter, Ring, SplitOverlay } from './hud.js';
 import { EXPOSURE_STEP, Inspector } from './inspect.js';
 import { Panel } from './panel.js';
@@ -51,7 +51,7 @@ const stats = {
   errors: 0,
   gazeSent: 0, // seq of the last gaze sent
   connects: 0, // sockets opened, reconnects included
-  keyRequests: 0, // av1: keyframes asked for after the stream broke
+  keyRequests: 0, // h264, av1: keyframes asked for after the stream broke
 };
 const state = {}; // the last hello/state from the server
 // Late gaze warp (warp.js): afterimages placed at the newest pointer at every display refresh.
@@ -167,10 +167,10 @@ const REFUSALS = {
 const conn = new Connection();
 const send = (msg) => conn.send(msg);
 /** Scene maps (10 bytes a pixel: 20 MB at 1080p) feed the inspector, the false colour and the
- * scene view: on a raw connection always; on an av1 one, a remote viewer's, only while one of
- * them is shown. */
+ * scene view: on a raw connection always; on a stream (h264, av1), a remote viewer's, only
+ * while one of them is shown. */
 function wantMaps() {
-  return wantedEncoding !== 'av1' || inspector.visible || inspector.mode !== 'off';
+  return !(wantedEncoding in CODECS) || inspector.visible || inspector.mode !== 'off';
 }
 
 /** The inspector's settings as the panel shows them. */
@@ -245,10 +245,10 @@ function showStatus(now) {
 
 let lastHeader = null;
 let pending = null; // newest decoded frame not yet uploaded: upload only what gets drawn
-let pendingPlanes = null; // the same for av1: the newest decoded picture's planes
+let pendingPlanes = null; // the same for a stream: the newest decoded picture's planes
 
-// ?encoding=av1 (or f16, rgb10a2) asks the server for that encoding for this page; av1 only
-// where this browser can decode it, else the page says why and keeps the raw frames.
+// ?encoding=h264 (or av1, f16, rgb10a2) asks the server for that encoding for this page; a
+// stream only where this browser can decode it, else the page says why and keeps the raw frames.
 const wantedEncoding = new URLSearchParams(location.search).get('encoding');
 const video = new VideoStream(
   (planes) => {
@@ -256,7 +256,7 @@ const video = new VideoStream(
   },
   (why) => {
     stats.keyRequests += 1;
-    console.warn(`av1 stream lost (${why}): asking for a keyframe`);
+    console.warn(`${wantedEncoding} stream lost (${why}): asking for a keyframe`);
     send(messages.keyframe());
   },
 );
@@ -264,11 +264,11 @@ const video = new VideoStream(
 async function chooseEncoding() {
   if (!wantedEncoding) return;
   video.keyed = false; // a new connection: its stream starts with a keyframe
-  if (wantedEncoding === 'av1') {
-    const why = await unsupported();
+  if (wantedEncoding in CODECS) {
+    const why = await unsupported(wantedEncoding);
     if (why) {
       api.encodingRefused = why;
-      toast(`no av1 frames: ${why}; showing the server's raw frames`, 10000);
+      toast(`no ${wantedEncoding} frames: ${why}; showing the server's raw frames`, 10000);
       return;
     }
   }
@@ -314,7 +314,7 @@ function onFrame(buffer) {
   lastHeader = h;
   lastPayload = buffer;
   hud.plot.record(h);
-  if (h.encoding === ENCODING.AV1) video.decode(h, frame.packet);
+  if (isStream(h.encoding)) video.decode(h, frame.packet);
   else pending = frame;
   api.lastHeader = h;
   api.lastPayload = buffer;

@@ -7,8 +7,11 @@ export const PROTOCOL = 1;
 export const MAGIC = 'GZHF';
 /** Header size of version 1; later versions may append fields, so readers use header_bytes. */
 export const HEADER_BYTES_V1 = 56;
-export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2, AV1: 3, WARP: 16 });
-export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2', 3: 'av1', 16: 'warp' });
+export const ENCODING = Object.freeze({ F16: 1, RGB10A2: 2, AV1: 3, H264: 4, WARP: 16 });
+export const ENCODING_NAMES = Object.freeze({ 1: 'f16', 2: 'rgb10a2', 3: 'av1', 4: 'h264', 16: 'warp' });
+/** The encodings that are packets of a video stream (web/video.js decodes them). */
+export const STREAM_ENCODINGS = Object.freeze([ENCODING.AV1, ENCODING.H264]);
+export const isStream = (encoding) => STREAM_ENCODINGS.includes(encoding);
 export const BYTES_PER_PIXEL = Object.freeze({ 1: 6, 2: 4 });
 /** The server refuses gaze outside [-3, 4] frame fractions; clamp rather than get an error. */
 const GAZE_MIN = -3;
@@ -49,7 +52,7 @@ export function decodeHeader(buffer) {
     eyes_open: (flags & 1) !== 0,
     tracker_gaze: (flags & 2) !== 0,
     split: (flags & 4) !== 0, // two panes side by side, each floor(width / 2) px wide
-    keyframe: (flags & 8) !== 0, // av1: the packet needs no earlier one
+    keyframe: (flags & 8) !== 0, // a stream's (h264, av1): the packet needs no earlier one
     server_ms: dv.getFloat32(48, true),
     dropped: dv.getUint32(52, true),
   };
@@ -70,9 +73,11 @@ export function decodeFrame(buffer) {
       throw new ProtocolError(err.message);
     }
   }
-  if (header.encoding === ENCODING.AV1) {
+  if (isStream(header.encoding)) {
     // A packet of a stream (web/video.js decodes it): the bytes, as they came.
-    if (buffer.byteLength === header.header_bytes) throw new ProtocolError('empty av1 packet');
+    if (buffer.byteLength === header.header_bytes) {
+      throw new ProtocolError(`empty ${ENCODING_NAMES[header.encoding]} packet`);
+    }
     return { header, packet: new Uint8Array(buffer, header.header_bytes) };
   }
   const bpp = BYTES_PER_PIXEL[header.encoding];
@@ -168,9 +173,9 @@ export const messages = {
   warp: (on) => ({ type: 'warp', on: Boolean(on) }),
   reset: () => ({ type: 'reset' }),
   ack: (frame) => ({ type: 'ack', frame }),
-  /** 'f16', 'rgb10a2', 'av1' or null (the session's raw frames); per viewer. */
+  /** 'f16', 'rgb10a2', 'h264', 'av1' or null (the session's raw frames); per viewer. */
   encoding: (name) => ({ type: 'encoding', name }),
-  /** An av1 viewer lost its stream: the next packet it gets is a keyframe. */
+  /** A stream's viewer lost it: the next packet it gets is a keyframe. */
   keyframe: () => ({ type: 'keyframe' }),
 };
 

@@ -6,9 +6,11 @@ import { ENCODING } from './protocol.js';
 import { DITHER, program, texture } from './gl.js';
 import { WarpLayer } from './warp.js';
 
-/** BT.709 luma weights of the av1 encoding's Y'CbCr (gazehdr.video.KR, KB). */
+/** BT.709 luma weights of the streams' Y'CbCr (gazehdr.yuv.KR, KB). */
 export const KR = 0.2126;
 export const KB = 0.0722;
+/** `frame.encoding` of a decoded stream picture (h264, av1): three 10-bit planes. */
+const YUV = 'yuv';
 
 // The fragment shader: the dither (gl.js, one for every source) of `frameValue()`, the frame's
 // display value v at this fragment, top row first.
@@ -29,8 +31,8 @@ uniform sampler2D u_frame;
 // Rows arrive top row first; GL textures start at the bottom: flip here, not by copying.
 vec3 frameValue() { return texture(u_frame, vec2(v_uv.x, 1.0 - v_uv.y)).rgb; }`;
 
-// av1 frames: the decoder's 10-bit Y'CbCr 4:2:0 planes as integer textures (never an 8-bit
-// image), back to RGB as gazehdr.video.to_rgb does: BT.709 weights, full range, each chroma
+// Stream frames (h264, av1): the decoder's 10-bit Y'CbCr 4:2:0 planes as integer textures (never an
+// 8-bit image), back to RGB as gazehdr.video.to_rgb does: BT.709 weights, full range, each chroma
 // sample over its 2×2 block; nearest pixel.
 const YUV_SOURCE = `
 uniform usampler2D u_y;
@@ -84,7 +86,7 @@ export class Renderer {
     this.vao = gl.createVertexArray();
     this.texture = texture(gl); // draw() sets its filter
     this.filter = gl.NEAREST;
-    this.planes = [0, 1, 2].map(() => texture(gl)); // av1: Y', Cb, Cr
+    this.planes = [0, 1, 2].map(() => texture(gl)); // a stream's Y', Cb, Cr
   }
 
   /**
@@ -116,7 +118,7 @@ export class Renderer {
   }
 
   /**
-   * Upload one av1 frame as web/video.js copied it out of its VideoFrame: `data` (Uint16Array)
+   * Upload one stream frame as web/video.js copied it out of its VideoFrame: `data` (Uint16Array)
    * holds the 10-bit Y', Cb and Cr planes at `layout` ([{offset, stride}] in bytes), the
    * picture `width`×`height` (the frame's), chroma half that, rounded up.
    */
@@ -124,7 +126,7 @@ export class Renderer {
     const gl = this.gl;
     const sizes = [[width, height], ...Array(2).fill([Math.ceil(width / 2), Math.ceil(height / 2)])];
     const f = this.frame;
-    const again = f && f.encoding === ENCODING.AV1 && f.width === width && f.height === height;
+    const again = f && f.encoding === YUV && f.width === width && f.height === height;
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 2);
     for (let i = 0; i < 3; i++) {
       const [w, h] = sizes[i];
@@ -137,7 +139,7 @@ export class Renderer {
       }
     }
     gl.pixelStorei(gl.UNPACK_ROW_LENGTH, 0);
-    this.frame = { width, height, encoding: ENCODING.AV1 };
+    this.frame = { width, height, encoding: YUV };
   }
 
   /** Match the drawing buffer to the canvas's CSS size × devicePixelRatio; true if changed. */
@@ -213,7 +215,7 @@ export class Renderer {
       this.warp.draw(counter, gaze, magnified);
       return;
     }
-    const { program, at } = this.frame.encoding === ENCODING.AV1 ? this.yuv : this.raw;
+    const { program, at } = this.frame.encoding === YUV ? this.yuv : this.raw;
     gl.useProgram(program);
     if (program === this.yuv.program) {
       for (let i = 0; i < 3; i++) {

@@ -1,29 +1,38 @@
-// The av1 encoding in the browser (docs/protocol.md): packets of a 10-bit AV1 stream, decoded
-// with WebCodecs' VideoDecoder and copied out of each VideoFrame as 16-bit planes, so the
-// dither shader gets all 10 bits (drawing the VideoFrame as an image would give it 8).
+// The stream encodings in the browser (docs/protocol.md): packets of a 10-bit H.264 or AV1
+// stream, decoded with WebCodecs' VideoDecoder and copied out of each VideoFrame as 16-bit
+// planes, so the dither shader gets all 10 bits (drawing the VideoFrame as an image would give
+// it 8).
 
-/** WebCodecs' name for the server's stream (gazehdr.video.CODEC). */
-export const CODEC = 'av01.0.08M.10';
-/** Software decoding (dav1d in Chromium) gives pictures in memory as I420P10, which copyTo
- * reads; a hardware decoder may give GPU-only frames (format null) that it cannot. */
+import { ENCODING } from './protocol.js';
+
+/** WebCodecs' names for the server's streams (gazehdr.video.CODECS, the same), by encoding. */
+export const CODECS = Object.freeze({
+  h264: { codec: 'avc1.6E0028', what: 'H.264 High 10' },
+  av1: { codec: 'av01.0.08M.10', what: 'AV1, 10 bits' },
+});
+const NAMES = Object.freeze({ [ENCODING.H264]: 'h264', [ENCODING.AV1]: 'av1' });
+/** Software decoding (FFmpeg's h264 and dav1d in Chromium) gives pictures in memory as
+ * I420P10, which copyTo reads; a hardware decoder may give GPU-only frames (format null) that
+ * it cannot. */
 const ACCELERATION = 'prefer-software';
 
 /**
- * Whether this page can decode the stream: null if it can, else why not, in words for the
- * viewer. WebCodecs exists only in a secure context (https, or http on localhost).
+ * Whether this page can decode stream `name` ('h264', 'av1'): null if it can, else why not, in
+ * words for the viewer. WebCodecs exists only in a secure context (https, or http on localhost).
  */
-export async function unsupported(width = 1920, height = 1080) {
+export async function unsupported(name, width = 1920, height = 1080) {
   if (typeof VideoDecoder === 'undefined') {
     return globalThis.isSecureContext === false
       ? 'WebCodecs needs a secure context: open the viewer over https (or on localhost)'
       : 'this browser has no WebCodecs VideoDecoder';
   }
+  const { codec, what } = CODECS[name];
   try {
-    const config = { codec: CODEC, codedWidth: width, codedHeight: height, hardwareAcceleration: ACCELERATION };
+    const config = { codec, codedWidth: width, codedHeight: height, hardwareAcceleration: ACCELERATION };
     const { supported } = await VideoDecoder.isConfigSupported(config);
-    return supported ? null : `this browser does not decode ${CODEC} (AV1, 10 bits)`;
+    return supported ? null : `this browser does not decode ${codec} (${what})`;
   } catch (err) {
-    return `VideoDecoder refused ${CODEC}: ${err.message}`;
+    return `VideoDecoder refused ${codec}: ${err.message}`;
   }
 }
 
@@ -39,23 +48,25 @@ export class VideoStream {
     this.onLost = onLost;
     this.decoder = null;
     this.size = null; // [width, height] the decoder is configured for
+    this.name = null; // and the stream ('h264', 'av1')
     this.keyed = false;
     this.stats = { packets: 0, decoded: 0, skipped: 0, lost: 0, lastError: null };
     this.pending = new Map(); // frame number → header, until its picture comes out
   }
 
-  _open(width, height) {
+  _open(name, width, height) {
     this.decoder?.state !== 'closed' && this.decoder?.close();
     const decoder = new VideoDecoder({
       output: (frame) => this._output(frame),
       error: (err) => decoder === this.decoder && this._lost(`decoder error: ${err.message}`),
     });
     decoder.configure({
-      codec: CODEC, codedWidth: width, codedHeight: height, optimizeForLatency: true,
+      codec: CODECS[name].codec, codedWidth: width, codedHeight: height, optimizeForLatency: true,
       hardwareAcceleration: ACCELERATION,
     }); // prettier-ignore
     this.decoder = decoder;
     this.size = [width, height];
+    this.name = name;
   }
 
   _lost(why) {
@@ -71,12 +82,13 @@ export class VideoStream {
   decode(header, packet) {
     this.stats.packets += 1;
     const { width, height } = header;
-    if (!header.keyframe && (!this.keyed || this.decoder?.state !== 'configured')) {
+    const name = NAMES[header.encoding];
+    if (!header.keyframe && (!this.keyed || this.decoder?.state !== 'configured' || this.name !== name)) {
       this.stats.skipped += 1; // the keyframe it waits for was asked for when it broke
       return;
     }
-    if (header.keyframe && (!this.decoder || this.decoder.state !== 'configured' || this.size[0] !== width || this.size[1] !== height)) {
-      this._open(width, height);
+    if (header.keyframe && (!this.decoder || this.decoder.state !== 'configured' || this.name !== name || this.size[0] !== width || this.size[1] !== height)) {
+      this._open(name, width, height);
     }
     try {
       const type = header.keyframe ? 'key' : 'delta';

@@ -10,11 +10,12 @@ Chromium's software WebGL competes with the simulation for the CPU); that client
 process (`socket`, sharing the server's interpreter) or in one of its own (`process`, as a
 browser does).
 
-`av1` (gazehdr.video) is a viewer's choice: the session simulates `rgb10a2`, the page opens with
-`?encoding=av1`, the socket client asks for it, acks each frame as the page does and decodes
-every packet (dav1d, as Chromium); frames per second count decoded pictures. `--link-mbit`
-runs the whole benchmark over a capped link (gazehdr.bench.netlink: a network namespace whose
-loopback `tc` shapes), so the raw encodings and `av1` are compared over the same link.
+The streams (`h264`, `av1`: gazehdr.video) are a viewer's choice: the session simulates
+`rgb10a2`, the page opens with `?encoding=h264`, the socket client asks for it, acks each frame
+as the page does and decodes every packet (FFmpeg's h264 and dav1d, as Chromium); frames per
+second count decoded pictures. `--link-mbit` runs the whole benchmark over a capped link
+(gazehdr.bench.netlink: a network namespace whose loopback `tc` shapes), so the raw encodings
+and the streams are compared over the same link.
 """
 
 from __future__ import annotations
@@ -214,7 +215,7 @@ async def _socket_client(
 
     async with websockets.connect(f"{url}/ws/view", max_size=None, additional_headers=auth) as ws:
         stream = encoding not in RAW
-        decoder = Decoder() if stream else None
+        decoder = Decoder(encoding.name) if stream else None
         decode_s, lost = 0.0, 0
         if stream:
             await ws.send(json.dumps({"type": "encoding", "name": encoding.name}))

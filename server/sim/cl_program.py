@@ -1,6 +1,6 @@
 """The process's one OpenCL context and the kernels' programs: which device, the build
 options and the width the kernels are built for, and how a kernel is launched. Apart from the
-backend (opencl.py) because its stages, the baseline models' stages (models.py) and the av1
+backend (opencl.py) because its stages, the baseline models' stages (models.py) and the
 streams' converters (gazehdr.yuv) all build and launch on it."""
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def pick_device() -> cl.Device:
     return (gpus or devices)[0]
 
 
-#: Sessions (and the av1 streams' converters, gazehdr.yuv) start on threads of their own,
+#: Sessions (and the streams' converters, gazehdr.yuv) start on threads of their own,
 #: several at once: without it, each first caller of `shared_context` would make a context of
 #: its own (functools.cache does not hold others back), and a program built on one would meet
 #: buffers of another (INVALID_CONTEXT).
