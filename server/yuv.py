@@ -3,7 +3,7 @@
 BT.709 weights, full range (a grey `v` keeps its level `round(1023 v)` as Y', Cb = Cr = 512),
 each chroma sample from the mean of a 2×2 block. The forward conversion is integer arithmetic
 on the 10-bit levels with fixed rounding, so the OpenCL kernel (`Converter`, the live path: a
-1080p frame in a few ms on two cores, where numpy takes ~100 ms) and the numpy reference
+1080p frame in 1.8 ms on two cores, where numpy takes ~100 ms) and the numpy reference
 (`to_yuv420p10`, tests and a fallback) agree bit for bit. The inverse (`to_rgb`) is the viewer
 shader's (web/renderer.js), in float.
 """
@@ -96,13 +96,11 @@ ushort chroma(int diff, long mul) {{
     return (ushort)clamp((diff * mul + BIAS) >> {SHIFT}, 0L, 1023L);
 }}
 
-// One work-item per 2×2 block of the padded (even) frame; `w`, `h`: the frame's size.
-#define CONVERT(name, T, LEVEL) \\
-__kernel void name(__global const T *in, int w, int h, __global ushort *Y, __global ushort *U, \\
-                   __global ushort *V) {{ \\
-    int bx = get_global_id(0), by = get_global_id(1); \\
-    int w2 = (w + 1) / 2, h2 = (h + 1) / 2; \\
-    if (bx >= w2 || by >= h2) return; \\
+// One 2×2 block (bx, by) of the padded (even) frame; `w`, `h`: the frame's size.
+#define BLOCK(name, T, LEVEL) \\
+void name(__global const T *in, int w, int h, int bx, int by, __global ushort *Y, \\
+          __global ushort *U, __global ushort *V) {{ \\
+    int w2 = (w + 1) / 2; \\
     int3 s = (int3)(0); \\
     for (int dy = 0; dy < 2; dy++) {{ \\
         for (int dx = 0; dx < 2; dx++) {{ \\
@@ -116,23 +114,95 @@ __kernel void name(__global const T *in, int w, int h, __global ushort *Y, __glo
     U[by * w2 + bx] = chroma((s.z << 16) - ys, MUL_CB); \\
     V[by * w2 + bx] = chroma((s.x << 16) - ys, MUL_CR); \\
 }}
-CONVERT(yuv_from_rgb10, uint, level_rgb10)
-CONVERT(yuv_from_half, half, level_half)
+BLOCK(block_rgb10, uint, level_rgb10)
+BLOCK(block_half, half, level_half)
+
+// f16 frames: one work-item per block.
+__kernel void yuv_from_half(__global const half *in, int w, int h, __global ushort *Y,
+                            __global ushort *U, __global ushort *V) {{
+    int bx = get_global_id(0), by = get_global_id(1);
+    if (bx < (w + 1) / 2 && by < (h + 1) / 2) block_half(in, w, h, bx, by, Y, U, V);
+}}
+
+// rgb10a2 frames (the live default): VEC blocks a work-item (2 VEC pixels of two rows) as
+// vectors, the same integer arithmetic; a row's last blocks one at a time. `Converter` at 1080p
+// 0.36× as long as with a work-item per block (docs/performance.md, "The streams").
+#ifdef GAZEHDR_POCL
+#define LOADV_UI(p) (*(__global const uintv_u *)(p))
+#else
+#define LOADV_UI(p) CAT(vload, VEC)(0, p)
+#endif
+#if VEC == 16
+#define EVEN(a, b) SHUFFLE2(a, b, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30)
+#define ODD(a, b) SHUFFLE2(a, b, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31)
+#else
+#define EVEN(a, b) SHUFFLE2(a, b, 0, 2, 4, 6, 8, 10, 12, 14)
+#define ODD(a, b) SHUFFLE2(a, b, 1, 3, 5, 7, 9, 11, 13, 15)
+#endif
+#ifdef GAZEHDR_POCL
+#define SHUFFLE2(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
+#else
+#define SHUFFLE2(a, b, ...) shuffle2(a, b, (uintv)(__VA_ARGS__))
+#endif
+typedef CAT(long, VEC) longv;
+#define TO_LONGV(x) CAT(convert_long, VEC)(x)
+
+// The 10-bit levels of VEC words, and their Y' (as `luma`).
+#define R_(p) AS_INTV((p) & 1023u)
+#define G_(p) AS_INTV(((p) >> 10) & 1023u)
+#define B_(p) AS_INTV(((p) >> 20) & 1023u)
+inline ushortv luma_v(uintv p) {{
+    return CAT(convert_ushort, VEC)((R_(p) * CR_ + G_(p) * CG_ + B_(p) * CB_ + 32768) >> 16);
+}}
+
+inline ushortv chroma_v(intv diff, long mul) {{
+    longv c = (TO_LONGV(diff) * mul + BIAS) >> {SHIFT};
+    return CAT(convert_ushort, VEC)(CLAMP(c, (longv)(0), (longv)(1023)));
+}}
+
+__kernel void yuv_from_rgb10(__global const uint *in, int w, int h, __global ushort *Y,
+                             __global ushort *U, __global ushort *V) {{
+    int bx0 = get_global_id(0) * VEC, by = get_global_id(1);
+    int w2 = (w + 1) / 2;
+    if (bx0 >= w2) return;
+    if (2 * (bx0 + VEC) > w) {{  // the row's last blocks (and the odd column), one at a time
+        for (int bx = bx0; bx < w2; ++bx) block_rgb10(in, w, h, bx, by, Y, U, V);
+        return;
+    }}
+    intv sr = (intv)(0), sg = sr, sb = sr;  // each block's sums
+    for (int dy = 0; dy < 2; dy++) {{
+        __global const uint *row = in + (size_t)min(2 * by + dy, h - 1) * w + 2 * bx0;
+        uintv a = LOADV_UI(row), b = LOADV_UI(row + VEC);
+        __global ushort *y = Y + (size_t)(2 * by + dy) * (2 * w2) + 2 * bx0;
+        STOREV_U16(y, luma_v(a));
+        STOREV_U16(y + VEC, luma_v(b));
+        uintv left = EVEN(a, b), right = ODD(a, b);  // each block's two columns
+        sr += R_(left) + R_(right);
+        sg += G_(left) + G_(right);
+        sb += B_(left) + B_(right);
+    }}
+    intv ys = sr * CR_ + sg * CG_ + sb * CB_;
+    STOREV_U16(U + (size_t)by * w2 + bx0, chroma_v((sb << 16) - ys, MUL_CB));
+    STOREV_U16(V + (size_t)by * w2 + bx0, chroma_v((sr << 16) - ys, MUL_CR));
+}}
 """
 
 _ONCE = threading.Lock()
 
 
 @cache
-def _program() -> tuple[Any, Any]:
-    """The kernels, built once per process in the simulator's context (no fast math, so not
-    `build_program`: the integer arithmetic and the one float rounding must be exact)."""
+def _program() -> tuple[Any, Any, int]:
+    """The kernels, built once per process in the simulator's context, on common.cl's vector
+    types and loads, without fast math (so not `build_program`: the integer arithmetic and the
+    one float rounding must be exact)."""
     import pyopencl as cl
 
-    from gazehdr.sim.cl_program import shared_context
+    from gazehdr.sim.cl_program import build_options, kernel_source, shared_context, vector_width
 
     ctx = shared_context()
-    return ctx, cl.Program(ctx, KERNEL).build()
+    vec = vector_width()
+    options = [o for o in build_options(ctx, vec) if o != "-cl-fast-relaxed-math"]
+    return ctx, cl.Program(ctx, kernel_source(("common.cl",)) + KERNEL).build(options), vec
 
 
 class Converter:
@@ -142,7 +212,7 @@ class Converter:
         import pyopencl as cl
 
         with _ONCE:
-            ctx, program = _program()
+            ctx, program, vec = _program()
         self._cl = cl
         self.size, self.dtype = size, np.dtype(dtype)
         w, h = size
@@ -159,7 +229,8 @@ class Converter:
         self._out = [cl.Buffer(ctx, mf.WRITE_ONLY, p.nbytes) for p in self.planes]
         name = "yuv_from_rgb10" if self.dtype == np.uint32 else "yuv_from_half"
         self._kernel = cl.Kernel(program, name)
-        self._grid = (w2, h2)
+        per_item = vec if self.dtype == np.uint32 else 1  # blocks a work-item
+        self._grid = (-(-w2 // per_item), h2)
 
     def __call__(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The planes of `frame` (rgb10a2 words or float16 RGB), valid until the next call."""

@@ -80,16 +80,16 @@ def test_the_device_converts_as_the_reference_does() -> None:
     encodings, an odd size (the last column and row repeated) and values off the [0, 1] range
     and exactly half-way between two levels."""
     rng = np.random.default_rng(3)
-    w, h = 37, 21
-    v = rng.uniform(-0.05, 1.05, (h, w, 3)).astype(np.float16)
-    v[0, :, 0] = (np.arange(w) + 0.5) / 1023  # ties
-    q = rng.integers(0, 1024, (h, w, 3)).astype(np.uint32)
-    words = q[..., 0] | (q[..., 1] << 10) | (q[..., 2] << 20)
-    for frame in (v, words):
-        device = Converter((w, h), frame.dtype)(frame)
-        for mine, reference in zip(device, to_yuv420p10(frame), strict=True):
-            assert mine.shape == reference.shape
-            np.testing.assert_array_equal(mine, reference)
+    for w, h in ((37, 21), (101, 8)):  # rgb10a2: VEC blocks a work-item, the row's end apart
+        v = rng.uniform(-0.05, 1.05, (h, w, 3)).astype(np.float16)
+        v[0, :, 0] = (np.arange(w) + 0.5) / 1023  # ties
+        q = rng.integers(0, 1024, (h, w, 3)).astype(np.uint32)
+        words = q[..., 0] | (q[..., 1] << 10) | (q[..., 2] << 20)
+        for frame in (v, words):
+            device = Converter((w, h), frame.dtype)(frame)
+            for mine, reference in zip(device, to_yuv420p10(frame), strict=True):
+                assert mine.shape == reference.shape
+                np.testing.assert_array_equal(mine, reference)
     # Chroma spans its range: a saturated blue block reaches the top of Cb, yellow the bottom.
     blue = np.zeros((2, 2), np.uint32) | (1023 << 20)
     yellow = np.zeros((2, 2), np.uint32) | 1023 | (1023 << 10)
