@@ -344,9 +344,11 @@ class LiveSession:
         """`feed` has a new reading: it may start the next step early (`step_start`), and goes
         to the viewers that warp, if the session follows it (they place the afterimages at it
         until the next frame, docs/protocol.md `gaze`)."""
+        if self.session.gaze_source != REMOTE_PREFIX + feed.name:
+            return
         self._gaze_came.set()
         warping = [v for v in self.viewers if v.warp]
-        if not warping or self.session.gaze_source != REMOTE_PREFIX + feed.name:
+        if not warping:
             return
         note = gaze_note(feed.reading)
         for viewer in warping:
@@ -421,10 +423,14 @@ class LiveSession:
             await self._until_start(due, interval)
 
     async def _until_start(self, due: float, interval: float) -> None:
-        """Sleep until the step due at `due` starts (`step_start`), woken by each new gaze."""
-        while (wait := step_start(due, interval, self.session.newer_gaze_at())) > (
+        """Sleep until the step due at `due` starts (`step_start`), woken by a new gaze; once
+        one has come, later ones cannot start it sooner (a tracker sends hundreds a second)."""
+        while (wait := step_start(due, interval, came := self.session.newer_gaze_at())) > (
             now := time.monotonic()
         ):
+            if came is not None:
+                await asyncio.sleep(wait - now)
+                return
             self._gaze_came.clear()
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(wait - now):
