@@ -14,6 +14,7 @@ import time
 import pytest
 from sessions import new_session
 
+from gazehdr.gaze import REMOTE_PREFIX
 from gazehdr.live import (
     GAZE_PULL,
     MAX_PENDING_CONTROLS,
@@ -203,3 +204,25 @@ def test_a_pointer_move_does_not_pull_a_session_that_follows_a_track() -> None:
     live._tick(0.0, [])
     live.submit(Gaze(0.3, 0.6, 1))
     assert live.session.newer_gaze_at() is None
+
+
+def test_a_followed_tracker_pulls_the_next_step_and_another_wakes_nothing() -> None:
+    """A tracker's new reading wakes the wait, and pulls the next step, only in a session that
+    follows it."""
+    settings = dataclasses.replace(SETTINGS, gaze_source=REMOTE_PREFIX + "lab")
+    live = LiveSession(new_session(settings, "pipe"), Metrics())
+    live._tick(0.0, [])
+    followed, other = (live.session.trackers.feed(n) for n in ("lab", "elsewhere"))
+    other.fixate(0.2, 0.2, True, time.monotonic())
+    live.forward_gaze(other)
+    assert not live._gaze_came.is_set() and live.session.newer_gaze_at() is None
+    followed.fixate(0.7, 0.4, True, came := time.monotonic())
+    live.forward_gaze(followed)
+    assert live._gaze_came.is_set() and live.session.newer_gaze_at() == came
+
+    async def run() -> float:
+        started = time.monotonic()  # due in 10 s on a cadence of 20 s: pulled to now
+        await asyncio.wait_for(live._until_start(started + 10.0, 20.0), 5.0)
+        return time.monotonic() - started
+
+    assert asyncio.run(run()) < 5.0
