@@ -64,6 +64,8 @@ ADAPT_WG = 256
 BLUR_ROWS = 8
 ACUITY_TILE = (128, 64)  # screen px per work-item of the tiled bank (x: 16 multiple, <= 128)
 
+#: Runs of VEC pixels a work-item of compose's kernels (COMPOSE_RUNS in sec2_4_display.cl).
+COMPOSE_RUNS = 2
 # compose's outputs: kernel, buffer, shape
 COMPOSE_OUTPUTS = {
     np.dtype(np.float32): ("compose", "v", lambda lay: (lay.height, lay.width, 3)),
@@ -237,9 +239,10 @@ class OpenCLBackend:
         size = (_round_up(-(-n // self.vec), ROW_GROUP),)
         self.k["lum16_encode"](self.queue, size, None, src, dst, np.int32(n))
 
-    def rows_v(self) -> tuple[int, int]:
-        """Global size of the kernels that make VEC neighbouring pixels of a row per work-item."""
-        return (-(-self.lay.width // self.vec), self.lay.height)
+    def rows_v(self, runs: int = 1) -> tuple[int, int]:
+        """Global size of the kernels that make `runs` runs of VEC neighbouring pixels of a row
+        per work-item (compose's make two)."""
+        return (-(-self.lay.width // (runs * self.vec)), self.lay.height)
 
     def rho_full(self) -> cl.Buffer:
         """rho at every screen pixel, remade from "rho" when that changed."""
@@ -573,7 +576,7 @@ class OpenCLBackend:
         host_memory = cl.mem_flags.WRITE_ONLY | cl.mem_flags.USE_HOST_PTR  # `out`'s, as it is
         target = cl.Buffer(self.ctx, host_memory, hostbuf=out) if direct else b[buf_name]
         self.k[kernel](
-            self.queue, self.rows_v(), None,
+            self.queue, self.rows_v(COMPOSE_RUNS), None,
             self.P, b["G"], rho_full, b["maps"], b["A"],
             np.int32(lay.width), np.int32(lay.height), np.int32(lay.cell),
             np.int32(lay.grid_w), np.int32(lay.grid_h),

@@ -173,20 +173,36 @@ HOT void store_half_rgb8(__global half *o, rgb8_t c, int n) {
         STORE8((v) + 3 * ((size_t)(y) * (W) + (x)) + 24 * h, rgb_half(c, h), \
                (W) - (x) - 8 * h)
 
+// compose's kernels make two runs of VEC pixels a work-item (global size (ceil(W / 2 VEC), H)),
+// both inlined one after the other where the row has them: compose_rgb10 0.83× as long as with
+// one run at 1920×1080 (docs/performance.md, "Compose"); the row's last pixels a run at a time.
+// STORE(c, x) stores the run at x, cut off at the row's end.
+#define COMPOSE_RUNS(STORE)                                  \
+    int x = get_global_id(0) * 2 * VEC, y = get_global_id(1); \
+    if (x + 2 * VEC <= W) {                                  \
+        rgbv_t c0 = composev(COMPOSE_CALL, x, y);             \
+        rgbv_t c1 = composev(COMPOSE_CALL, x + VEC, y);       \
+        STORE(c0, x);                                        \
+        STORE(c1, x + VEC);                                  \
+        return;                                              \
+    }                                                        \
+    for (; x < W; x += VEC) {                                \
+        rgbv_t c = composev(COMPOSE_CALL, x, y);              \
+        STORE(c, x);                                         \
+    }
+
 // v: H×W×3 float32, interleaved.
 __kernel void compose(COMPOSE_ARGS, __global float *v) {
-    int x = get_global_id(0) * VEC, y = get_global_id(1);
-    if (x >= W) return;
-    rgbv_t c = composev(COMPOSE_CALL, x, y);
-    STORE_RGBV(store_rgb8, v, c, W, x, y);
+#define STORE(c, x) STORE_RGBV(store_rgb8, v, c, W, x, y)
+    COMPOSE_RUNS(STORE)
+#undef STORE
 }
 
 // compose as half floats, for frames sent as float16.
 __kernel void compose_half(COMPOSE_ARGS, __global half *v) {
-    int x = get_global_id(0) * VEC, y = get_global_id(1);
-    if (x >= W) return;
-    rgbv_t c = composev(COMPOSE_CALL, x, y);
-    STORE_RGBV(store_half_rgb8, v, c, W, x, y);
+#define STORE(c, x) STORE_RGBV(store_half_rgb8, v, c, W, x, y)
+    COMPOSE_RUNS(STORE)
+#undef STORE
 }
 
 #define HALF_MAX 65504.0f  // the largest finite half float
@@ -207,10 +223,7 @@ __kernel void compose_base(__constant const params_t *P, __global const ushort *
 
 // The same packed as WebGL2's RGB10_A2 takes it: round(1023 v) per channel (to nearest even),
 // r | g << 10 | b << 20, alpha bits 0. One uint per pixel.
-__kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
-    int x = get_global_id(0) * VEC, y = get_global_id(1);
-    if (x >= W) return;
-    rgbv_t c = composev(COMPOSE_CALL, x, y);
+HOT void store_rgb10(__global uint *v, rgbv_t c, int W, int x, int y) {
 #define TO_10BIT(v) CAT(CAT(convert_uint, VEC), _rte)((v) * 1023.0f)
     uintv q = TO_10BIT(c.r) | (TO_10BIT(c.g) << 10) | (TO_10BIT(c.b) << 20);
 #undef TO_10BIT
@@ -222,6 +235,12 @@ __kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
     uint tmp[VEC];
     STOREV_PRIVATE(q, tmp);
     for (int i = 0; i < W - x; ++i) o[i] = tmp[i];
+}
+
+__kernel void compose_rgb10(COMPOSE_ARGS, __global uint *v) {
+#define STORE(c, x) store_rgb10(v, c, W, x, y)
+    COMPOSE_RUNS(STORE)
+#undef STORE
 }
 
 // The late gaze warp's maps for the viewer (gazehdr.warp): from the planar maps, gain - 1 then
