@@ -15,7 +15,7 @@ agree to the last bit. Two codecs (`CODECS`):
   streams"), in 25-50 KiB a frame (6-12 Mbit/s at 30 fps). Chromium decodes it; Firefox and Safari
   do not decode 10-bit H.264.
 - `av1`: AV1 by SVT-AV1 in its real-time mode: fewer bytes (1 KiB a frame), slower to encode;
-  every current browser decodes it (Chromium with dav1d).
+  Chromium (with dav1d) and Firefox decode it, Safari where the hardware does.
 
 PyAV (FFmpeg's libraries, the `video` extra) is imported only when a stream is opened: a server
 without it serves the raw encodings and refuses a stream with a message saying what to install.
@@ -231,7 +231,9 @@ class Decoder:
     def _open(self) -> Any:
         codec = CODECS[self.name]
         c = self._av.CodecContext.create(codec.decoder, "r")
-        c.options = codec.decoder_options  # a frame out for each packet in, as a viewer's
+        # A frame out for each packet in, as a viewer's: dav1d is told so; FFmpeg's h264
+        # gives one for a stream without B-frames.
+        c.options = codec.decoder_options
         return c
 
     def planes(self, packet: bytes, key: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -127,22 +127,12 @@ __kernel void yuv_from_half(__global const half *in, int w, int h, __global usho
 // rgb10a2 frames (the live default): VEC blocks a work-item (2 VEC pixels of two rows) as
 // vectors, the same integer arithmetic; a row's last blocks one at a time. `Converter` at 1080p
 // 0.36× as long as with a work-item per block (docs/performance.md, "The streams").
-#ifdef GAZEHDR_POCL
-#define LOADV_UI(p) (*(__global const uintv_u *)(p))
-#else
-#define LOADV_UI(p) CAT(vload, VEC)(0, p)
-#endif
 #if VEC == 16
 #define EVEN(a, b) SHUFFLE2(a, b, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30)
 #define ODD(a, b) SHUFFLE2(a, b, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31)
 #else
 #define EVEN(a, b) SHUFFLE2(a, b, 0, 2, 4, 6, 8, 10, 12, 14)
 #define ODD(a, b) SHUFFLE2(a, b, 1, 3, 5, 7, 9, 11, 13, 15)
-#endif
-#ifdef GAZEHDR_POCL
-#define SHUFFLE2(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
-#else
-#define SHUFFLE2(a, b, ...) shuffle2(a, b, (uintv)(__VA_ARGS__))
 #endif
 typedef CAT(long, VEC) longv;
 #define TO_LONGV(x) CAT(convert_long, VEC)(x)

@@ -16,7 +16,9 @@ Written for speed on PoCL (see kernels/common.cl):
 
 The parts that stand alone live apart: the context, the programs' build and the kernels'
 launch (cl_program.py), the parameter block (kernel_params.py), the acuity levels
-(level_stack.py), PoCL's CPU settings (pocl_cpu.py).
+(level_stack.py), G's 16 bits (lum16.py), PoCL's CPU settings (pocl_cpu.py). Past 600 lines
+because what is left is one object: every stage's launches read and write the same device
+buffers, in the order `ReferenceBackend`'s stage methods give.
 """
 
 from __future__ import annotations

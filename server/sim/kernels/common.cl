@@ -1,4 +1,7 @@
 // Shared by every stage: helpers, sampling and the separable Gaussian blur (params_t: see below).
+// Past 600 lines because it is the one prelude every program is built on (cl_program.py puts it
+// first): the vector macros, the lane helpers, sampling, the blur, G's 16 bits and the
+// display-precision math. Split, every program and gazehdr.yuv would list its parts in order.
 // Maps are planar (channel, row, column); pixel i has its centre at coordinate i + 0.5.
 //
 // Speed on the CPU (PoCL). Two things matter:
@@ -58,6 +61,9 @@ typedef float4 float4_u __attribute__((aligned(4)));
 #define LOADV_D(p) (*(__global const ucharv_u *)(p))
 #define STOREV_D(p, v) (*(__global ucharv_u *)(p) = (v))
 #define STOREV_UI(p, v) (*(__global uintv_u *)(p) = (v))
+#define LOADV_UI(p) (*(__global const uintv_u *)(p))
+// Lanes of a and b joined, picked by constant indices (shuffle2() is a library call under PoCL).
+#define SHUFFLE2(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
 #define LOADV_U16(p) (*(__global const ushortv_u *)(p))
 #define STOREV_U16(p, v) (*(__global ushortv_u *)(p) = (v))
 #define TO_USHORTV(x) __builtin_convertvector(x, ushortv)
@@ -79,6 +85,8 @@ typedef float4 float4_u __attribute__((aligned(4)));
 #define LOADV_D(p) CAT(vload, VEC)(0, p)
 #define STOREV_D(p, v) CAT(vstore, VEC)(v, 0, p)
 #define STOREV_UI(p, v) CAT(vstore, VEC)(v, 0, p)
+#define LOADV_UI(p) CAT(vload, VEC)(0, p)
+#define SHUFFLE2(a, b, ...) shuffle2(a, b, (uintv)(__VA_ARGS__))
 #define LOADV_U16(p) CAT(vload, VEC)(0, p)
 #define STOREV_U16(p, v) CAT(vstore, VEC)(v, 0, p)
 #define TO_USHORTV(x) CAT(convert_ushort, VEC)(x)

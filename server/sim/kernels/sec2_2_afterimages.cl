@@ -258,11 +258,6 @@ __kernel void afterimage_maps(__constant const params_t *P, __global const float
 #define BEFORE_LANES 7, 8, 9, 10, 11, 12, 13, 14
 #define AFTER_LANES 1, 2, 3, 4, 5, 6, 7, 8
 #endif
-#ifdef GAZEHDR_POCL  // shuffle2() is a library call under PoCL
-#define SHIFT2(a, b, LANES) __builtin_shufflevector(a, b, LANES)
-#else
-#define SHIFT2(a, b, LANES) shuffle2(a, b, (CAT(uint, VEC))(LANES))
-#endif
 
 // The 3 taps along row r at the VEC cells from j (a whole run), edges clamped: the neighbours
 // are the run shifted by a lane, the cell before and after it shifted in (the edge cell itself
@@ -271,7 +266,8 @@ HOT floatv row_taps3v(__global const float *r, int j, int w, float t0, float t1,
     floatv c = LOADV_G(r + j);
     floatv before = (floatv)(j > 0 ? r[j - 1] : c.s0);
     floatv after = (floatv)(j + VEC < w ? r[j + VEC] : LAST(c));
-    return t0 * SHIFT2(before, c, BEFORE_LANES) + t1 * c + t2 * SHIFT2(c, after, AFTER_LANES);
+    return t0 * SHUFFLE2(before, c, BEFORE_LANES) + t1 * c +
+           t2 * SHUFFLE2(c, after, AFTER_LANES);
 }
 
 __kernel void retina_blur(__global const float *src, __global float *dst,
