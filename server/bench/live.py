@@ -6,9 +6,10 @@ over the same window: frames per second delivered to the page, bytes per frame, 
 per frame split into simulation, encoding and sending, and the latency from a pointer move to
 the first frame that used it, as the page measured it (p50, p95). The same run with a plain
 WebSocket client instead of the browser separates the browser's own cost (on a 2-core machine
-Chromium's software WebGL competes with the simulation for the CPU); that client runs in this
-process (`socket`, sharing the server's interpreter) or in one of its own (`process`, as a
-browser does).
+Chromium's software WebGL competes with the simulation for the CPU); that client
+(gazehdr.bench.frame_client: each message read once, into one buffer, as a browser's network
+stack does) runs in this process (`socket`, sharing the server's interpreter) or in one of its
+own (`process`, as a browser does).
 
 The streams (`h264`, `av1`: gazehdr.video) are a viewer's choice: the session simulates
 `rgb10a2`, the page opens with `?encoding=h264`, the socket client asks for it, acks each frame
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from gazehdr.bench import netlink
+from gazehdr.bench.frame_client import FrameClient
 from gazehdr.drivers.cli_args import size_list_arg
 from gazehdr.protocol import RAW, Encoding, split_frame
 
@@ -209,11 +211,9 @@ async def _socket_client(
     """Frames per second and pointer-to-frame latency as a plain client sees them; `mark` is
     called with "warm" when the timed window starts and "done" when it ends (the server's
     figures are taken there)."""
-    import websockets
-
     from gazehdr.video import Decoder
 
-    async with websockets.connect(f"{url}/ws/view", max_size=None, additional_headers=auth) as ws:
+    async with await FrameClient.connect(f"{url}/ws/view", auth) as ws:
         stream = encoding not in RAW
         decoder = Decoder(encoding.name) if stream else None
         decode_s, lost = 0.0, 0
