@@ -144,6 +144,7 @@ def test_bench_roofline_prints_a_line_per_stage(capsys) -> None:
     assert live[2] == pytest.approx(sum(r[2] for r in rows.values()), abs=0.02)  # MB
     assert live[3] == pytest.approx(live[2] * 1e6 / (W * H), rel=0.01)  # bytes per pixel
     assert "OpenCL ms" in out  # the stage table is still there
+    assert f"{W}x{H}  scene=lamp  roofline, rgb10a2 out" in out  # what the live path composes
 
 
 def test_roofline_refuses_models() -> None:

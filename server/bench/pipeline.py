@@ -284,9 +284,12 @@ def _print_roofline(width: int, height: int, args, roofs):
 
     sim.start(open_scene(args.scene).render(0.0, width, height), (width / 2, height / 2))
     sim.step(args.dt)
-    out = np.float16 if args.half else np.float32
+    # What the live path composes: rgb10a2 (the server's default) or, with --half, f16.
+    out, name = (np.float16, "f16") if args.half else (np.uint32, "rgb10a2")
     costs, kernel_s, wall_s = roofline.profile_live(sim, args.frames, args.dt, out)
-    print(f"\n{width}x{height}  scene={args.scene}  roofline, OpenCL device: {sim.device}")
+    print(
+        f"\n{width}x{height}  scene={args.scene}  roofline, {name} out, OpenCL device: {sim.device}"
+    )
     print(roofline.roofs_line(roofs))
     for line in roofline.table(costs, kernel_s, wall_s, roofs, width * height):
         print(line)
@@ -309,7 +312,10 @@ def main(argv: list[str] | None = None) -> int:
         "--opencl-only", action="store_true", help="time the kernels only, without OpenCV"
     )
     ap.add_argument(
-        "--half", action="store_true", help="compose to float16, as frames sent as f16 are"
+        "--half",
+        action="store_true",
+        help="compose to float16, as frames sent as f16 are (the roofline: else rgb10a2, as the "
+        "server's default encoding; the stage table: else float32, as OpenCV's side)",
     )
     ap.add_argument(
         "--models",
