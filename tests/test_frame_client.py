@@ -116,13 +116,31 @@ def test_a_message_over_the_limit_is_refused() -> None:
     async def client() -> None:
         async with serve(handler, "127.0.0.1", 0, max_size=None) as server:
             port = server.sockets[0].getsockname()[1]
-            ws = await FrameClient.connect(f"ws://127.0.0.1:{port}/")
-            ws._max = 4096
+            ws = await FrameClient.connect(f"ws://127.0.0.1:{port}/", max_message=4096)
             try:
                 with pytest.raises(FrameClientError, match="over 4096 bytes"):
                     await ws.recv()
             finally:
                 await ws.close()
+
+    _run(client())
+
+
+def test_a_refused_handshake_says_so() -> None:
+    """The library's server answers 403 instead of switching protocols."""
+    from http import HTTPStatus
+
+    def refuse(connection, request):
+        return connection.respond(HTTPStatus.FORBIDDEN, "no\n")
+
+    async def handler(ws) -> None:  # never reached
+        await ws.close()
+
+    async def client() -> None:
+        async with serve(handler, "127.0.0.1", 0, process_request=refuse) as server:
+            port = server.sockets[0].getsockname()[1]
+            with pytest.raises(FrameClientError, match=r"handshake refused: .*403"):
+                await FrameClient.connect(f"ws://127.0.0.1:{port}/")
 
     _run(client())
 

@@ -23,6 +23,7 @@ from types import TracebackType
 
 from websockets.client import ClientProtocol
 from websockets.frames import Frame, Opcode
+from websockets.protocol import State
 from websockets.uri import parse_uri
 
 #: The largest message taken (a 3840×2160 float16 frame is 50 MB).
@@ -80,7 +81,9 @@ class FrameClient:
         self._max = max_message
 
     @classmethod
-    async def connect(cls, url: str, headers: dict[str, str] | None = None) -> FrameClient:
+    async def connect(
+        cls, url: str, headers: dict[str, str] | None = None, max_message: int = MAX_MESSAGE
+    ) -> FrameClient:
         """Open `url` (ws://host:port/path) with these extra request headers."""
         uri = parse_uri(url)
         if uri.secure:
@@ -104,12 +107,13 @@ class FrameClient:
                 answer += chunk
             head, rest = answer.split(b"\r\n\r\n", 1)
             protocol.receive_data(head + b"\r\n\r\n")  # parsed and checked by the library
-            if protocol.handshake_exc is not None:
-                raise FrameClientError(f"handshake refused: {protocol.handshake_exc}")
+            if protocol.state is not State.OPEN:  # a refusal may have a body not read here
+                status = head.split(b"\r\n", 1)[0].decode("latin-1")
+                raise FrameClientError(f"handshake refused: {protocol.handshake_exc or status}")
         except BaseException:
             sock.close()
             raise
-        return cls(sock, rest)
+        return cls(sock, rest, max_message)
 
     async def _read(self, into: memoryview) -> None:
         """Fill `into` from what the handshake left, then from the socket."""
