@@ -50,13 +50,20 @@ def test_bytes_are_the_buffers_each_stage_reads_and_writes() -> None:
     costs = roofline.account(launches, lay, sim.params, d)
     assert [ln.stage for ln in launches][-1] == "compose"
     # the acuity stage: acuity_levels reads rho_full and the noise, writes d; acuity_pick
-    # reads d and, per pixel, the scene (d = 0) or the one level it shows, and writes G
+    # reads d and, for each run of VEC pixels, every level from its lowest d to its highest
+    # (the row's last pixels one each), and writes G
     picked = [ln.name for ln in launches if ln.stage == "acuity"]
     assert picked == ["acuity_levels", "acuity_pick"]
     kept = float(np.mean(d == 0))
     assert 0 < kept < 1, "the lamp scene should drop bands at some pixels, not all"
     expect = buf["rho_full"].size + b._noise_buf.size + 2 * buf["d"].size + b.P.size
-    expect += 2 * buf["G"].size  # one level read (the scene's or a blurred one), G written
+    read = 0  # pixels' worth of levels read, run by run
+    for row in d.astype(int):
+        for x in range(0, W, b.vec):
+            run = row[x : x + b.vec]
+            read += (run.max() - run.min() + 1) * b.vec if len(run) == b.vec else len(run)
+    assert read > full  # some runs span levels
+    expect += 2 * 3 * read + buf["G"].size  # the levels read (16-bit, 3 channels), G written
     assert costs["acuity"].bytes == pytest.approx(expect)
     assert buf["G"].size == 3 * 2 * full and buf["d"].size == full  # 16 bits a channel
     # compose: G, rho at every pixel, the maps of the cells the screen shows, A, the fovea
@@ -160,3 +167,10 @@ def test_a_launch_the_timer_reads_as_zero_counts_one_nanosecond() -> None:
 
     assert _event_s(SimpleNamespace(profile=SimpleNamespace(start=7, end=7))) == 1e-9
     assert _event_s(SimpleNamespace(profile=SimpleNamespace(start=0, end=2500))) == 2.5e-6
+
+
+def test_the_pick_reads_every_level_a_run_spans() -> None:
+    """Runs of 2: [0, 2] reads levels 0..2 (3 levels, 2 pixels each), [1, 1] one; the row's
+    last pixel its own level."""
+    d = np.array([[0, 2, 1, 1, 3], [0, 0, 0, 0, 0]], np.uint8)
+    assert roofline._pick_levels_read(d, 2) == (3 * 2 + 1 * 2 + 1) + (2 + 2 + 1)

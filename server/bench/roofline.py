@@ -141,7 +141,8 @@ def _io(name: str, a: tuple, gsize: tuple, lay, params, d_map) -> tuple[list, fl
         )
     if name == "acuity_pick":  # stack, stride, d, G, W, H
         px = lay.width * lay.height
-        level = 2 * 3 * px / _size(a[0])  # each pixel reads one level (the scene's is one)
+        read = _pick_levels_read(d_map, -(-lay.width // gsize[0])) if d_map is not None else px
+        level = 2 * 3 * read / _size(a[0])  # a level's pixel: three 16-bit channels
         return [(0, "r", level), (2, "r", 1), (3, "w", 1)], px * 3, 0
     if name == "lum16_encode":  # src, dst, n
         n = int(a[2])
@@ -153,6 +154,17 @@ def _io(name: str, a: tuple, gsize: tuple, lay, params, d_map) -> tuple[list, fl
         px = lay.width * lay.height
         return [*acc, (13, "r", 1), (14, "w", 1)], px * COMPOSE_FLOPS, px * COMPOSE_TRANS
     raise KeyError(f"no accounting for kernel {name!r}: add it to roofline._io")
+
+
+def _pick_levels_read(d_map: np.ndarray, vec: int) -> int:
+    """Pixels' worth of levels the pick reads (kernel acuity_pick): each whole run of `vec`
+    pixels reads every level from its lowest d to its highest, the row's last pixels their own
+    one each. Without a d map the roofline counts one level a pixel."""
+    h, w = d_map.shape
+    whole = w // vec * vec
+    runs = d_map[:, :whole].reshape(h, -1, vec).astype(np.int32)
+    spans = runs.max(axis=2) - runs.min(axis=2) + 1
+    return int(spans.sum()) * vec + h * (w - whole)
 
 
 def _bank_flops(a: tuple, lay, params, d_map) -> float:
