@@ -22,7 +22,7 @@ import struct
 from types import TracebackType
 
 from websockets.client import ClientProtocol
-from websockets.frames import Frame, Opcode
+from websockets.frames import Close, Frame, Opcode
 from websockets.protocol import State
 from websockets.uri import parse_uri
 
@@ -58,14 +58,6 @@ def payload_length(first_two: bytes, extended: bytes) -> int:
     if n < 126:
         return n
     return struct.unpack("!H" if n == 126 else "!Q", extended)[0]
-
-
-def close_reason(payload: bytes | memoryview) -> str:
-    """A close frame's code and reason, as words."""
-    if len(payload) < 2:
-        return "no code"
-    (code,) = struct.unpack("!H", payload[:2])
-    return f"{code} {str(payload[2:], 'utf-8', 'replace')}".rstrip()
 
 
 class FrameClient:
@@ -146,7 +138,7 @@ class FrameClient:
                 if opcode is Opcode.PING:
                     await self._send(Frame(Opcode.PONG, bytes(payload)))
                 elif opcode is Opcode.CLOSE:
-                    raise FrameClientError(f"the server closed: {close_reason(payload)}")
+                    raise FrameClientError(f"the server closed: {Close.parse(bytes(payload))}")
                 continue
             if (opcode is Opcode.CONT) != (kind is not None):
                 raise FrameClientError("a continuation frame out of place")
@@ -172,7 +164,7 @@ class FrameClient:
     async def close(self) -> None:
         """Say so (close code 1000) and close the socket; the server's answer is not awaited."""
         with contextlib.suppress(OSError):  # the server may have gone first
-            await self._send(Frame(Opcode.CLOSE, struct.pack("!H", 1000)))
+            await self._send(Frame(Opcode.CLOSE, Close(1000, "").serialize()))
         self._sock.close()
 
     async def __aenter__(self) -> FrameClient:
