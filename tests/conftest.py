@@ -117,13 +117,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         item.add_marker(pytest.mark.slow if slow else pytest.mark.quick)
 
 
-def pytest_runtest_logstart(nodeid: str, location: tuple[str, int | None, str]) -> None:
-    """Where GAZEHDR_TEST_TRACE names a file, it holds the test now starting: should the process
-    die of a signal, which pytest cannot report, .ci/run names that test."""
-    if trace := os.environ.get("GAZEHDR_TEST_TRACE"):
-        Path(trace).write_text(nodeid + "\n")
-
-
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
     """Under CI a skip is a failure, with its reason: CI has everything every test needs (the

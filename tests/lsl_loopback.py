@@ -3,6 +3,8 @@
 Importing this sets `LSLAPICFG` to tests/data/lsl_api.cfg (unless set already) before liblsl
 reads its configuration (at its first use in the process, and in every daemon the tests start):
 streams are resolved on this machine only, nothing is sent to a multicast group or broadcast.
+Under pytest-xdist each worker gets a copy with a SessionID of its own: liblsl shows a resolver
+only the streams of its session, so tests running side by side never find each other's.
 
 The layouts are those the apps publish (read in their sources: labstreaminglayer/App-TobiiPro
 `mainwindow.cpp`, App-EyeLink `eyelink.py`, App-PupilLabs `channel.py`, Gazepoint's
@@ -13,15 +15,31 @@ from __future__ import annotations
 
 import gc
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("LSLAPICFG", str(Path(__file__).parent / "data" / "lsl_api.cfg"))
 
-import pylsl
+def _config() -> str:
+    """tests/data/lsl_api.cfg, or under an xdist worker its copy in the session of that worker
+    of this run (PYTEST_XDIST_TESTRUNUID, PYTEST_XDIST_WORKER)."""
+    shared = Path(__file__).parent / "data" / "lsl_api.cfg"
+    worker, run = os.environ.get("PYTEST_XDIST_WORKER"), os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if not (worker and run):
+        return str(shared)
+    own = Path(tempfile.gettempdir()) / f"gazehdr-lsl-{run}-{worker}.cfg"
+    text = shared.read_text().replace("[lab]\n", f"[lab]\nSessionID = gazehdr-{run}-{worker}\n")
+    assert "SessionID" in text, "tests/data/lsl_api.cfg has no [lab] section"
+    own.write_text(text)
+    return str(own)
+
+
+os.environ.setdefault("LSLAPICFG", _config())
+
+import pylsl  # noqa: E402 (liblsl reads LSLAPICFG when it loads)
 
 Channel = tuple[str, str, str, str]  # label, eye, type, unit ("" where the app gives none)
 

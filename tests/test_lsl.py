@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import re
 import signal
 import socket
 import subprocess
@@ -319,3 +321,26 @@ def test_connecting_a_connected_or_closed_source_is_refused(lsl_outlet) -> None:
     source.close()
     with pytest.raises(InvalidStateError, match=r"connect\(\) in state CLOSED"):
         source.connect()
+
+
+def test_a_stream_is_found_only_in_its_own_lsl_session(lsl_outlet, tmp_path: Path) -> None:
+    """What keeps the suite's two workers apart (lsl_loopback): a resolver with another
+    SessionID does not find this process's stream, one with the same finds it."""
+    lsl_outlet(stream_info("Apart", "Gaze", XY, source_id="apart"))
+    ours = Path(os.environ["LSLAPICFG"]).read_text()
+    if worker := os.environ.get("PYTEST_XDIST_WORKER"):  # the suite's usual run
+        assert re.search(rf"(?m)^SessionID = gazehdr-.*-{worker}$", ours), ours
+    other = tmp_path / "other.cfg"
+    alone = re.sub(r"(?m)^SessionID = .*\n", "", ours)  # under xdist: the worker's own
+    other.write_text(alone.replace("[lab]\n", "[lab]\nSessionID = gazehdr-another-run\n", 1))
+    assert other.read_text() != ours
+    resolve = "import pylsl; print(len(pylsl.resolve_bypred(\"name='Apart'\", 1, 2.0)))"
+
+    def found(config: str) -> str:
+        env = {**os.environ, "LSLAPICFG": config}
+        done = subprocess.run([sys.executable, "-c", resolve], env=env, capture_output=True,
+                              text=True, timeout=30)  # fmt: skip
+        return done.stdout.strip()
+
+    assert found(str(other)) == "0"
+    assert found(os.environ["LSLAPICFG"]) == "1"
