@@ -25,6 +25,20 @@ def test_bench_prints_stages_ratios_and_agrees(capsys) -> None:
         assert lo <= ratio <= hi, (stage, cl_ms, cv_ms, ratio)
     diff = float(re.search(r"mean \|v_OpenCL - v_OpenCV\| = ([\d.e+-]+)", out).group(1))
     assert diff < 0.01  # the same work on both sides (edge sampling differs slightly)
+    live_step_is_timed_as_the_server_sends_it(out, "rgb10a2")
+
+
+def live_step_is_timed_as_the_server_sends_it(out: str, encoding: str) -> None:
+    row = re.search(r"live step ([\d.]+) ms \(([\d.]+) fps\): scene maps kept, (\w+) out", out)
+    assert row, out
+    ms, fps = float(row[1]), float(row[2])
+    assert ms > 0 and abs(fps - 1000 / ms) < 0.01 * fps + 0.1
+    assert row[3] == encoding
+
+
+def test_bench_opencl_only_times_the_live_step_in_half_floats(capsys) -> None:
+    assert main(["--frames", "1", "--sizes", "64x48", "--opencl-only", "--half"]) == 0
+    live_step_is_timed_as_the_server_sends_it(capsys.readouterr().out, "float16")
 
 
 def test_bench_times_each_model_beside_the_default(capsys) -> None:

@@ -206,6 +206,7 @@ def _bench_size(
     times: dict[str, list[float]] = {f"cl.{s}": [] for s in (*STAGES, "step", "live")}
     times.update({f"cv.{s}": [] for s in (*STAGES, "step")})
     out_dtype = np.float16 if half else np.float32
+    live_output = "float16" if half else "rgb10a2"  # the server's f16, or its default
 
     def timed(key: str, fn) -> None:
         t0 = time.perf_counter()
@@ -223,8 +224,9 @@ def _bench_size(
         timed("cl.compose", lambda g=gaze: b.compose(g, 1.0, out_dtype))
         sim._prepared_for = None  # make step() redo the scene maps, as the stage loop did
         timed("cl.step", lambda g=gaze: sim.step(dt, gaze=g))
-        # A live frame: the scene maps are kept (they change only with the scene).
-        timed("cl.live", lambda g=gaze: live.step(dt, gaze=g))
+        # A live frame: the scene maps are kept (they change only with the scene), and the
+        # frame is encoded as the server sends it.
+        timed("cl.live", lambda g=gaze: live.step(dt, gaze=g, output=live_output))
         if cvp is None:
             continue
         t_all = time.perf_counter()
@@ -241,7 +243,7 @@ def _bench_size(
         times["cv.step"].append(time.perf_counter() - t_all)
     # The first two frames warm caches and JITs; medians of the rest.
     result = {k: statistics.median(v[2:]) * 1000 for k, v in times.items() if v}
-    result["device"] = sim.device
+    result["device"], result["live_output"] = sim.device, live_output
     if cvp is not None:
         result["check"] = float(np.abs(cvp.compose(gazes[-1]) - b.compose(gazes[-1], 1.0)).mean())
     return result
@@ -314,8 +316,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--half",
         action="store_true",
-        help="compose to float16, as frames sent as f16 are (the roofline: else rgb10a2, as the "
-        "server's default encoding; the stage table: else float32, as OpenCV's side)",
+        help="compose to float16, as frames sent as f16 are (the roofline and the live step: "
+        "else rgb10a2, the server's default encoding; the stage table: else float32, as "
+        "OpenCV's side)",
     )
     ap.add_argument(
         "--models",
@@ -373,8 +376,8 @@ def main(argv: list[str] | None = None) -> int:
             for stage in STAGES:
                 print(f"  {stage:<10}{r[f'cl.{stage}']:>12.2f}")
             print(f"  {'pipeline':<10}{r['cl.step']:>12.2f}")
-            live = r["cl.live"]
-            print(f"  live step {live:.2f} ms ({1000 / live:.1f} fps): scene maps kept")
+            live, out = r["cl.live"], r["live_output"]
+            print(f"  live step {live:.2f} ms ({1000 / live:.1f} fps): scene maps kept, {out} out")
             continue
         print(f"  {'stage':<10}{'OpenCL ms':>12}{'OpenCV ms':>12}{'CL/CV':>9}")
         for stage in (*STAGES, "step"):
@@ -383,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {name:<10}{cl_ms:>12.2f}{cv_ms:>12.2f}{cl_ms / max(cv_ms, 1e-9):>9.2f}")
         fps_cl, fps_cv = 1000 / r["cl.step"], 1000 / r["cv.step"]
         print(f"  pipeline: {fps_cl:.1f} fps OpenCL, {fps_cv:.1f} fps OpenCV;")
-        live = r["cl.live"]
-        print(f"  live step {live:.2f} ms ({1000 / live:.1f} fps): scene maps kept;")
+        live, out = r["cl.live"], r["live_output"]
+        print(f"  live step {live:.2f} ms ({1000 / live:.1f} fps): scene maps kept, {out} out;")
         print(f"  same work: mean |v_OpenCL - v_OpenCV| = {r['check']:.2e}")
     return 0
