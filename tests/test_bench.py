@@ -31,8 +31,8 @@ def test_bench_prints_stages_ratios_and_agrees(capsys) -> None:
 def live_step_is_timed_as_the_server_sends_it(out: str, encoding: str) -> None:
     row = re.search(r"live step ([\d.]+) ms \(([\d.]+) fps\): scene maps kept, (\w+) out", out)
     assert row, out
-    ms, fps = float(row[1]), float(row[2])
-    assert ms > 0 and abs(fps - 1000 / ms) < 0.01 * fps + 0.1
+    ms, fps = float(row[1]), float(row[2])  # ms rounded to 0.01: fps within what that allows
+    assert 1000 / (ms + 0.005) - 0.1 <= fps <= 1000 / max(ms - 0.005, 1e-9) + 0.1, (ms, fps)
     assert row[3] == encoding
 
 
