@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ast
 import asyncio
+import fcntl
 import os
 import re
 import subprocess
@@ -293,9 +294,18 @@ def _run(*args: str | Path, cwd: Path | None = None, timeout: float = 600) -> st
 
 @pytest.fixture(scope="module")
 def dist(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """The sdist, and the wheel built from it (`python -m build`, no isolation: offline)."""
-    out = tmp_path_factory.mktemp("dist")
-    _run(sys.executable, "-m", "build", "--no-isolation", "--outdir", out, ROOT)
+    """The sdist, and the wheel built from it (`python -m build`, no isolation: offline). Once
+    a run: the build writes its egg-info into the checkout, so two xdist workers building at
+    once would race; the first builds into the run's shared folder under a lock, the other
+    waits and takes that."""
+    base = tmp_path_factory.getbasetemp()
+    run = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the workers' run's
+    out = run / "dist"
+    with open(run / "dist.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # let go when the file closes
+        if not any(out.glob("gazehdr-*.whl")):
+            out.mkdir(exist_ok=True)
+            _run(sys.executable, "-m", "build", "--no-isolation", "--outdir", out, ROOT)
     (sdist,) = out.glob("gazehdr-*.tar.gz")
     (wheel,) = out.glob("gazehdr-*.whl")
     return {"sdist": sdist, "wheel": wheel}
