@@ -8,7 +8,7 @@ option breaks this test rather than the container.
 The tests marked `docker` (at the end) build the images on a base made by docker/make-base.sh,
 run the server container and take a frame from it over /ws/view, and stream gaze into it from
 the daemon container. The default run leaves them out (pyproject.toml: `-m "not docker"`); run
-them with `pytest -m docker` where `docker info` answers (they skip, saying so, where it does
+them with `pytest -n 0 -m docker` where `docker info` answers (they skip, saying so, where it does
 not). See docker/README.md, "Checks".
 """
 
