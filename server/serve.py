@@ -31,6 +31,7 @@ from gazehdr.sim import Simulator
 from gazehdr.sim.layout import check_frame_size
 from gazehdr.sim.models import Models
 from gazehdr.sim.presets import DEFAULT_PRESET, describe, load_params
+from gazehdr.ws_protocol import FrameWritingProtocol
 
 #: Largest WebSocket message a client may send (uvicorn closes with 1009 beyond it).
 WS_MAX_MESSAGE = 1024 * 1024
@@ -135,7 +136,8 @@ def _check_lsl(name: str) -> None:
 
 def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicorn.Server:
     """The one way we run uvicorn: the websockets library's sans-I/O core, which waits for the
-    socket to drain before each send (a slow viewer then skips frames, see server/live.py).
+    socket to drain before each send (a slow viewer then skips frames, see server/live.py),
+    large frames written with one copy (ws_protocol.py).
     Per-message deflate is off: browsers ask for it, and zlib on megabytes of float16 noise
     per frame cost more CPU than the simulation (bench-live: 3.9 fps with it at 1280×720).
     Proxy headers are off (docs/security.md)."""
@@ -143,7 +145,7 @@ def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicor
         app,
         host=host,
         port=port,
-        ws="websockets-sansio",
+        ws=FrameWritingProtocol,
         ws_max_size=WS_MAX_MESSAGE,
         ws_per_message_deflate=False,
         # A client's address is its socket's: X-Forwarded-For is not believed (uvicorn does
