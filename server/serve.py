@@ -157,20 +157,19 @@ def uvicorn_server(app, host: str, port: int, log_level: str = "info") -> uvicor
     return uvicorn.Server(config)
 
 
-class BackgroundServer:
-    """`create_app(config)` on 127.0.0.1, in a thread: for tests and benchmarks.
+class UvicornThread:
+    """`app` under `uvicorn_server` on 127.0.0.1, in a thread, started when this returns.
 
     It listens on a free port the system picks, or on `sock`: a listening socket that the
     caller keeps open (the server gets a duplicate, closed when it stops), so that servers
     started on it one after another are found at one address, which nobody can take between.
     """
 
-    def __init__(self, config: ServerConfig, sock: socket.socket | None = None) -> None:
-        self.config = config
-        self.app = create_app(config)
+    def __init__(self, app, sock: socket.socket | None = None) -> None:
+        self.app = app
         listener = bind("127.0.0.1", 0) if sock is None else sock.dup()
         self.port = listener.getsockname()[1]
-        self.server = uvicorn_server(self.app, "127.0.0.1", self.port, log_level="warning")
+        self.server = uvicorn_server(app, "127.0.0.1", self.port, log_level="warning")
         self.thread = threading.Thread(
             target=self.server.run, kwargs={"sockets": [listener]}, daemon=True
         )
@@ -182,15 +181,23 @@ class BackgroundServer:
             time.sleep(0.01)
         self.url = f"http://127.0.0.1:{self.port}"
         self.ws_url = f"ws://127.0.0.1:{self.port}"
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=15)
+
+
+class BackgroundServer(UvicornThread):
+    """`create_app(config)` as a `UvicornThread`: for tests and benchmarks."""
+
+    def __init__(self, config: ServerConfig, sock: socket.socket | None = None) -> None:
+        super().__init__(create_app(config), sock)
+        self.config = config
         self.token = config.token
         #: What a script sends with a write or a private read (`gazehdr.security`).
         self.auth = {"Authorization": f"Bearer {config.token}"}
         self.hub = self.app.state.hub
         self.metrics = self.app.state.metrics
-
-    def stop(self) -> None:
-        self.server.should_exit = True
-        self.thread.join(timeout=15)
 
 
 def bind(host: str, port: int) -> socket.socket:

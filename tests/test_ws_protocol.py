@@ -6,9 +6,6 @@ messages that keep uvicorn's own path."""
 from __future__ import annotations
 
 import asyncio
-import socket
-import threading
-import time
 from collections.abc import Iterator
 
 import pytest
@@ -18,7 +15,7 @@ from websockets.frames import Frame, Opcode
 
 from gazehdr import ws_protocol
 from gazehdr.bench.frame_client import FrameClient
-from gazehdr.serve import uvicorn_server
+from gazehdr.serve import UvicornThread
 from gazehdr.ws_protocol import LARGE, binary_header
 
 #: What the test app sends, in order, then it closes with 1000: large (written directly) and
@@ -50,19 +47,9 @@ def server() -> Iterator[int]:
             await (ws.send_text(m) if isinstance(m, str) else ws.send_bytes(m))
         await ws.close(1000)
 
-    listener = socket.create_server(("127.0.0.1", 0))
-    port = listener.getsockname()[1]
-    uv = uvicorn_server(app, "127.0.0.1", port, log_level="warning")
-    thread = threading.Thread(target=uv.run, kwargs={"sockets": [listener]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 10
-    while not uv.started:
-        assert time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.01)
-    yield port
-    uv.should_exit = True
-    thread.join(10)
-    listener.close()
+    uv = UvicornThread(app)  # under serve.uvicorn_server, as every server of ours
+    yield uv.port
+    uv.stop()
 
 
 def test_the_library_client_gets_every_message_whole(server: int, monkeypatch) -> None:

@@ -38,6 +38,7 @@ from gazehdr.sim.reference import (
     ln_sigma_n,
     opponent_gain,
 )
+from gazehdr.sim.simulator import OUTPUT_DTYPES
 
 SIZES = ((640, 360), (1280, 720), (1920, 1080))
 STAGES = ("prepare", "adapt", "retina", "acuity", "compose")
@@ -207,13 +208,13 @@ def _bench_size(
     times.update({f"cv.{s}": [] for s in (*STAGES, "step")})
     out_dtype = np.float16 if half else np.float32
     out = "float16" if half else "rgb10a2"  # the live step's: the server's f16, or its default
-    live_frame: dict[str, np.ndarray] = {}  # the last, whose type the table names
 
-    def timed(key: str, fn) -> None:
+    def timed(key: str, fn):
         t0 = time.perf_counter()
-        fn()
+        value = fn()
         b.queue.finish()
         times[key].append(time.perf_counter() - t0)
+        return value
 
     for i, gaze in enumerate(gazes):
         noise = sim._noise.at(i * dt)
@@ -227,7 +228,7 @@ def _bench_size(
         timed("cl.step", lambda g=gaze: sim.step(dt, gaze=g))
         # A live frame: the scene maps are kept (they change only with the scene), and the
         # frame is encoded as the server sends it.
-        timed("cl.live", lambda g=gaze: live_frame.update(v=live.step(dt, gaze=g, output=out)))
+        frame = timed("cl.live", lambda g=gaze: live.step(dt, gaze=g, output=out))
         if cvp is None:
             continue
         t_all = time.perf_counter()
@@ -245,8 +246,9 @@ def _bench_size(
     # The first two frames warm caches and JITs; medians of the rest.
     result = {k: statistics.median(v[2:]) * 1000 for k, v in times.items() if v}
     result["device"] = sim.device
-    dtype = live_frame["v"].dtype.name
-    result["live_output"] = {"uint32": "rgb10a2"}.get(dtype, dtype)  # float16 is its name
+    # named from the last frame itself: the encoding it came in, else its dtype (float32)
+    names = {np.dtype(t): name for name, t in OUTPUT_DTYPES.items()}
+    result["live_output"] = names.get(frame.dtype, frame.dtype.name)
     if cvp is not None:
         result["check"] = float(np.abs(cvp.compose(gazes[-1]) - b.compose(gazes[-1], 1.0)).mean())
     return result

@@ -45,7 +45,8 @@ class WarpLayers:
     fovea_sigma_px: float  # the foveal fall-off's sigma, screen px
 
 
-_DEVICE_OUTPUT = {"float16": np.float16, "rgb10a2": np.uint32}
+#: The dtype of each encoded output a step returns (`step(output=...)`).
+OUTPUT_DTYPES = {"float16": np.float16, "rgb10a2": np.uint32}
 
 
 def _check_output(output: str) -> None:
@@ -259,7 +260,7 @@ class Simulator:
             self._gaze = self._check_gaze(gaze)
         b = self._backend
         if output != "float32" and b.name == "opencl":
-            kind = _DEVICE_OUTPUT[output]
+            kind = OUTPUT_DTYPES[output]
             return b.compose(self._gaze, self._eyes, kind, self._visibility, out)
         v = encode_output(b.compose(self._gaze, self._eyes, visibility=self._visibility), output)
         if out is None:
