@@ -6,6 +6,7 @@ test fails the run."""
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import os
 import socket
 from collections.abc import Callable, Iterator
@@ -101,6 +102,39 @@ def pytest_configure(config: pytest.Config) -> None:
         "markers", "quick: the daily subset (`pytest -m quick`, under 2 minutes on 2 cores)"
     )
     config.addinivalue_line("markers", "slow: left out of the quick subset")
+    config.addinivalue_line(
+        "markers",
+        "alone: compares rates measured over real seconds, so runs while no other xdist worker"
+        " runs a test",
+    )
+
+
+def run_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The folder this whole run shares: under xdist the workers' common parent of their
+    basetemps, else the run's own basetemp."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@pytest.fixture(autouse=True)
+def _machine_turn(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[None]:
+    """A readers-writer lock across xdist workers: every test holds it shared, an `alone` test
+    exclusively, so a rate it measures over real seconds (frames during a flood against frames
+    just before) is not skewed by the other worker's load changing in between. Writers go
+    first: a test waiting for its turn alone holds the turnstile, and no new test starts past
+    it until that one has run."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        yield
+        return
+    alone = request.node.get_closest_marker("alone") is not None
+    folder = run_folder(tmp_path_factory)
+    with open(folder / "turnstile.lock", "a") as turnstile, open(folder / "turn.lock", "a") as turn:
+        fcntl.flock(turnstile, fcntl.LOCK_EX)
+        fcntl.flock(turn, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(turnstile, fcntl.LOCK_UN)
+        yield  # the turn is let go when its file closes
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -90,6 +90,7 @@ def _flood(server, path: str, headers: dict[str, str], message: str, seconds: fl
     )  # fmt: skip
 
 
+@pytest.mark.alone
 @pytest.mark.parametrize(
     ("path", "message", "size"),
     [

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import pytest
 import websockets
+from conftest import run_folder
 
 from gazehdr.viewer import ViewerMissingError, viewer_files
 
@@ -298,8 +299,7 @@ def dist(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     a run: the build writes its egg-info into the checkout, so two xdist workers building at
     once would race; the first builds into the run's shared folder under a lock, the other
     waits and takes that."""
-    base = tmp_path_factory.getbasetemp()
-    run = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the workers' run's
+    run = run_folder(tmp_path_factory)
     out = run / "dist"
     with open(run / "dist.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # let go when the file closes
