@@ -13,6 +13,8 @@ Tolerances (float32 kernels vs float64 reference, relaxed math):
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -496,3 +498,42 @@ def test_a_launch_packs_by_value_arguments_as_the_kernel_declares_them() -> None
     assert (got == 1.5).all()
     with pytest.raises(cl.LogicError):
         plain(queue, (8,), None, out, 2, 1, 0.25)
+
+
+def test_alongside_runs_its_side_after_what_came_before_and_before_what_comes_after() -> None:
+    """The OpenCL backend's `alongside` (the acuity beside the retina): the side queue's work
+    starts only once everything enqueued before is done (compose's last read of G), and what
+    is enqueued after waits for both sides (compose reads G). Held by user events on a real
+    PoCL queue and let go in turn; each "not yet" would fail if its wait were missing."""
+    p = Params()
+    b = OpenCLBackend(Layout.for_frame(64, 48, p), p)
+    before, side_held = cl.UserEvent(b.ctx), cl.UserEvent(b.ctx)
+    cl.enqueue_barrier(b.queue, wait_for=[before])
+    marks: dict[str, cl.Event] = {}
+
+    def side() -> None:
+        marks["side"] = cl.enqueue_marker(b.queue)
+        cl.enqueue_barrier(b.queue, wait_for=[side_held])
+        b.queue.flush()
+
+    def main() -> None:
+        marks["main"] = cl.enqueue_marker(b.queue)
+
+    main_queue = b.queue
+    b.alongside(side, main)
+    assert b.queue is main_queue
+    after = cl.enqueue_marker(b.queue)
+    b.queue.flush()
+
+    def done(event: cl.Event) -> bool:
+        return event.command_execution_status == cl.command_execution_status.COMPLETE
+
+    time.sleep(0.1)
+    assert not done(marks["side"]) and not done(marks["main"])  # both wait for `before`
+    before.set_status(cl.command_execution_status.COMPLETE)
+    marks["side"].wait()
+    marks["main"].wait()
+    time.sleep(0.1)
+    assert not done(after)  # it waits for the side's last command
+    side_held.set_status(cl.command_execution_status.COMPLETE)
+    after.wait()

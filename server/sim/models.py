@@ -97,7 +97,9 @@ class OpenCLStageBackend(StageBackend, Protocol):
     """The OpenCL backend: stages enqueue their own kernels on its queue, on its buffers."""
 
     ctx: cl.Context  # to make a stage's own buffers
-    queue: cl.CommandQueue  # every kernel and copy of a frame, in order
+    #: The queue a stage's kernels and copies go on, in order. Read it at each use: the acuity
+    #: stage runs on a second queue, beside the afterimage stage's (`alongside`).
+    queue: cl.CommandQueue
     P: cl.Buffer  # the parameter block params_t (kernel_params.py), the kernels' first argument
     #: Device maps by name, planar float32 (G: 16-bit codes, lum16.py, written by `store_G`),
     #: shaped as `ReferenceStageBackend.a`, plus the scratch plane set "grid_a" (STATE_PLANES

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 
 import numpy as np
 import pyopencl as cl
@@ -151,6 +152,7 @@ class OpenCLBackend:
         self._taps: dict[float, tuple[cl.Buffer, int]] = {}
         self._noise_buf: cl.Buffer | None = None
         self._uploads: list[cl.Event] = []  # host-to-device copies still in flight (_upload)
+        self._beside: tuple[cl.CommandQueue, cl.CommandQueue] | None = None  # (queue, its side)
         self._acuity_taps = [self.taps_for(s) for s in acuity_increments(params, lay.ppd)]
         self._rho_taps = self.taps_for(lay.px(params.rho_sigma_deg) / lay.cell)
         self._surround_taps = self.taps_for(lay.px(params.surround_sigma_deg) / lay.cell)
@@ -218,6 +220,29 @@ class OpenCLBackend:
             buf = cl.Buffer(self.ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=taps)
             self._taps[key] = (buf, len(taps) // 2)
         return self._taps[key]
+
+    def alongside(self, side: Callable[[], None], main: Callable[[], None]) -> None:
+        """Enqueue `side` on a second queue and `main` on `queue`, so that their kernels run at
+        once: each kernel leaves a core idle at times (its last work-groups, the pick's waits
+        on memory) that the other's can use. `side` starts once everything enqueued before it
+        is done, and what is enqueued after waits for both. The acuity beside the adaptation and
+        the retina: whole 1920x1080 steps 0.96x as long on two CPU cores (docs/performance.md,
+        "Launching kernels")."""
+        queue = self.queue
+        if self._beside is None or self._beside[0] is not queue:  # a bench swaps `queue`
+            self._beside = (queue, cl.CommandQueue(self.ctx, properties=queue.properties))
+        beside = self._beside[1]
+        cl.enqueue_barrier(beside, wait_for=[cl.enqueue_marker(queue)])
+        self.queue = beside
+        try:
+            side()
+        finally:
+            self.queue = queue
+            side_done = cl.enqueue_marker(beside)
+        try:
+            main()
+        finally:
+            cl.enqueue_barrier(queue, wait_for=[side_done])
 
     def blur(
         self, src: cl.Buffer, dst: cl.Buffer, tmp: cl.Buffer, taps: tuple[cl.Buffer, int],

@@ -16,6 +16,7 @@ Conventions shared with the kernels:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -487,6 +488,11 @@ class ReferenceBackend:
 
     def wait(self) -> None:
         """Stages run at once, on the host: nothing is left to wait for."""
+
+    def alongside(self, side: Callable[[], None], main: Callable[[], None]) -> None:
+        """`side` then `main` (the OpenCL backend runs them at once)."""
+        side()
+        main()
 
     def compose(self, gaze, eyes: float, visibility: float = 1.0) -> np.ndarray:
         a = self.a

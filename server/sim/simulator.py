@@ -303,12 +303,18 @@ class Simulator:
         elif self._eyes > was_open or self._saccade(previous, dt):
             self._boost_since = self.time
         self._prepare()
-        b.adapt(self._gaze, dt, False)
-        self._afterimage.retina(self._gaze, dt, False)
-        if self._eyes:
-            self._acuity.acuity(self._noise.at(self.time), self._gaze, self.time)
+
+        def eye() -> None:
+            b.adapt(self._gaze, dt, False)
+            self._afterimage.retina(self._gaze, dt, False)
+
+        if self._eyes:  # the acuity (Sec. 2.3) needs neither: it runs beside them
+            noise = self._noise.at(self.time)
+            b.alongside(lambda: self._acuity.acuity(noise, self._gaze, self.time), eye)
             if blind_spot_strength(self.params) > 0:
                 b.blind_spot(self._gaze)
+        else:
+            eye()
         p = self.params
         self._visibility = 1.0 + p.afterimage_boost * math.exp(
             -(self.time - self._boost_since) / p.afterimage_boost_s

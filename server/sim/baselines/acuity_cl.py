@@ -28,7 +28,7 @@ class _Taps:
     continuously, so a buffer per sigma (the backend's cache) would grow without end."""
 
     def __init__(self, backend: OpenCLStageBackend, sigma_max: float) -> None:
-        self.queue = backend.queue
+        self.backend = backend
         n = len(gaussian_taps(sigma_max)) + 2  # + 2: rounding of sigma at the cap
         self.buf = cl.Buffer(backend.ctx, cl.mem_flags.READ_ONLY, 4 * n)
         self.sigma: float | None = None
@@ -37,7 +37,7 @@ class _Taps:
     def at(self, sigma: float) -> tuple[cl.Buffer, int]:
         if sigma != self.sigma:
             taps = gaussian_taps(sigma)
-            cl.enqueue_copy(self.queue, self.buf, taps)
+            cl.enqueue_copy(self.backend.queue, self.buf, taps)  # the stage's queue now
             self.sigma, self.radius = sigma, len(taps) // 2
         return self.buf, self.radius
 
