@@ -12,7 +12,8 @@ Written for speed on PoCL (see kernels/common.cl):
 - the afterimage maps are made only where the screen shows them, the rest of the grid on demand
   (get("maps"), or a compose at another gaze);
 - rho at every pixel is kept from the last scene load;
-- G, and the acuity levels it is picked from, are 16 bits a channel (lum16.py): half the bytes.
+- G, and the acuity levels it is picked from, are 16 bits a channel (lum16.py): half the bytes;
+- the acuity runs on a second queue beside the adaptation and the retina (`alongside`).
 
 The parts that stand alone live apart: the context, the programs' build and the kernels'
 launch (cl_program.py), the parameter block (kernel_params.py), the acuity levels
