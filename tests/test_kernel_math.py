@@ -1,19 +1,27 @@
 """The kernels' own transcendentals to display precision (kernels/common.cl: log2_shownv,
-exp2_shownv, log_shownv, exp_shownv, powv_unit, tonev_shown), run on the OpenCL device against
+exp2_shownv, log_shownv, exp_shownv, gammav, tonev_shown), run on the OpenCL device against
 float64 NumPy, over every binade they take and past their ends: compose's gamma and tone curve
 and the afterimage maps rest on them. And floorv, which every lookup and exp rests on."""
 
 from __future__ import annotations
 
+import os
 from functools import cache
 
 import numpy as np
 import pyopencl as cl
 import pytest
 
-from gazehdr.sim.cl_program import build_options, kernel_source, shared_context, vector_width
+from gazehdr.sim.cl_program import (
+    VECTOR_WIDTHS,
+    build_options,
+    kernel_source,
+    native_width,
+    shared_context,
+    vector_width,
+)
 from gazehdr.sim.kernel_params import pack_params, plateau_m
-from gazehdr.sim.params import Params
+from gazehdr.sim.params import GAMMA_MAX, Params
 
 OUTPUTS = ("log2", "gamma", "tone_shown", "tone", "exp2", "log", "exp", "floor")
 KERNEL = """
@@ -23,7 +31,7 @@ __kernel void shown(__constant const params_t *P, __global const float *x,
     size_t n = get_global_size(0) * VEC;
     floatv v = LOADV_G(x + i), w = LOADV_G(z + i);
     STOREV_G(out + i, log2_shownv(MAX(v, FLT_MIN)));
-    STOREV_G(out + i + n, powv_unit(v, P->gamma));
+    STOREV_G(out + i + n, gammav(P, v));
     STOREV_G(out + i + 2 * n, tonev_shown(P, lsn, v));
     STOREV_G(out + i + 3 * n, tonev(P, lsn, v));
     STOREV_G(out + i + 4 * n, exp2_shownv(w));
@@ -35,15 +43,22 @@ __kernel void shown(__constant const params_t *P, __global const float *x,
 
 
 @cache
-def kernel() -> cl.Kernel:
+def kernel(vec: int, portable: bool) -> cl.Kernel:
+    """The test kernel for `vec` lanes, as GPUs build it where `portable` (the caller has set
+    GAZEHDR_CL_PORTABLE to match: build_options reads it)."""
+    assert bool(os.environ.get("GAZEHDR_CL_PORTABLE")) == portable
     ctx = shared_context()
-    prg = cl.Program(ctx, kernel_source(("common.cl",)) + KERNEL).build(build_options(ctx))
+    prg = cl.Program(ctx, kernel_source(("common.cl",)) + KERNEL).build(build_options(ctx, vec))
     return cl.Kernel(prg, "shown")
 
 
-def run(x: np.ndarray, z: np.ndarray, lsn: float, p: Params) -> dict[str, np.ndarray]:
-    """Each of OUTPUTS: the log2/log/gamma/tone functions at x, the exp2/exp ones at z."""
-    size, pad = x.size, -x.size % vector_width()  # whole work-items of VEC lanes
+def run(
+    x: np.ndarray, z: np.ndarray, lsn: float, p: Params, build: tuple[int, bool] | None = None
+) -> dict[str, np.ndarray]:
+    """Each of OUTPUTS: the log2/log/gamma/tone functions at x, the exp2/exp ones at z; built
+    for `build` (lanes, portable), by default this machine's width."""
+    vec, portable = build or (vector_width(), False)
+    size, pad = x.size, -x.size % vec  # whole work-items of VEC lanes
     x, z = np.pad(x, (0, pad), constant_values=1), np.pad(z, (0, pad))
     ctx = shared_context()
     queue = cl.CommandQueue(ctx)
@@ -53,7 +68,7 @@ def run(x: np.ndarray, z: np.ndarray, lsn: float, p: Params) -> dict[str, np.nda
     P = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pack_params(p))
     out = np.empty((len(OUTPUTS), x.size), np.float32)
     buf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    kernel()(queue, (x.size // vector_width(),), None, P, xs, zs, np.float32(lsn), buf)
+    kernel(vec, portable)(queue, (x.size // vec,), None, P, xs, zs, np.float32(lsn), buf)
     cl.enqueue_copy(queue, out, buf)
     return dict(zip(OUTPUTS, out[:, :size].astype(np.float64), strict=True))
 
@@ -69,18 +84,41 @@ def unit() -> np.ndarray:
     return x.astype(np.float32)
 
 
-def test_display_gamma_within_a_tenth_of_a_10_bit_step(unit: np.ndarray) -> None:
-    p = Params()
-    got = run(unit, exp2_inputs(unit), 0.0, p)
+def test_log2_and_exp2_to_display_precision(unit: np.ndarray) -> None:
+    got = run(unit, exp2_inputs(unit), 0.0, Params())
     x = unit.astype(np.float64)
     on = x > 0
     assert np.abs(got["log2"][on] - np.log2(x[on])).max() < 3.5e-5
     z = exp2_inputs(unit).astype(np.float64)
     assert (np.abs(got["exp2"] / 2.0**z - 1) < 3.5e-6).all()
-    gamma, exact = got["gamma"], x**p.gamma
-    assert np.abs(gamma - exact).max() < 1.2e-5  # a 10-bit step: 1/1023 = 9.8e-4
-    assert (np.abs(gamma[on] / exact[on] - 1) < 1.5e-5).all()
-    assert gamma[x == 0].max() == 0.0 and (gamma[x == 1] == 1.0).all()  # black and white kept
+
+
+BUILDS = [(vec, False) for vec in VECTOR_WIDTHS] + [(8, True)]
+
+
+@pytest.mark.parametrize(
+    "build", BUILDS, ids=lambda b: f"vec{b[0]}" + ("-portable" if b[1] else "")
+)
+@pytest.mark.parametrize("gamma", [Params().gamma, 1 / 2.2, 1 / 2.4, 0.9, 1.0, 0.05, GAMMA_MAX])
+def test_display_gamma_within_a_tenth_of_a_10_bit_step(
+    unit: np.ndarray, gamma: float, build: tuple[int, bool], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """gammav at each width and as GPUs build it, over every binade of (0, 1]. Where PoCL
+    builds for AVX-512 at 16 lanes, from its tables and its polynomial fitted to each gamma
+    on the host; elsewhere from log2 and exp2 polynomials, whose error grows with gamma."""
+    monkeypatch.setenv("GAZEHDR_CL_PORTABLE", "1" if build[1] else "")
+    tables = build == (16, False) and native_width() == 16
+    tol = 2.5e-6 if tables else 2.5e-5 * gamma + 4e-6  # 1/1023 = 9.8e-4 a 10-bit step
+    p = Params(gamma=gamma)
+    x = np.concatenate([unit, -unit[-100:], [np.float32(np.nextafter(np.float32(1), 0))]])
+    got = run(x, np.zeros_like(x), 0.0, p, build)["gamma"]
+    x = x.astype(np.float64)
+    exact = np.where(x > 0, np.abs(x) ** gamma, 0.0)
+    on = (x >= np.finfo(np.float32).tiny) & (exact >= 1e-30)  # normal in and out
+    assert (np.abs(got[on] / exact[on] - 1) < tol).all()
+    assert np.abs(got - exact).max() < tol
+    assert (got[x <= 0] == 0.0).all() and (got[x == 1] == 1.0).all()  # black and white kept
+    assert got.max() <= 1.0  # never past white
 
 
 def test_ln_and_e_for_the_afterimage_maps(unit: np.ndarray) -> None:

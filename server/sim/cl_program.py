@@ -112,14 +112,16 @@ def vector_width() -> int:
     step 0.78× as long as with 8 at 1280x720), else 8. GPUs take 8 (a float8 per thread)."""
     wanted = os.environ.get("GAZEHDR_VEC", "").strip()
     if not wanted:
-        return _native_width()
+        return native_width()
     if wanted not in {str(w) for w in VECTOR_WIDTHS}:
         raise RuntimeError(f"GAZEHDR_VEC={wanted!r}: pixels per work-item are 8 or 16")
     return int(wanted)
 
 
 @cache
-def _native_width() -> int:
+def native_width() -> int:
+    """16 where PoCL builds for AVX-512 (X86_AVX512 in kernels/common.cl, unless
+    GAZEHDR_CL_PORTABLE), else 8."""
     ctx = shared_context()
     return 16 if _is_pocl(ctx) and builds_for_avx512(ctx) else 8
 

@@ -25,6 +25,8 @@ Mat3 = tuple[Vec3, Vec3, Vec3]
 MAX_PPD = 4096.0
 #: The kernels' room for acuity band thresholds (kernel_params: the parameter block).
 MAX_BANDS = 8
+#: The largest display gamma the kernels' polynomial for it is fitted to (kernel_params.gamma_poly).
+GAMMA_MAX = 4.0
 
 
 @dataclass(frozen=True)
@@ -222,6 +224,11 @@ class Params:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise InputError(f"parameter {name} must be a finite positive number, got {value}")
+        if self.gamma > GAMMA_MAX:
+            raise InputError(
+                f"parameter gamma = {self.gamma:g} is above {GAMMA_MAX:g} (the kernels' display "
+                "gamma is fitted up to there; a display's compensation is about 0.45)"
+            )
         for name in ("b1", "b2"):
             value = getattr(self, name)
             if len(value) != 3 or not all(math.isfinite(v) and v > 0 for v in value):

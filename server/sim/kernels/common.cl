@@ -109,6 +109,7 @@ typedef int __v8si_t __attribute__((__vector_size__(32)));
 #define X86_AVX512 1
 typedef float __v16sf_t __attribute__((__vector_size__(64)));
 typedef int __v16si_t __attribute__((__vector_size__(64)));
+typedef __v16sf_t __v16sf_u __attribute__((aligned(4)));  // at any float address
 #endif
 #endif
 #define MIN(a, b) ((a) < (b) ? (a) : (b))
@@ -532,11 +533,38 @@ HOT floatv exp2_shownv(floatv z) {
 HOT floatv log_shownv(floatv x) { return log2_shownv(x) * LN2; }
 HOT floatv exp_shownv(floatv x) { return exp2_shownv(CLAMP(x, -87.0f, 87.0f) * LOG2E); }
 
-// x^y for x in [0, 1] and y > 0, the display gamma: within 1.4e-5 relative (1e-5 absolute) of
-// x^0.455 over all floats in (0, 1], a tenth of a 10-bit step; 0^y = 0 and 1^y = 1 exactly.
-HOT floatv powv_unit(floatv x, float y) {
-    floatv r = exp2_shownv(MAX(y * log2_shownv(MAX(x, FLT_MIN)), -126.0f));
-    return x > 0.0f ? r : 0.0f;
+// The display gamma x^gamma (Appendix A's v = J^gamma) for x in [0, 1], at most 1, with 0 and 1
+// exact and 0 for what is not above 0: within 2.5e-6 relative where PoCL builds for AVX-512,
+// 1.4e-5 elsewhere, for gamma in (0, 4] (a fortieth and a seventh of a 10-bit step;
+// tests/test_kernel_math.py).
+// - AVX-512: x = 2^-d m with m in [1, 2) and d in [0, 127], so x^gamma = 2^(-gamma d) m^gamma;
+//   2^(-gamma d) from P's tables (kernel_params.gamma_octaves: d = 32 a + b, b and a each one
+//   vpermi2ps), m^gamma a degree-5 polynomial in m - 1 fitted to P->gamma
+//   (kernel_params.gamma_poly). compose_rgb10 0.88x as long as with the two polynomials
+//   below (docs/performance.md, "Compose"), which at 8 lanes, with a load a lane for each
+//   lookup, it takes 1.3x as long as.
+// - elsewhere: exp2 and log2 polynomials.
+HOT floatv gammav(__constant const params_t *P, floatv x) {
+#if VEC == 16 && defined(X86_AVX512)
+    intv bits = AS_INTV(x);
+    intv d = 127 - (bits >> 23);  // x's binade below 1: 0 for [1, 2)
+    floatv t = AS_FLOATV((bits & 0x7fffff) | 0x3f800000) - 1.0f;  // m - 1, exact
+    __constant const float *c = P->gamma_poly;
+    floatv q = c[4];
+    q = q * t + c[3];
+    q = q * t + c[2];
+    q = q * t + c[1];
+    q = q * t + c[0];
+    __constant const __v16sf_u *T = (__constant const __v16sf_u *)P->gamma_octaves;
+#define LOOKUP(i, lo, hi) \
+    __builtin_astype(     \
+        __builtin_ia32_vpermi2varps512(lo, __builtin_astype(i, __v16si_t), hi), floatv)
+    floatv r = (1.0f + t * q) * LOOKUP(d & 31, T[0], T[1]) * LOOKUP((d >> 5) & 3, T[2], T[3]);
+#undef LOOKUP
+#else
+    floatv r = exp2_shownv(MAX(P->gamma * log2_shownv(MAX(x, FLT_MIN)), -126.0f));
+#endif
+    return x > 0.0f ? MIN(r, 1.0f) : 0.0f;  // never past white
 }
 
 // Naka-Rushton response (Eq. 1-2) with sigma^n = I_bar^(n-m) K^m, in logs: finite everywhere;

@@ -102,9 +102,9 @@ HOT rgbv_t composev(__constant const params_t *P, __global const ushort *G,
         J.b = inside ? J.b : CLAMP(a + t * eb, 0.0f, 1.0f);
     }
     rgbv_t out;
-    out.r = powv_unit(J.r, P->gamma);
-    out.g = powv_unit(J.g, P->gamma);
-    out.b = powv_unit(J.b, P->gamma);
+    out.r = gammav(P, J.r);
+    out.g = gammav(P, J.g);
+    out.b = gammav(P, J.b);
     return out;
 }
 
