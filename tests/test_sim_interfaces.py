@@ -76,7 +76,7 @@ def test_block_fields_named_after_params_carry_their_values() -> None:
     assert list(PARAMS_DTYPE.names) == names
     shared = [f for f in FIELDS if f.name in PARAMS_FIELDS]
     derived = {"ln_K_m", "n_minus_m", "contrast_floor", "rgb2lms", "lms2rgb", "rho_i", "w_S_tone",
-               "gamma_poly", "gamma_octaves"}  # fmt: skip
+               "gamma_poly", "gamma_binades", "n_poly", "n_binades"}  # fmt: skip
     assert set(names) - set(PARAMS_FIELDS) == derived
     for f in shared:
         assert (f.ctype, f.count) == ANNOTATION_TYPES[PARAMS_FIELDS[f.name].type], f.name
@@ -93,8 +93,9 @@ def test_a_params_field_of_a_type_the_block_cannot_hold_is_refused() -> None:
         ValueError, match=r"bands = 9 is outside \[1, 8\] \(acuity bands, the kernels"
     ):
         Params(bands=9)  # the block's room for band thresholds
-    with pytest.raises(ValueError, match=r"gamma = 4.5 is above 4 \(the kernels' display gamma"):
-        Params(gamma=4.5)  # what gammav's polynomial is fitted to
+    for name in ("gamma", "n"):  # what the kernels' polynomials for powers are fitted to
+        with pytest.raises(ValueError, match=rf"{name} = 4.5 is above 4 \(the kernels' powers"):
+            Params(**{name: 4.5})
 
 
 def test_no_kernel_file_declares_params_t_by_hand() -> None:

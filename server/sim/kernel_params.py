@@ -2,11 +2,11 @@
 
 `FIELDS` lists the block in order. A field named after a `Params` field takes its C type and
 length from that field's annotation (float, int, Vec3, Mat3), so the kernels see `Params` as
-it is; the few derived fields (the plateau's logs, the display gamma's tables, the contrast
-floor, the colour matrices, the band thresholds) say how they are computed. From the table
-come the NumPy record (`PARAMS_DTYPE`, `pack_params`) and the C struct (`params_struct`), which
-`cl_program.build_program` puts in front of every program: the two cannot disagree, and the
-kernel files keep only a comment saying so.
+it is; the few derived fields (the plateau's logs, the tables of the display gamma and of n,
+the contrast floor, the colour matrices, the band thresholds) say how they are computed. From
+the table come the NumPy record (`PARAMS_DTYPE`, `pack_params`) and the C struct
+(`params_struct`), which `cl_program.build_program` puts in front of every program: the two
+cannot disagree, and the kernel files keep only a comment saying so.
 Print the struct with `python -m gazehdr.sim.kernel_params`.
 """
 
@@ -61,14 +61,14 @@ def plateau_m(p: Params) -> float:
     return p.n * p.plateau_m_over_n
 
 
-def gamma_poly(p: Params) -> np.ndarray:
-    """c0..c4 of q(t) with m^γ = 1 + t q(t), t = m - 1 in [0, 1): the display gamma's
-    mantissa factor for `gammav` (kernels/common.cl), exact at m = 1. Least squares in the
-    relative error on Chebyshev nodes, reweighted toward the largest errors (minimax)."""
+def power_poly(power: float) -> np.ndarray:
+    """c0..c4 of q(t) with m^power = 1 + t q(t), t = m - 1 in [0, 1): a power's mantissa factor
+    for `powv_binades` (kernels/common.cl), exact at m = 1. Least squares in the relative error
+    on Chebyshev nodes, reweighted toward the largest errors (minimax)."""
     k = np.arange(2000)
     t = (1 - np.cos(np.pi * (k + 0.5) / k.size)) / 2
     m = 1 + t
-    target, weight = (m**p.gamma - 1) / t, t / m**p.gamma  # q's error times weight: p's relative
+    target, weight = (m**power - 1) / t, t / m**power  # q's error times weight: the relative
     rows = np.vander(t, 5, increasing=True) * weight[:, None]
     reweight = np.ones_like(t)
     for _ in range(30):
@@ -78,11 +78,14 @@ def gamma_poly(p: Params) -> np.ndarray:
     return c
 
 
-def gamma_octaves(p: Params) -> np.ndarray:
-    """2^(-γ b) for b in [0, 32), then 2^(-32 γ a) for a in [0, 4): 2^(-γ d) of a binade d =
-    32 a + b below 1 as two table lookups (`gammav`); 64 values, the rest 0."""
-    b = np.arange(32)
-    return np.concatenate([2.0 ** (-p.gamma * b), 2.0 ** (-32 * p.gamma * b[:4]), np.zeros(28)])
+def power_binades(power: float) -> np.ndarray:
+    """2^(power b) for b in [0, 32), then 2^(32 power (a - 4)) for a in [0, 16): 2^(power E) of
+    a binade E = 32 (a - 4) + b as two lookups (`powv_binades`). In float32 the second part
+    runs to 0 and Inf past float's range, the first stays within it (power <= 4), so their
+    product is 0, Inf or the power, never NaN."""
+    exponents = np.concatenate([power * np.arange(32), 32 * power * (np.arange(16) - 4)])
+    with np.errstate(over="ignore"):
+        return (2.0**exponents).astype(np.float32)
 
 
 FIELDS: tuple[BlockField, ...] = (
@@ -95,10 +98,12 @@ FIELDS: tuple[BlockField, ...] = (
     BlockField("ln_K_m", "float", 1, lambda p: plateau_m(p) * math.log(p.plateau_K),
                "m ln K of the plateau (ours)"),
     BlockField("n_minus_m", "float", 1, lambda p: p.n - plateau_m(p), "n - m"),
-    BlockField("gamma_poly", "float", 5, gamma_poly,
-               "gamma_poly(): m^gamma = 1 + t q(t), t = m - 1, q's coefficients"),
-    BlockField("gamma_octaves", "float", 64, gamma_octaves,
-               "gamma_octaves(): 2^(-gamma b), b < 32, then 2^(-32 gamma a), a < 4"),
+    BlockField("gamma_poly", "float", 5, lambda p: power_poly(p.gamma),
+               "power_poly(gamma): m^gamma = 1 + t q(t), t = m - 1, q's coefficients"),
+    BlockField("gamma_binades", "float", 48, lambda p: power_binades(p.gamma),
+               "power_binades(gamma): 2^(gamma b), b < 32, then 2^(32 gamma (a - 4)), a < 16"),
+    BlockField("n_poly", "float", 5, lambda p: power_poly(p.n), "power_poly(n)"),
+    BlockField("n_binades", "float", 48, lambda p: power_binades(p.n), "power_binades(n)"),
     BlockField("contrast_floor", "float", 1, contrast_floor,
                "layout.contrast_floor: x below which a cone counts as dark"),
     from_params("H"),

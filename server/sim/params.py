@@ -25,8 +25,9 @@ Mat3 = tuple[Vec3, Vec3, Vec3]
 MAX_PPD = 4096.0
 #: The kernels' room for acuity band thresholds (kernel_params: the parameter block).
 MAX_BANDS = 8
-#: The largest display gamma the kernels' polynomial for it is fitted to (kernel_params.gamma_poly).
-GAMMA_MAX = 4.0
+#: The largest gamma and n: the kernels' polynomials for x^gamma and I^n are fitted up to there
+#: (kernel_params.power_poly).
+POWER_MAX = 4.0
 
 
 @dataclass(frozen=True)
@@ -224,11 +225,12 @@ class Params:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise InputError(f"parameter {name} must be a finite positive number, got {value}")
-        if self.gamma > GAMMA_MAX:
-            raise InputError(
-                f"parameter gamma = {self.gamma:g} is above {GAMMA_MAX:g} (the kernels' display "
-                "gamma is fitted up to there; a display's compensation is about 0.45)"
-            )
+        for name in ("gamma", "n"):
+            if getattr(self, name) > POWER_MAX:
+                raise InputError(
+                    f"parameter {name} = {getattr(self, name):g} is above {POWER_MAX:g} (the "
+                    "kernels' powers are fitted up to there)"
+                )
         for name in ("b1", "b2"):
             value = getattr(self, name)
             if len(value) != 3 or not all(math.isfinite(v) and v > 0 for v in value):

@@ -533,34 +533,39 @@ HOT floatv exp2_shownv(floatv z) {
 HOT floatv log_shownv(floatv x) { return log2_shownv(x) * LN2; }
 HOT floatv exp_shownv(floatv x) { return exp2_shownv(CLAMP(x, -87.0f, 87.0f) * LOG2E); }
 
+#if VEC == 16 && defined(X86_AVX512)
+// x^p for x in [FLT_MIN, FLT_MAX] and p in (0, 4], from p's tables in P (kernel_params.power_poly
+// and power_binades: the display gamma's and the tone curve's n): x = 2^E m with m in [1, 2),
+// so x^p = 2^(pE) m^p. 2^(pE) by two lookups (E = 32 a + b: b by one vpermi2ps from 32 values,
+// a in [-4, 4] by one vpermps), m^p a degree-5 polynomial in m - 1 fitted to p, exact at m = 1.
+// Within 2.5e-6 relative where x^p is a normal float (tests/test_kernel_math.py). In place of a log2 and an exp2 polynomial:
+// compose_rgb10 0.88x as long for the gamma, and again for the tone curve (docs/performance.md,
+// "Compose"). At 8 lanes each lookup would be a load a lane (compose 1.3x as long), so there
+// and on GPUs the two polynomials stay.
+HOT floatv powv_binades(__constant const float *poly, __constant const float *binades, floatv x) {
+    intv bits = AS_INTV(x);
+    intv E = (bits >> 23) - 127;
+    floatv t = AS_FLOATV((bits & 0x7fffff) | 0x3f800000) - 1.0f;  // m - 1, exact
+    floatv q = poly[4];
+    q = q * t + poly[3];
+    q = q * t + poly[2];
+    q = q * t + poly[1];
+    q = q * t + poly[0];
+    __constant const __v16sf_u *T = (__constant const __v16sf_u *)binades;
+    floatv two_pb = __builtin_astype(
+        __builtin_ia32_vpermi2varps512(T[0], __builtin_astype(E & 31, __v16si_t), T[1]), floatv);
+    floatv two_32pa = lanes_at(__builtin_astype(T[2], floatv), (E >> 5) + 4);
+    return (1.0f + t * q) * two_pb * two_32pa;  // 2^(32pa) may be 0 or Inf, the rest finite: no NaN
+}
+#endif
+
 // The display gamma x^gamma (Appendix A's v = J^gamma) for x in [0, 1], at most 1, with 0 and 1
-// exact and 0 for what is not above 0: within 2.5e-6 relative where PoCL builds for AVX-512,
-// 1.4e-5 elsewhere, for gamma in (0, 4] (a fortieth and a seventh of a 10-bit step;
-// tests/test_kernel_math.py).
-// - AVX-512: x = 2^-d m with m in [1, 2) and d in [0, 127], so x^gamma = 2^(-gamma d) m^gamma;
-//   2^(-gamma d) from P's tables (kernel_params.gamma_octaves: d = 32 a + b, b and a each one
-//   vpermi2ps), m^gamma a degree-5 polynomial in m - 1 fitted to P->gamma
-//   (kernel_params.gamma_poly). compose_rgb10 0.88x as long as with the two polynomials
-//   below (docs/performance.md, "Compose"), which at 8 lanes, with a load a lane for each
-//   lookup, it takes 1.3x as long as.
-// - elsewhere: exp2 and log2 polynomials.
+// exact and 0 for what is not above 0: within 2e-6 relative where PoCL builds for AVX-512
+// (powv_binades), elsewhere 2.5e-5 gamma + 4e-6 (1.5e-5 at Appendix A's 0.455, a seventh of a
+// 10-bit step), for gamma in (0, 4] (tests/test_kernel_math.py).
 HOT floatv gammav(__constant const params_t *P, floatv x) {
 #if VEC == 16 && defined(X86_AVX512)
-    intv bits = AS_INTV(x);
-    intv d = 127 - (bits >> 23);  // x's binade below 1: 0 for [1, 2)
-    floatv t = AS_FLOATV((bits & 0x7fffff) | 0x3f800000) - 1.0f;  // m - 1, exact
-    __constant const float *c = P->gamma_poly;
-    floatv q = c[4];
-    q = q * t + c[3];
-    q = q * t + c[2];
-    q = q * t + c[1];
-    q = q * t + c[0];
-    __constant const __v16sf_u *T = (__constant const __v16sf_u *)P->gamma_octaves;
-#define LOOKUP(i, lo, hi) \
-    __builtin_astype(     \
-        __builtin_ia32_vpermi2varps512(lo, __builtin_astype(i, __v16si_t), hi), floatv)
-    floatv r = (1.0f + t * q) * LOOKUP(d & 31, T[0], T[1]) * LOOKUP((d >> 5) & 3, T[2], T[3]);
-#undef LOOKUP
+    floatv r = powv_binades(P->gamma_poly, P->gamma_binades, MAX(x, FLT_MIN));
 #else
     floatv r = exp2_shownv(MAX(P->gamma * log2_shownv(MAX(x, FLT_MIN)), -126.0f));
 #endif
@@ -574,11 +579,21 @@ HOT floatv tonev(__constant const params_t *P, float ln_sigma_n, floatv I) {
     return I > 0.0f ? 1.0f / (1.0f + e) : 0.0f;
 }
 
-// tonev to display precision (compose): within 2e-5 relative of it.
+// tonev to display precision (compose, the afterimage maps): within 2e-5 relative of it, in
+// [0, 1], 0 for no light. Where PoCL builds for AVX-512, as I^n / (I^n + sigma^n) with I^n from
+// powv_binades (sigma^n / I^n would need I^-n, a polynomial of twice the degree); elsewhere in
+// logs.
 HOT floatv tonev_shown(__constant const params_t *P, float ln_sigma_n, floatv I) {
+#if VEC == 16 && defined(X86_AVX512)
+    floatv sigma_n = exp2_shownv((floatv)(CLAMP(ln_sigma_n * LOG2E, -125.0f, 125.0f)));
+    // I^n within [0, 2^126] (Inf past float's range would make Inf / Inf), the sum a normal float
+    floatv In = MIN(powv_binades(P->n_poly, P->n_binades, MAX(I, FLT_MIN)), 0x1p126f);
+    return I > 0.0f ? In / (In + sigma_n) : 0.0f;
+#else
     floatv z = ln_sigma_n * LOG2E - P->n * log2_shownv(MAX(I, FLT_MIN));
     floatv e = exp2_shownv(CLAMP(z, -125.0f, 115.0f));  // e^-87 .. e^80, as tonev's clamps
     return I > 0.0f ? 1.0f / (1.0f + e) : 0.0f;
+#endif
 }
 
 HOT float ln_sigma_n_of(__constant const params_t *P, float A) {
