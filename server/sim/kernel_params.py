@@ -78,14 +78,16 @@ def power_poly(power: float) -> np.ndarray:
     return c
 
 
-def power_binades(power: float) -> np.ndarray:
-    """2^(power b) for b in [0, 32), then 2^(32 power (a - 4)) for a in [0, 16): 2^(power E) of
-    a binade E = 32 (a - 4) + b as two lookups (`powv_binades`). In float32 the second part
-    runs to 0 and Inf past float's range, the first stays within it (power <= 4), so their
-    product is 0, Inf or the power, never NaN."""
-    exponents = np.concatenate([power * np.arange(32), 32 * power * (np.arange(16) - 4)])
+def power_binades(power: float, share: int) -> np.ndarray:
+    """2^(power (b - share)) for b in [0, 32), then 2^(power (32 a - 127 + share)) for a in
+    [0, 16): 2^(power (e - 127)) of a biased exponent e = 32 a + b as two lookups
+    (`powv_binades`), the first holding `share` of the bias. 31 for x in (0, 1] (the display
+    gamma): both are then at most 1, and exactly 1 at x = 1. 0 for any x (the tone curve's I):
+    the first is then at least 1, so the second runs to Inf only where x^power does. In float32
+    the first stays finite and above 0 (power <= 4), so their product is never NaN."""
+    exponents = np.arange(32) - share, 32 * np.arange(16) - 127 + share
     with np.errstate(over="ignore"):
-        return (2.0**exponents).astype(np.float32)
+        return (2.0 ** (power * np.concatenate(exponents))).astype(np.float32)
 
 
 FIELDS: tuple[BlockField, ...] = (
@@ -100,10 +102,11 @@ FIELDS: tuple[BlockField, ...] = (
     BlockField("n_minus_m", "float", 1, lambda p: p.n - plateau_m(p), "n - m"),
     BlockField("gamma_poly", "float", 5, lambda p: power_poly(p.gamma),
                "power_poly(gamma): m^gamma = 1 + t q(t), t = m - 1, q's coefficients"),
-    BlockField("gamma_binades", "float", 48, lambda p: power_binades(p.gamma),
-               "power_binades(gamma): 2^(gamma b), b < 32, then 2^(32 gamma (a - 4)), a < 16"),
+    BlockField("gamma_binades", "float", 48, lambda p: power_binades(p.gamma, 31),
+               "power_binades(gamma, 31): 2^(gamma (b - 31)), then 2^(gamma (32 a - 96))"),
     BlockField("n_poly", "float", 5, lambda p: power_poly(p.n), "power_poly(n)"),
-    BlockField("n_binades", "float", 48, lambda p: power_binades(p.n), "power_binades(n)"),
+    BlockField("n_binades", "float", 48, lambda p: power_binades(p.n, 0),
+               "power_binades(n, 0): 2^(n b), then 2^(n (32 a - 127))"),
     BlockField("contrast_floor", "float", 1, contrast_floor,
                "layout.contrast_floor: x below which a cone counts as dark"),
     from_params("H"),

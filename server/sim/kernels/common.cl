@@ -534,28 +534,31 @@ HOT floatv log_shownv(floatv x) { return log2_shownv(x) * LN2; }
 HOT floatv exp_shownv(floatv x) { return exp2_shownv(CLAMP(x, -87.0f, 87.0f) * LOG2E); }
 
 #if VEC == 16 && defined(X86_AVX512)
-// x^p for x in [FLT_MIN, FLT_MAX] and p in (0, 4], from p's tables in P (kernel_params.power_poly
-// and power_binades: the display gamma's and the tone curve's n): x = 2^E m with m in [1, 2),
-// so x^p = 2^(pE) m^p. 2^(pE) by two lookups (E = 32 a + b: b by one vpermi2ps from 32 values,
-// a in [-4, 4] by one vpermps), m^p a degree-5 polynomial in m - 1 fitted to p, exact at m = 1.
-// Within 2.5e-6 relative where x^p is a normal float (tests/test_kernel_math.py). In place of a log2 and an exp2 polynomial:
-// compose_rgb10 0.88x as long for the gamma, and again for the tone curve (docs/performance.md,
-// "Compose"). At 8 lanes each lookup would be a load a lane (compose 1.3x as long), so there
-// and on GPUs the two polynomials stay.
+// x^p for x > 0 and p in (0, 4], from p's tables in P (kernel_params.power_poly and
+// power_binades: the display gamma's and the tone curve's n): x = 2^(e - 127) m with e its
+// biased exponent and m in [1, 2), so x^p = 2^(p (e - 127)) m^p. With e = 32 a + b,
+// 2^(p (e - 127)) is a part by b times a part by a, looked up by one vpermi2ps from 32 values
+// (e's low 5 bits) and one vpermps (the host shares the bias between them so that neither
+// part overflows where x^p does not, and for the gamma 1 stays exact: power_binades).
+// m^p is a degree-5 polynomial in m - 1 fitted to p, exact at m = 1. Within 2.5e-6 relative
+// where x^p is a normal float (tests/test_kernel_math.py); for x at most 0, NaN or Inf, finite
+// (the callers select). In place of a log2 and an exp2 polynomial: compose_rgb10 0.88x as long
+// for the gamma, and again 0.92x for the tone curve (docs/performance.md, "Compose"). At 8
+// lanes each lookup would be a load a lane (compose 1.3x as long), so there and on GPUs the
+// two polynomials stay.
 HOT floatv powv_binades(__constant const float *poly, __constant const float *binades, floatv x) {
-    intv bits = AS_INTV(x);
-    intv E = (bits >> 23) - 127;
-    floatv t = AS_FLOATV((bits & 0x7fffff) | 0x3f800000) - 1.0f;  // m - 1, exact
+    intv e = AS_INTV(x) >> 23;  // x > 0: its biased exponent
+    floatv t = AS_FLOATV((AS_INTV(x) & 0x7fffff) | 0x3f800000) - 1.0f;  // m - 1, exact
     floatv q = poly[4];
     q = q * t + poly[3];
     q = q * t + poly[2];
     q = q * t + poly[1];
     q = q * t + poly[0];
     __constant const __v16sf_u *T = (__constant const __v16sf_u *)binades;
-    floatv two_pb = __builtin_astype(
-        __builtin_ia32_vpermi2varps512(T[0], __builtin_astype(E & 31, __v16si_t), T[1]), floatv);
-    floatv two_32pa = lanes_at(__builtin_astype(T[2], floatv), (E >> 5) + 4);
-    return (1.0f + t * q) * two_pb * two_32pa;  // 2^(32pa) may be 0 or Inf, the rest finite: no NaN
+    floatv two_b = __builtin_astype(
+        __builtin_ia32_vpermi2varps512(T[0], __builtin_astype(e, __v16si_t), T[1]), floatv);
+    floatv two_a = lanes_at(__builtin_astype(T[2], floatv), e >> 5);  // vpermps: a's low 4 bits
+    return (1.0f + t * q) * two_b * two_a;  // two_a may be 0 or Inf, the rest finite: no NaN
 }
 #endif
 
@@ -565,7 +568,7 @@ HOT floatv powv_binades(__constant const float *poly, __constant const float *bi
 // 10-bit step), for gamma in (0, 4] (tests/test_kernel_math.py).
 HOT floatv gammav(__constant const params_t *P, floatv x) {
 #if VEC == 16 && defined(X86_AVX512)
-    floatv r = powv_binades(P->gamma_poly, P->gamma_binades, MAX(x, FLT_MIN));
+    floatv r = powv_binades(P->gamma_poly, P->gamma_binades, x);
 #else
     floatv r = exp2_shownv(MAX(P->gamma * log2_shownv(MAX(x, FLT_MIN)), -126.0f));
 #endif
@@ -587,7 +590,7 @@ HOT floatv tonev_shown(__constant const params_t *P, float ln_sigma_n, floatv I)
 #if VEC == 16 && defined(X86_AVX512)
     floatv sigma_n = exp2_shownv((floatv)(CLAMP(ln_sigma_n * LOG2E, -125.0f, 125.0f)));
     // I^n within [0, 2^126] (Inf past float's range would make Inf / Inf), the sum a normal float
-    floatv In = MIN(powv_binades(P->n_poly, P->n_binades, MAX(I, FLT_MIN)), 0x1p126f);
+    floatv In = MIN(powv_binades(P->n_poly, P->n_binades, I), 0x1p126f);
     return I > 0.0f ? In / (In + sigma_n) : 0.0f;
 #else
     floatv z = ln_sigma_n * LOG2E - P->n * log2_shownv(MAX(I, FLT_MIN));
