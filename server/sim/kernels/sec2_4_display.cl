@@ -10,21 +10,25 @@ HOT floatv gamut_t(floatv a, floatv e, floatv t) {
 }
 
 // The first half of composev: tone curve with Purkinje and hue shift, linear RGB before Eq. 12.
-// What a late gaze warp sends (compose_base): none of it depends on the gaze.
+// What a late gaze warp sends (compose_base): none of it depends on the gaze. eyes: 1 open, 0
+// closed (no light: returned at once, in place of three multiplies a run, compose 0.98x).
 HOT rgbv_t basev(__constant const params_t *P, __global const ushort *G,
                     __global const float *rho_full, __global const float *A, int W, int H,
                     float eyes, int x, int y) {
+    rgbv_t J = {0.0f, 0.0f, 0.0f};
+    if (eyes == 0.0f) return J;  // closed: no light
     size_t row = (size_t)y * W, plane = (size_t)W * H;
-    floatv r = eyes * lum16v_row(G + row, x, W);
-    floatv g = eyes * lum16v_row(G + plane + row, x, W);
-    floatv b = eyes * lum16v_row(G + 2 * plane + row, x, W);
+    floatv r = lum16v_row(G + row, x, W);
+    floatv g = lum16v_row(G + plane + row, x, W);
+    floatv b = lum16v_row(G + 2 * plane + row, x, W);
     floatv rc = CLAMP(loadv_row(rho_full + row, x, W), 0.0f, 1.0f);
     floatv yp = dotv(P->w_P, r, g, b), ys = dotv(P->w_S_tone, r, g, b);
     floatv I = rc * yp + (1.0f - rc) * ys;                              // Purkinje (Eq. 13)
     floatv R = tonev_shown(P, ln_sigma_n_of(P, A[0]), I);               // Eq. 1
     floatv ratio = R * rc / MAX(yp, P->Y_min), grey = R * (1.0f - rc);  // hue shift
-    rgbv_t J = {ratio * r + grey * P->k_s[0], ratio * g + grey * P->k_s[1],
-                ratio * b + grey * P->k_s[2]};
+    J.r = ratio * r + grey * P->k_s[0];
+    J.g = ratio * g + grey * P->k_s[1];
+    J.b = ratio * b + grey * P->k_s[2];
     return J;
 }
 
