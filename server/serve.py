@@ -29,7 +29,9 @@ from gazehdr.security import LOOPBACK_NAMES, WILDCARD_HOSTS, policy_for
 from gazehdr.session import GAZE_SOURCES, SessionSettings
 from gazehdr.sim import Simulator
 from gazehdr.sim.layout import check_frame_size
+from gazehdr.sim.level_stack import LEVEL_STACK_AFTER_FRAMES
 from gazehdr.sim.models import Models
+from gazehdr.sim.params import MAX_BANDS
 from gazehdr.sim.presets import DEFAULT_PRESET, describe, load_params
 from gazehdr.ws_protocol import FrameWritingProtocol
 
@@ -227,17 +229,24 @@ def kernel_cache_dir() -> str:
     return os.path.join(base, "pocl", "kcache")
 
 
+#: Steps of `build_kernels`: the first settles; a scene that stays moves the acuity to its level
+#: stack after LEVEL_STACK_AFTER_FRAMES frames, one level a frame, and then picks from it.
+WARM_UP_STEPS = 1 + LEVEL_STACK_AFTER_FRAMES + MAX_BANDS + 1
+
+
 def build_kernels(settings: SessionSettings) -> float:
     """Build (or load from the cache) the kernels of a session as new viewers get it, before
     the address is printed, so that the first viewer sees a picture at once instead of a page
-    waiting for a build: two steps of its model at its frame size. Seconds taken."""
+    waiting for a build, and no kernel is first launched (with an empty cache, built: 60-80 ms
+    each) while it watches: WARM_UP_STEPS steps of its model at its frame size, a still black
+    scene. Seconds taken."""
     started = time.monotonic()
     sim = Simulator(
         settings.width, settings.height, params=settings.params, backend=settings.backend,
         seed=settings.seed, afterimage=settings.model.afterimage, acuity=settings.model.acuity,
     )  # fmt: skip
     sim.load_scene(np.zeros((settings.height, settings.width, 3), np.float32))
-    for _ in range(2):  # the first step settles, the second is a live one
+    for _ in range(WARM_UP_STEPS):
         sim.step(1.0 / settings.fps, output=SIM_OUTPUT.get(settings.encoding, "float16"))
     return time.monotonic() - started
 

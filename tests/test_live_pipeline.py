@@ -11,6 +11,7 @@ import random
 import statistics
 import time
 
+import pyopencl as cl
 import pytest
 from sessions import new_session
 
@@ -26,7 +27,10 @@ from gazehdr.live import (
 )
 from gazehdr.metrics import Metrics
 from gazehdr.protocol import Gaze, ProtocolError, Reset
+from gazehdr.scenes import open_scene
+from gazehdr.serve import build_kernels
 from gazehdr.session import NAMED_TRACKS, SessionSettings
+from gazehdr.sim import Simulator
 
 SETTINGS = SessionSettings(width=64, height=32, scene="lamp", fps=30.0)
 
@@ -226,3 +230,25 @@ def test_a_followed_tracker_pulls_the_next_step_and_another_wakes_nothing() -> N
         return time.monotonic() - started
 
     assert asyncio.run(run()) < 5.0
+
+
+def test_the_servers_warm_up_launches_every_kernel_a_still_scene_does(monkeypatch) -> None:
+    """`serve.build_kernels` steps past the acuity's move to its level stack, so that no kernel
+    is launched first (with an empty kernel cache: built) while the first viewer watches: a
+    session's kernels over 60 steps of a scene that stays are among the warm-up's."""
+    launched: set[str] = set()
+    plain = cl.Kernel.__call__
+
+    def call(kernel, *args, **kwargs):
+        launched.add(kernel.function_name)
+        return plain(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(cl.Kernel, "__call__", call)
+    build_kernels(SETTINGS)
+    warm, launched = launched, set()
+    s = SETTINGS
+    sim = Simulator(s.width, s.height, params=s.params, seed=1)
+    sim.load_scene(open_scene(s.scene).render(0.0, s.width, s.height))
+    for i in range(60):
+        sim.step(1 / s.fps, gaze=(s.width * (i % 5) / 5, s.height / 2), output="float16")
+    assert "acuity_pick" in launched and launched <= warm, sorted(launched - warm)
