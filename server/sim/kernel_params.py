@@ -16,6 +16,7 @@ import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 
@@ -61,10 +62,12 @@ def plateau_m(p: Params) -> float:
     return p.n * p.plateau_m_over_n
 
 
-def power_poly(power: float) -> np.ndarray:
+@cache
+def power_poly(power: float) -> tuple[float, ...]:
     """c0..c4 of q(t) with m^power = 1 + t q(t), t = m - 1 in [0, 1): a power's mantissa factor
     for `powv_binades` (kernels/common.cl), exact at m = 1. Least squares in the relative error
-    on Chebyshev nodes, reweighted toward the largest errors (minimax)."""
+    on Chebyshev nodes, reweighted toward the largest errors (minimax). Kept per power: every
+    session's block would fit the same one again (3 ms)."""
     k = np.arange(2000)
     t = (1 - np.cos(np.pi * (k + 0.5) / k.size)) / 2
     m = 1 + t
@@ -75,7 +78,7 @@ def power_poly(power: float) -> np.ndarray:
         c = np.linalg.lstsq(rows * reweight[:, None], target * weight * reweight, rcond=None)[0]
         miss = np.abs(rows @ c - target * weight)
         reweight = np.sqrt(miss / miss.max() + 1e-3)
-    return c
+    return tuple(c)
 
 
 def power_binades(power: float, share: int) -> np.ndarray:

@@ -563,7 +563,7 @@ HOT floatv powv_binades(__constant const float *poly, __constant const float *bi
 #endif
 
 // The display gamma x^gamma (Appendix A's v = J^gamma) for x in [0, 1], at most 1, with 0 and 1
-// exact and 0 for what is not above 0: within 2e-6 relative where PoCL builds for AVX-512
+// exact and 0 for what is not above 0: within 2.5e-6 relative where PoCL builds for AVX-512
 // (powv_binades), elsewhere 2.5e-5 gamma + 4e-6 (1.5e-5 at Appendix A's 0.455, a seventh of a
 // 10-bit step), for gamma in (0, 4] (tests/test_kernel_math.py).
 HOT floatv gammav(__constant const params_t *P, floatv x) {
